@@ -1,0 +1,7 @@
+"""dotsim: synthetic structured-light depth data with headless Blender, and the GigaDepth network.
+
+This package is the pure core every stage shares (numpy only; torch imported lazily where
+needed): the sensor rig geometry, dot patterns, masks, LCN and the dataset format.
+"""
+
+__version__ = "0.1.0"

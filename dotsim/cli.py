@@ -1,0 +1,38 @@
+"""The `dotsim` command: one subcommand per stage, each defined beside the stage it drives."""
+
+import argparse
+import importlib
+import sys
+
+from dotsim import __version__
+
+# Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int`.
+SUBCOMMAND_MODULES = [
+    "generator.cli",
+    "assets_manifest.cli",
+    "dotsim.show",
+    "dotsim.pattern_cli",
+    "trainer.cli",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dotsim",
+        description="Synthetic structured-light training data (headless Blender/Cycles), "
+        "and the GigaDepth network trained on it.",
+    )
+    parser.add_argument("--version", action="version", version=f"dotsim {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in SUBCOMMAND_MODULES:
+        importlib.import_module(name).add_parser(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
