@@ -1,0 +1,229 @@
+"""The GigaDepth branching network: a conv backbone and a classification tree over the projector column.
+
+Conventions. The input is the IR image (B, 1, H, W) at full camera resolution; the network works at
+half resolution: output pixel (i, j) is centred on full-resolution pixel (2i, 2j) (first conv: odd
+kernel, stride 2, padding k // 2). The target is the projector column normalised by the projector width,
+x in [0, 1], padded to x' = (1 - 2p) x + p; x' * leaves is a position on the leaves of the tree.
+
+Tree. Level l has classes[l] classes per parent (leaves = product). A parent at level l >= 1 also scores
+overlaps[l] children of each neighbouring parent, so a pixel routed to the wrong neighbour can still reach
+its true child. Level 1 weights are chosen per line, deeper levels per (line, parent), the regressor's
+hidden layers per (line, leaf parent) and its output layer per (line, leaf); it gives the offset inside
+the leaf. Lines map the half-resolution rows onto `lines` weight sets (row * lines // rows). Inference
+routes by argmax; training routes by the ground-truth class (teacher forcing) and also trains the
+neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from trainer.config import ModelConfig
+
+
+class IndexedLinear(nn.Module):
+    """y_p = W[idx_p] @ x_p + b[idx_p]: a linear layer whose weights each pixel picks from a table.
+
+    Weights are gathered per pixel (index_select) and applied with one batched matmul, in chunks of
+    `chunk` pixels to bound the memory of the gathered (chunk, out, in) block; no loop over classes.
+    Initialised like nn.Linear (uniform in +-1/sqrt(in)).
+    """
+
+    def __init__(self, tables: int, in_features: int, out_features: int, chunk: int = 65536):
+        super().__init__()
+        bound = 1.0 / math.sqrt(in_features)
+        self.weight = nn.Parameter(torch.empty(tables, out_features, in_features).uniform_(-bound, bound))
+        self.bias = nn.Parameter(torch.empty(tables, out_features).uniform_(-bound, bound))
+        self.chunk = chunk
+
+    def forward(self, x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        outs = []
+        for s in range(0, x.shape[0], self.chunk):
+            i = idx[s : s + self.chunk]
+            w = self.weight.index_select(0, i)
+            outs.append(torch.bmm(w, x[s : s + self.chunk, :, None])[..., 0] + self.bias.index_select(0, i))
+        if not outs:
+            return x.new_zeros(0, self.weight.shape[1])
+        return torch.cat(outs)
+
+
+class IndexedMLP(nn.Module):
+    """An MLP of IndexedLinear layers with LeakyReLU between; hidden and output layers may use
+    different tables (the regressor shares its hidden layer per leaf parent, its output is per leaf)."""
+
+    def __init__(self, dims: list[int], hidden_tables: int, out_tables: int, chunk: int):
+        super().__init__()
+        self.layers = nn.ModuleList(
+            IndexedLinear(hidden_tables if k < len(dims) - 2 else out_tables, dims[k], dims[k + 1], chunk)
+            for k in range(len(dims) - 1)
+        )
+
+    def forward(self, x: torch.Tensor, hidden_idx: torch.Tensor, out_idx: torch.Tensor) -> torch.Tensor:
+        for k, layer in enumerate(self.layers):
+            last = k == len(self.layers) - 1
+            x = layer(x, out_idx if last else hidden_idx)
+            if not last:
+                x = F.leaky_relu(x)
+        return x
+
+
+def _conv_bn(cin: int, cout: int, k: int, stride: int = 1) -> list[nn.Module]:
+    return [nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.LeakyReLU(0.01)]
+
+
+class ConvBackbone(nn.Sequential):
+    """The published plain stack: only the first conv is strided, BatchNorm + LeakyReLU after each."""
+
+    def __init__(self, cfg: ModelConfig):
+        layers, cin = [], 2
+        for n, (c, k) in enumerate(zip(cfg.backbone_channels, cfg.backbone_kernels, strict=True)):
+            layers += _conv_bn(cin, c, k, 2 if n == 0 else 1)
+            cin = c
+        super().__init__(*layers)
+
+
+class UNetBackbone(nn.Module):
+    """The seed's UNet ablation: a strided stem (backbone_channels[0], backbone_kernels[0]) to half
+    resolution, an encoder of unet_channels (each halving), a decoder with skip connections back to half
+    resolution, and a 3x3 conv to backbone_channels[-1]."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        stem = cfg.backbone_channels[0]
+        self.stem = nn.Sequential(*_conv_bn(2, stem, cfg.backbone_kernels[0], 2))
+        widths = [stem, *cfg.unet_channels]
+        self.down = nn.ModuleList(
+            nn.Sequential(*_conv_bn(a, b, 3, 2), *_conv_bn(b, b, 3)) for a, b in zip(widths, widths[1:])
+        )
+        self.up = nn.ModuleList(
+            nn.Sequential(*_conv_bn(b + a, a, 3)) for a, b in zip(widths, widths[1:])
+        )
+        self.out = nn.Sequential(*_conv_bn(stem, cfg.backbone_channels[-1], 3))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = [self.stem(x)]
+        for down in self.down:
+            skips.append(down(skips[-1]))
+        x = skips.pop()
+        for up in reversed(self.up):
+            skip = skips.pop()
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            x = up(torch.cat([x, skip], 1))
+        return self.out(x)
+
+
+class GigaDepthNet(nn.Module):
+    """Backbone + branching regressor. `half_height` is the number of half-resolution rows of the full
+    camera image (ceil(H / 2)); crops pass their first half-resolution row so lines keep their identity."""
+
+    def __init__(self, cfg: ModelConfig, half_height: int):
+        super().__init__()
+        self.cfg, self.half_height = cfg, half_height
+        self.backbone = ConvBackbone(cfg) if cfg.backbone == "conv" else UNetBackbone(cfg)
+        self.leaves = math.prod(cfg.classes)
+        self.classifiers = nn.ModuleList()
+        for level, (c, o) in enumerate(zip(cfg.classes, cfg.overlaps, strict=True)):
+            tables = cfg.lines * math.prod(cfg.classes[:level])
+            dims = [cfg.stage_inputs[level][1], *cfg.classifier_hidden[level], c + 2 * o]
+            self.classifiers.append(IndexedMLP(dims, tables, tables, cfg.chunk_pixels))
+        leaf_parents = cfg.lines * (self.leaves // cfg.classes[-1])
+        dims = [cfg.stage_inputs[-1][1], *cfg.regressor_hidden, 1]
+        self.regressor = IndexedMLP(dims, leaf_parents, cfg.lines * self.leaves, cfg.chunk_pixels)
+
+    # ---- shared pieces -------------------------------------------------------------------------
+    def inputs(self, ir: torch.Tensor) -> torch.Tensor:
+        """[IR, LCN(IR)] (B, 2, H, W): the seed's input; LCN here so train, eval and infer share it."""
+        from dotsim.lcn import lcn_torch
+
+        return torch.cat([ir, lcn_torch(ir, self.cfg.lcn_window, self.cfg.lcn_eps)], 1)
+
+    def features(self, ir: torch.Tensor) -> torch.Tensor:
+        return self.backbone(self.inputs(ir))
+
+    def pixel_lines(self, row0: torch.Tensor, h: int, w: int) -> torch.Tensor:
+        """Line index (B*h*w,) of every half-resolution pixel of crops starting at half-res rows row0."""
+        rows = row0.to(torch.long)[:, None] + torch.arange(h, device=row0.device)
+        lines = (rows * self.cfg.lines // self.half_height).clamp(0, self.cfg.lines - 1)
+        return lines[:, :, None].expand(-1, h, w).reshape(-1)
+
+    def _stage_input(self, feat: torch.Tensor, stage: int) -> torch.Tensor:
+        off, width = self.cfg.stage_inputs[stage]
+        x = feat[:, off : off + width]
+        return x.permute(0, 2, 3, 1).reshape(-1, width)
+
+    def pad_column(self, column: torch.Tensor) -> torch.Tensor:
+        p = self.cfg.column_padding
+        return column * (1 - 2 * p) + p
+
+    def unpad_column(self, padded: torch.Tensor) -> torch.Tensor:
+        p = self.cfg.column_padding
+        return (padded - p) / (1 - 2 * p)
+
+    # ---- inference -----------------------------------------------------------------------------
+    def forward(self, ir: torch.Tensor, row0: torch.Tensor | None = None) -> torch.Tensor:
+        """Hard-routed prediction: normalised projector column (B, h, w) at half resolution."""
+        feat = self.features(ir)
+        b, _, h, w = feat.shape
+        if row0 is None:
+            row0 = torch.zeros(b, dtype=torch.long, device=ir.device)
+        line = self.pixel_lines(row0, h, w)
+        cls = self.cfg.classes
+        g = torch.zeros_like(line)  # global class index at the current level
+        for level, (c, o) in enumerate(zip(cls, self.cfg.overlaps, strict=True)):
+            parents = math.prod(cls[:level])
+            idx = line * parents + g
+            logits = self.classifiers[level](self._stage_input(feat, level), idx, idx)
+            g = (g * c + logits.argmax(1) - o).clamp(0, parents * c - 1)
+        hidden_idx = line * (self.leaves // cls[-1]) + g // cls[-1]
+        offset = self.regressor(self._stage_input(feat, len(cls)), hidden_idx, line * self.leaves + g)[:, 0]
+        padded = (g.to(offset.dtype) + offset) / self.leaves
+        return self.unpad_column(padded).reshape(b, h, w)
+
+    # ---- training ------------------------------------------------------------------------------
+    def loss_terms(
+        self, feat: torch.Tensor, row0: torch.Tensor, column: torch.Tensor, valid: torch.Tensor
+    ) -> dict[str, list[torch.Tensor] | torch.Tensor]:
+        """Per-pixel loss terms over the valid pixels (in valid.flatten().nonzero() order), teacher forced.
+
+        column: GT normalised column (B, h, w); valid: bool (B, h, w). Returns {"ce": [per level (N,)],
+        "l1": (N,)}: cross-entropy of the GT parent's and its neighbours' classifiers (summed; the
+        neighbours score the true child only where their overlap reaches it) and the L1 error of the
+        offsets of the true leaf and `regress_neighbours` leaves on each side, in leaf units.
+        """
+        b, _, h, w = feat.shape
+        sel = valid.reshape(-1).nonzero()[:, 0]
+        line = self.pixel_lines(row0, h, w)[sel]
+        pos = self.pad_column(column.reshape(-1)[sel]) * self.leaves
+        leaf = pos.floor().long().clamp(0, self.leaves - 1)
+        cls = self.cfg.classes
+        ce = []
+        for level, (c, o) in enumerate(zip(cls, self.cfg.overlaps, strict=True)):
+            x = self._stage_input(feat, level)[sel]
+            parents = math.prod(cls[:level])
+            child = leaf // math.prod(cls[level + 1 :])  # global GT class at this level
+            span = -(-o // c)
+            total = torch.zeros_like(pos)
+            for d in range(-span, span + 1):
+                parent = child // c + d
+                target = child - parent * c + o
+                ok = (parent >= 0) & (parent < parents) & (target >= 0) & (target < c + 2 * o)
+                k = ok.nonzero()[:, 0]
+                idx = line[k] * parents + parent[k]
+                logits = self.classifiers[level](x[k], idx, idx)
+                total = total.index_add(0, k, F.cross_entropy(logits.float(), target[k], reduction="none"))
+            ce.append(total)
+        x = self._stage_input(feat, len(cls))[sel]
+        l1 = torch.zeros_like(pos)
+        r = self.cfg.regress_neighbours
+        for d in range(-r, r + 1):
+            cand = leaf + d
+            k = ((cand >= 0) & (cand < self.leaves)).nonzero()[:, 0]
+            hidden_idx = line[k] * (self.leaves // cls[-1]) + cand[k] // cls[-1]
+            offset = self.regressor(x[k], hidden_idx, line[k] * self.leaves + cand[k])[:, 0]
+            l1 = l1.index_add(0, k, (offset.float() - (pos[k] - cand[k])).abs())
+        return {"ce": ce, "l1": l1}
+
