@@ -1,0 +1,76 @@
+"""Masks on hand-built arrays whose answer is known column by column."""
+
+import numpy as np
+import pytest
+
+from dotsim.masks import edge_mask, exposure_scale, visibility_mask
+
+
+def columns(mask):
+    """Columns where the mask is set on every row (the step tests are column-invariant)."""
+    assert (mask == mask[:1]).all(), "mask should be the same on every row"
+    return set(np.flatnonzero(mask[0]).tolist())
+
+
+@pytest.mark.parametrize("dilation", [0, 1, 3])
+def test_step_edge_marks_the_two_step_columns_plus_dilation(dilation):
+    depth = np.full((12, 30), 2.0)
+    depth[:, 15:] = 4.0  # step between columns 14 and 15
+    got = columns(edge_mask(depth, threshold=0.1, dilation=dilation))
+    assert got == set(range(14 - dilation, 15 + dilation + 1))
+
+
+def test_slanted_plane_is_not_an_edge_and_threshold_is_relative():
+    # depth grows 1% per column: relative gradient 0.01 < 0.1, no edge anywhere.
+    depth = np.tile(1.0 * 1.01 ** np.arange(40), (8, 1))
+    assert not edge_mask(depth, threshold=0.1, dilation=2).any()
+    # The same 10 cm step is an edge at 0.5 m (gradient 0.05/0.5 = 0.1 > 0.05) but not at 5 m.
+    near = np.full((8, 20), 0.5)
+    near[:, 10:] = 0.6
+    far = np.full((8, 20), 5.0)
+    far[:, 10:] = 5.1
+    assert columns(edge_mask(near, threshold=0.05, dilation=0)) == {9, 10}
+    assert not edge_mask(far, threshold=0.05, dilation=0).any()
+    # Absolute mode: 0.05 m/px > 0.04 for both.
+    assert columns(edge_mask(far, threshold=0.04, dilation=0, relative=False)) == {9, 10}
+
+
+def test_no_hit_region_boundary_is_an_edge():
+    depth = np.full((10, 20), 3.0)
+    depth[:, 12:] = np.inf
+    depth[:, 16:] = np.nan
+    got = columns(edge_mask(depth, threshold=0.1, dilation=0))
+    assert got == {11, 12}  # inf and nan are both "no hit": no edge between them
+
+
+def test_visibility_relative_and_absolute():
+    ambient = np.full((6, 10), 0.1)
+    flood = ambient.copy()
+    flood[:, :5] += 1.0  # lit by the flood rectangle
+    flood[:, 5:7] += 0.02  # faintly lit: below 5% of exposure
+    flood[:, 9] = np.nan
+    scale = exposure_scale(flood)
+    assert scale == pytest.approx(1.1)
+    assert columns(visibility_mask(ambient, flood, threshold=0.05)) == {0, 1, 2, 3, 4}
+    assert columns(visibility_mask(ambient, flood, threshold=0.01, relative=False)) == set(range(7))
+    # Relative threshold follows exposure: scaling both passes changes nothing.
+    np.testing.assert_array_equal(visibility_mask(ambient * 7, flood * 7, 0.05),
+                                  visibility_mask(ambient, flood, 0.05))
+
+
+def test_shadow_and_dark_frame_are_not_visible():
+    ambient = np.zeros((5, 5))
+    flood = np.ones((5, 5))
+    flood[1:3, 1:3] = 0.0  # projector shadow: flood equals ambient
+    vis = visibility_mask(ambient, flood)
+    assert not vis[1:3, 1:3].any() and vis.sum() == 25 - 4
+    assert not visibility_mask(ambient, np.zeros((5, 5))).any()
+
+
+def test_bad_arguments_are_named():
+    with pytest.raises(ValueError, match="dilation"):
+        edge_mask(np.ones((5, 5)), dilation=-1)
+    with pytest.raises(ValueError, match="threshold"):
+        edge_mask(np.ones((5, 5)), threshold=0)
+    with pytest.raises(ValueError, match="same shape|one shape"):
+        visibility_mask(np.ones((5, 5)), np.ones((5, 6)))
