@@ -16,6 +16,7 @@ import dataclasses
 import difflib
 import math
 import os
+import tempfile
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -162,11 +163,13 @@ class SensorConfig:
 
 @dataclass(frozen=True)
 class MasksConfig:
-    visibility_threshold: float = _spec(0.05, "flood minus ambient, relative to flood, above which the "
-                                        "pattern counts as visible", low=0.0, high=1.0)
-    edge_threshold: float = _spec(0.1, "Sobel magnitude of depth (m per px) above which a pixel is an "
-                                  "edge", low=0.0, high=1000.0, low_open=True)
-    edge_dilation: int = _spec(1, "edge mask dilation, px", low=0, high=50)
+    visibility_threshold: float = _spec(0.05, "flood minus ambient, as a fraction of the flood pass's "
+                                        "99th percentile, above which the pattern counts as visible",
+                                        low=0.0, high=1.0)
+    edge_threshold: float = _spec(0.1, "relative depth change per pixel (Sobel magnitude / depth) above "
+                                  "which a pixel is an edge (dotsim.masks.edge_mask)", low=0.0,
+                                  high=1000.0, low_open=True)
+    edge_dilation: int = _spec(2, "edge mask dilation, render px", low=0, high=50)
 
 
 @dataclass(frozen=True)
@@ -404,7 +407,9 @@ def load_config(path: str | os.PathLike) -> Config:
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
     """Make sure `out` is (or can become) a writable directory, without leaving anything behind.
 
-    Returns the absolute path. Raises ConfigError naming the directory and the problem.
+    Probes the nearest existing ancestor by creating and deleting a temporary file (permission bits
+    alone say nothing for root or read-only mounts). Returns the absolute path; raises ConfigError
+    naming the directory and the problem.
     """
     out = Path(out).absolute()
     existing = out
@@ -413,8 +418,12 @@ def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
     if not existing.is_dir():
         raise ConfigError(f"{source} {out}: {existing} is a file, not a directory; allowed: a writable "
                           "directory")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ConfigError(f"{source} {out}: {existing} is not writable; allowed: a writable directory")
+    try:
+        with tempfile.TemporaryFile(dir=existing, prefix=".dotsim-write-test-"):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{source} {out}: {existing} is not writable ({exc.strerror}); allowed: a "
+                          "writable directory") from None
     return out
 
 

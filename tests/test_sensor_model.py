@@ -1,0 +1,87 @@
+"""Sensor model: noise statistics, quantisation, exposure, bloom and blur against direct computations."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from generator.config import SensorConfig
+from generator.sensor_model import apply_sensor_model, bloom, quantise
+
+# No blur, no bloom, 16 bits: only the part under test acts.
+PLAIN = SensorConfig(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
+                     read_noise=0.0, bit_depth=16)
+
+
+def params(**changes) -> SensorConfig:
+    return dataclasses.replace(PLAIN, **changes)
+
+
+def test_noise_variance_is_a_line_in_the_signal():
+    shot, read = 0.03, 0.01
+    levels = np.array([0.05, 0.2, 0.4, 0.6, 0.8])
+    rng = np.random.default_rng(0)
+    variances = []
+    for level in levels:
+        out = apply_sensor_model(np.full((300, 300), level), params(shot_noise=shot, read_noise=read), rng)
+        assert out.mean() == pytest.approx(level, abs=2e-4)
+        variances.append(out.astype(np.float64).var())
+    slope, intercept = np.polyfit(levels, variances, 1)
+    # 90000 samples per level: the variance estimate is good to about 0.5%.
+    assert slope == pytest.approx(shot**2, rel=0.03)
+    assert intercept == pytest.approx(read**2, rel=0.1)
+
+
+def test_quantisation_levels():
+    ramp = np.linspace(-0.2, 1.2, 1000).reshape(20, 50)
+    out = apply_sensor_model(ramp, params(bit_depth=4), np.random.default_rng(0))
+    steps = out.astype(np.float64) * 15
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-5)
+    assert sorted(set(np.round(steps).astype(int).ravel())) == list(range(16))
+    assert out.min() == 0.0 and out.max() == 1.0  # clipped
+    np.testing.assert_array_equal(quantise(np.array([0.49 / 15, 0.51 / 15]), 4), [0.0, 1 / 15])
+
+
+def test_auto_exposure_maps_percentile_to_target():
+    signal = np.random.default_rng(1).exponential(3.0, size=(200, 300))
+    out = apply_sensor_model(signal, params(exposure="auto", auto_percentile=95.0, auto_target=0.6),
+                             np.random.default_rng(0))
+    assert np.percentile(out, 95.0) == pytest.approx(0.6, abs=2 / 65535)
+    # Fixed exposure is a plain gain.
+    fixed = apply_sensor_model(signal, params(gain=0.05), np.random.default_rng(0))
+    np.testing.assert_allclose(fixed, np.round(np.clip(signal * 0.05, 0, 1) * 65535) / 65535, atol=1e-6)
+    black = apply_sensor_model(np.zeros((8, 8)), params(exposure="auto"), np.random.default_rng(0))
+    assert not black.any()
+
+
+def test_bloom_spreads_the_excess_only():
+    level = np.full((61, 61), 0.5)
+    level[30, 30] = 3.0
+    out = bloom(level, threshold=1.0, strength=0.4, sigma=3.0)
+    # Energy added = strength * excess (a normalised Gaussian), centred on the bright pixel.
+    assert (out - level).sum() == pytest.approx(0.4 * 2.0, rel=1e-6)
+    assert out[30, 33] > level[30, 33] and out[30, 33] == pytest.approx(out[33, 30])
+    np.testing.assert_array_equal(bloom(np.full((5, 5), 0.9), 1.0, 0.4, 3.0), np.full((5, 5), 0.9))
+
+
+def test_blur_sigma_scales_with_render_resolution():
+    impulse = np.zeros((81, 81))
+    impulse[40, 40] = 1.0
+    out = apply_sensor_model(impulse, params(blur_sigma=4.0), np.random.default_rng(0),
+                             pixel_scale=0.5).astype(np.float64)
+    offsets = np.arange(81) - 40
+    spread = np.sqrt((out.sum(axis=0) * offsets**2).sum() / out.sum())
+    assert spread == pytest.approx(2.0, rel=0.02)
+
+
+def test_seeded_and_deterministic():
+    signal = np.random.default_rng(2).uniform(0, 1, (40, 50))
+    p = SensorConfig()  # the defaults: every stage on
+    a = apply_sensor_model(signal, p, np.random.default_rng(7))
+    b = apply_sensor_model(signal, p, np.random.default_rng(7))
+    c = apply_sensor_model(signal, p, np.random.default_rng(8))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert a.dtype == np.float32 and a.min() >= 0 and a.max() <= 1
