@@ -203,7 +203,8 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
         return a.astype(np.uint32)
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise FormatError(f"{where}: channel {name!r} must be numeric, found dtype {a.dtype}")
-    stored = a.astype(dtype)
+    with np.errstate(over="ignore"):  # overflow is reported below, naming the channel
+        stored = a.astype(dtype)
     overflow = np.isfinite(a) & ~np.isfinite(stored)
     if overflow.any():
         raise FormatError(f"{where}: channel {name!r} has {int(overflow.sum())} finite values beyond "
@@ -309,6 +310,9 @@ def _layout(dataset_dir: Path, scenes_per_shard: int) -> None:
 def read_layout(dataset_dir: str | os.PathLike) -> int:
     """scenes_per_shard of an existing dataset (from dataset.json)."""
     path = Path(dataset_dir) / LAYOUT_FILE
+    if not path.exists():
+        raise FormatError(f"{path}: missing; write_scene creates it with the first scene, so "
+                          f"{Path(dataset_dir)} holds no scenes written by dotsim")
     obj = _load_json(path)
     check_format_version(obj.get("format_version"), path)
     n = _require(obj, "scenes_per_shard", int, path)
