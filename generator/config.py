@@ -72,8 +72,8 @@ class PatternConfig:
     path: str = _spec("", "pattern image (PNG 8/16-bit or EXR) when source = \"file\"; resampled to "
                       "the projector resolution if it differs", path=True)
     seed: int = _spec(0, "seed of the procedural pattern", low=0, high=2**63 - 1)
-    density: float = _spec(0.02, "procedural dots per projector pixel", low=0.0, high=0.2,
-                           low_open=True)
+    density: float = _spec(0.01, "procedural dots per projector pixel (0.01: about 3 dots in a 9 x 9 "
+                           "camera window of Structure Core)", low=0.0, high=0.2, low_open=True)
     min_spacing: float = _spec(3.0, "smallest distance between procedural dot centres, projector px",
                                low=0.0, high=100.0)
     dot_sigma: float = _spec(0.8, "Gaussian sigma of a procedural dot, projector px", low=0.1, high=20.0)

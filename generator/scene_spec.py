@@ -218,7 +218,8 @@ def _primitive_size(rng: np.random.Generator, shape: str, extent: float) -> list
         return [diameter, diameter, extent] if rng.random() < 0.5 else [extent, extent, extent * a]
     if shape == "torus":
         return [extent, extent, extent * (0.15 + 0.25 * a)]
-    return [extent, extent * a, 0.0]  # plane
+    # A plane has no thickness; z = 1 keeps its object scale invertible (a zero scale breaks normals).
+    return [extent, extent * a, 1.0]
 
 
 def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot: np.ndarray,

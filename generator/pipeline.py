@@ -1,0 +1,412 @@
+"""The generator run: config -> pattern and textures -> W render workers -> post-render -> shards.
+
+`generate()` validates everything before it writes anything (config values, output directory,
+Blender executable, an existing dataset's config), then:
+  1. removes partial scenes left by a crashed run and skips complete ones (resume);
+  2. writes the projector pattern once (DATASET/pattern.png) and the built-in textures it needs;
+  3. renders the remaining scenes in W spawned worker processes: each worker holds one
+     SceneRenderer (bpy is imported only there) for all its scenes, or, with `blender=EXE`, runs
+     `EXE --background --python generator/blender/run_in_blender.py -- SPEC.json... --out DIR` per
+     batch of scenes and reads the raw passes it writes;
+  4. post-renders each frame (generator.post_render) and writes the scene atomically
+     (dotsim.dataset.write_scene); a failing scene is logged (DATASET/logs/scene_NNNNNNN.log, with
+     its traceback) and the run goes on;
+  5. seals the dataset (dotsim.dataset.finalize_dataset) and returns a RunSummary.
+Scene k is sampled from (config, k, base seed) alone, so the output does not depend on W.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import importlib.metadata
+import json
+import multiprocessing
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+import dotsim
+from dotsim import dataset
+from dotsim.patterns import DotPattern, PatternError, generate_dot_pattern, load_pattern
+from generator.config import Config, ConfigError, check_output_dir
+from generator.post_render import RAW_PASSES, make_frame
+from generator.scene_spec import STREAM_SENSOR, SceneResources, build_rig, sample_scene_spec, scene_rng
+
+RUN_FILE = "generate.json"
+TEXTURE_DIR = "textures"
+LOG_DIR = "logs"
+BUILTIN_TEXTURES_PER_FAMILY = 4
+RUN_IN_BLENDER = Path(__file__).resolve().parent / "blender" / "run_in_blender.py"
+# Scenes per `blender` call: large enough to amortise Blender's start-up (seconds), small enough
+# that the progress bar moves and a crash loses little.
+BLENDER_BATCH = 8
+_SPLIT_CODE = {"train": 0, "test": 1}
+
+
+@dataclass
+class SceneResult:
+    """Outcome of one scene in a worker."""
+    index: int
+    ok: bool
+    frames: int = 0
+    seconds: float = 0.0
+    error: str = ""
+
+
+@dataclass
+class RunSummary:
+    """What a run did; `line()` is the summary printed at the end."""
+    out: Path
+    requested: int
+    done: int = 0
+    skipped: int = 0
+    frames: int = 0
+    seconds: float = 0.0
+    failed: list[int] = field(default_factory=list)
+
+    def line(self) -> str:
+        per_scene = f"{self.seconds / self.done:.2f} s/scene" if self.done else "no scene rendered"
+        text = (f"{self.done} scenes rendered ({self.frames} frames), {self.skipped} already complete, "
+                f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
+        if self.failed:
+            text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
+                    f"tracebacks in {self.out / LOG_DIR}"
+        return text
+
+
+# ----------------------------------------------------------------------------- resources
+
+
+def make_pattern(config: Config, width: int, height: int) -> DotPattern:
+    """The projector pattern of a config at the projector resolution (width x height px).
+
+    A pattern file of another size is resampled (area averaging when shrinking), so one captured
+    full-resolution pattern serves scaled-down rigs.
+    """
+    pc = config.pattern
+    if pc.source == "procedural":
+        return generate_dot_pattern(width, height, density=pc.density, min_spacing=pc.min_spacing,
+                                    dot_sigma=pc.dot_sigma, seed=pc.seed)
+    pattern = load_pattern(pc.path)
+    if pattern.image.shape == (height, width):
+        return pattern
+    shrinking = pattern.image.shape[1] > width
+    image = cv2.resize(pattern.image.astype(np.float32), (width, height),
+                       interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    return DotPattern(image=np.clip(image, 0.0, 1.0), centres=None, source=pattern.source,
+                      params={**pattern.params, "resampled_from": list(pattern.image.shape[::-1])})
+
+
+def _png16_bytes(image: np.ndarray) -> bytes:
+    ok, data = cv2.imencode(".png", np.round(np.clip(image, 0, 1) * 65535).astype(np.uint16))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return data.tobytes()
+
+
+def builtin_textures(out: Path, split: str) -> tuple[str, ...]:
+    """Procedural reflectance textures (assets_manifest families) under DATASET/textures, made once.
+
+    Each split draws its own seeds, so train and test never share a texture; files that exist are
+    reused (same name = same family, index and split = same image).
+    """
+    from assets_manifest.params import sample_params
+    from assets_manifest.procedural_textures import TEXTURE_FAMILIES
+
+    folder = out / TEXTURE_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for family_index, (family_name, family) in enumerate(sorted(TEXTURE_FAMILIES.items())):
+        for k in range(BUILTIN_TEXTURES_PER_FAMILY):
+            path = folder / f"{split}_{family_name}_{k}.png"
+            if not path.exists():
+                rng = np.random.default_rng((_SPLIT_CODE[split], family_index, k))
+                image = family.make(sample_params({}, family.defaults, rng), rng)
+                dataset.atomic_write_bytes(path, _png16_bytes(image))
+            paths.append(str(path))
+    return tuple(paths)
+
+
+def _write_pattern(out: Path, pattern: DotPattern) -> Path:
+    """Write DATASET/pattern.png once; on resume the existing file must hold the same pattern."""
+    path = dataset.pattern_path(out)
+    if path.exists():
+        if load_pattern(path).sha256 != pattern.sha256:
+            raise ConfigError(f"{path}: the dataset's pattern differs from the one this config makes; "
+                              "use a new --out directory for a different pattern")
+    else:
+        pattern.save_png(path)
+    return path
+
+
+def _run_record(config: Config, split: str, seed: int) -> dict:
+    """What must stay the same for scenes to belong to one dataset (the config's file name may vary)."""
+    settings = config.to_dict()
+    settings.pop("source")
+    return {"split": split, "base_seed": seed, "config": settings}
+
+
+def _check_existing_run(out: Path, record: dict) -> None:
+    path = out / RUN_FILE
+    if not path.exists():
+        return
+    try:
+        existing = json.loads(path.read_text())
+    except ValueError as exc:
+        raise ConfigError(f"{path}: unreadable ({exc}); remove it or use a new --out") from None
+    if existing != record:
+        changed = [key for key in ("split", "base_seed") if existing.get(key) != record[key]]
+        sections = sorted(name for name, value in record["config"].items()
+                          if existing.get("config", {}).get(name) != value)
+        what = ", ".join(changed + [f"[{name}]" for name in sections]) or "settings"
+        raise ConfigError(f"{out}: already holds scenes generated with different {what}; resume with "
+                          f"the same config, --split and --seed, or use a new --out")
+
+
+def versions(blender: str | None) -> dict:
+    """Software versions recorded in every scene (Blender: the bpy module or the executable)."""
+    if blender:
+        first = subprocess.run([blender, "--version"], capture_output=True, text=True,
+                               timeout=120).stdout.splitlines()
+        blender_version = first[0].strip() if first else "unknown"
+    else:
+        blender_version = f"bpy {importlib.metadata.version('bpy')}"
+    return {"dotsim": dotsim.__version__, "blender": blender_version, "numpy": np.__version__,
+            "python": platform.python_version()}
+
+
+# ----------------------------------------------------------------------------- workers
+
+
+@dataclass(frozen=True)
+class _Job:
+    """Everything a worker needs (picklable; sent once to each spawned worker)."""
+    config: Config
+    out: Path
+    split: str
+    seed: int
+    resources: SceneResources
+    pattern_meta: dict
+    versions: dict
+    blender: str | None
+
+
+_WORKER: dict = {}
+
+
+def _init_worker(job: _Job) -> None:
+    _WORKER["job"] = job
+    if job.blender is None:
+        # The only place the pipeline touches bpy: one renderer per worker process, reused.
+        from generator.blender.renderer import SceneRenderer
+        _WORKER["renderer"] = SceneRenderer()
+
+
+def scene_meta(job: _Job, spec_dict: dict) -> dict:
+    """scene.json content (the writer adds format/version/frame fields)."""
+    return {"split": job.split, "seed": spec_dict["seed"], "base_seed": job.seed,
+            "config": job.config.to_dict(), "rig": spec_dict["rig"], "pattern": job.pattern_meta,
+            "poses": spec_dict["poses"], "objects": spec_dict["objects"], "lights": spec_dict["lights"],
+            "projector": spec_dict["projector"], "flood": spec_dict["flood"], "world": spec_dict["world"],
+            "render": spec_dict["render"], "versions": job.versions}
+
+
+def _finish_scene(job: _Job, spec_dict: dict, raw_frames: list[dict]) -> int:
+    """Post-render the raw frames of one scene and write it; returns the number of frames."""
+    index = spec_dict["scene_index"]
+    if len(raw_frames) != len(spec_dict["poses"]):
+        raise ValueError(f"scene {index}: renderer returned {len(raw_frames)} frames for "
+                         f"{len(spec_dict['poses'])} poses")
+    rig = build_rig(job.config)
+    rng = scene_rng(job.seed, index, STREAM_SENSOR)
+    frames = [make_frame(raw, rig, job.config, rng, where=f"scene {index} frame {k}")
+              for k, raw in enumerate(raw_frames)]
+    dataset.write_scene(job.out, index, scene_meta(job, spec_dict), frames,
+                        scenes_per_shard=job.config.output.scenes_per_shard)
+    return len(frames)
+
+
+def _log_failure(job: _Job, index: int, text: str) -> None:
+    log_dir = job.out / LOG_DIR
+    log_dir.mkdir(exist_ok=True)
+    dataset.atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
+
+
+def _clear_failure_log(job: _Job, index: int) -> None:
+    (job.out / LOG_DIR / f"{dataset.scene_name(index)}.log").unlink(missing_ok=True)
+
+
+def _spec_dict(job: _Job, index: int) -> dict:
+    return sample_scene_spec(job.config, index, job.seed, job.split, job.resources).to_dict()
+
+
+def _render_in_process(indices: list[int]) -> list[SceneResult]:
+    job, renderer = _WORKER["job"], _WORKER["renderer"]
+    results = []
+    for index in indices:
+        start = time.perf_counter()
+        try:
+            spec = _spec_dict(job, index)
+            frames = _finish_scene(job, spec, renderer.render(spec))
+            _clear_failure_log(job, index)
+            results.append(SceneResult(index, True, frames, time.perf_counter() - start))
+        except Exception:
+            _log_failure(job, index, traceback.format_exc())
+            results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
+    return results
+
+
+def read_raw_npz(path: Path, frame_count: int) -> list[dict[str, np.ndarray]]:
+    """Raw frames from run_in_blender.py's npz: arrays named PASS_K (pass name, frame index)."""
+    with np.load(path) as data:
+        return [{name: data[f"{name}_{k}"] for name in RAW_PASSES} for k in range(frame_count)]
+
+
+def _render_with_blender(indices: list[int]) -> list[SceneResult]:
+    job = _WORKER["job"]
+    start = time.perf_counter()
+    results = []
+    with tempfile.TemporaryDirectory(prefix="dotsim-blender-") as tmp:
+        tmp = Path(tmp)
+        specs = {index: _spec_dict(job, index) for index in indices}
+        spec_paths = []
+        for index, spec in specs.items():
+            spec_paths.append(tmp / f"{dataset.scene_name(index)}.json")
+            spec_paths[-1].write_text(json.dumps(spec))
+        command = [job.blender, "--background", "--factory-startup", "--python", str(RUN_IN_BLENDER),
+                   "--", *map(str, spec_paths), "--out", str(tmp)]
+        proc = subprocess.run(command, capture_output=True, text=True)
+        elapsed = (time.perf_counter() - start) / len(indices)
+        for index, spec in specs.items():
+            raw_path = tmp / f"{dataset.scene_name(index)}_raw.npz"
+            try:
+                if not raw_path.exists():
+                    raise RuntimeError(f"blender wrote no {raw_path.name} (exit code {proc.returncode}); "
+                                       f"command: {' '.join(command)}\n--- stdout ---\n{proc.stdout[-4000:]}"
+                                       f"\n--- stderr ---\n{proc.stderr[-4000:]}")
+                frames = _finish_scene(job, spec, read_raw_npz(raw_path, len(spec["poses"])))
+                _clear_failure_log(job, index)
+                results.append(SceneResult(index, True, frames, elapsed))
+            except Exception:
+                _log_failure(job, index, traceback.format_exc())
+                results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
+    return results
+
+
+def _render_batch(indices: list[int]) -> list[SceneResult]:
+    if _WORKER["job"].blender is None:
+        return _render_in_process(indices)
+    return _render_with_blender(indices)
+
+
+# ----------------------------------------------------------------------------- the run
+
+
+def check_blender(blender: str | None) -> str | None:
+    """Absolute path of the Blender executable, or ConfigError naming it."""
+    if blender is None:
+        return None
+    found = shutil.which(blender)
+    if found is None:
+        raise ConfigError(f"--blender {blender}: not an executable file; allowed: the path of a Blender "
+                          "5.0 executable, or leave --blender out to use the bpy module")
+    if not RUN_IN_BLENDER.is_file():
+        raise ConfigError(f"--blender: the entry script {RUN_IN_BLENDER} is missing from this install")
+    return str(Path(found).resolve())
+
+
+def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
+             workers: int = 1, seed: int = 0, blender: str | None = None,
+             progress: bool = True) -> RunSummary:
+    """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
+
+    Raises ConfigError before anything is written when an argument, the output directory, the
+    Blender executable or an existing dataset in `out` does not fit. Failed scenes are listed in the
+    summary (and logged), not raised.
+    """
+    if split not in _SPLIT_CODE:
+        raise ConfigError(f"--split {split!r}: allowed: train or test")
+    for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1),
+                             ("--seed", seed, 0)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
+    out = check_output_dir(out)
+    blender = check_blender(blender)
+    record = _run_record(config, split, seed)
+    _check_existing_run(out, record)
+    has_scenes = (out / dataset.LAYOUT_FILE).exists()
+    if has_scenes and dataset.read_layout(out) != config.output.scenes_per_shard:
+        raise ConfigError(f"{out}: dataset has scenes_per_shard = {dataset.read_layout(out)}, the config "
+                          f"says {config.output.scenes_per_shard}; use the same value or a new --out")
+    rig = build_rig(config)
+    try:
+        pattern = make_pattern(config, rig.projector.width, rig.projector.height)
+    except PatternError as exc:
+        raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
+
+    began = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    dataset.remove_partial_scenes(out)
+    pattern_file = _write_pattern(out, pattern)
+    if not (out / RUN_FILE).exists():
+        record_bytes = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
+        dataset.write_dataset_file(out, RUN_FILE, record_bytes)
+    textures = builtin_textures(out, split)
+    resources = SceneResources(pattern_path=str(pattern_file), pattern_sha256=pattern.sha256,
+                               textures=textures)
+    pattern_meta = {"source": pattern.source, "sha256": pattern.sha256, "file": pattern_file.name,
+                    "width": rig.projector.width, "height": rig.projector.height, "params": pattern.params}
+    job = _Job(config, out, split, seed, resources, pattern_meta, versions(blender), blender)
+
+    indices = range(start, start + scenes)
+    spp = config.output.scenes_per_shard
+    todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
+    summary = RunSummary(out=out, requested=scenes, skipped=scenes - len(todo))
+    batch = 1 if blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
+    batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
+    bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
+               dynamic_ncols=True)
+    if todo:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(min(workers, len(batches)), mp_context=context,
+                                                    initializer=_init_worker, initargs=(job,)) as pool:
+            futures = {pool.submit(_render_batch, b): b for b in batches}
+            for future in concurrent.futures.as_completed(futures):
+                try:
+                    results = future.result()
+                except Exception as exc:  # a worker died (crash in Blender): its scenes failed
+                    text = "".join(traceback.format_exception(exc))
+                    results = [SceneResult(i, False, error=text) for i in futures[future]]
+                    for result in results:
+                        _log_failure(job, result.index, f"worker process failed:\n{text}")
+                for result in results:
+                    if result.ok:
+                        summary.done += 1
+                        summary.frames += result.frames
+                    else:
+                        summary.failed.append(result.index)
+                        bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
+                bar.update(len(results))
+    bar.close()
+    summary.failed.sort()
+    if (out / dataset.LAYOUT_FILE).exists():  # written with the first scene; none if all failed
+        dataset.finalize_dataset(out)
+    summary.seconds = time.perf_counter() - began
+    return summary
+
+
+def main_summary(summary: RunSummary) -> int:
+    """Print the summary line; exit status 1 when any scene failed."""
+    print(summary.line(), file=sys.stderr if summary.failed else sys.stdout)
+    return 1 if summary.failed else 0

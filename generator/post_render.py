@@ -1,0 +1,59 @@
+"""Post-render stage (pure numpy): the Blender stage's raw passes of one frame -> the stored channels.
+
+Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radiance):
+  projector  what the dot projector adds; flood  what the uniform flood rectangle adds;
+  ambient    world + extra lights (projector off); depth  planar metres, inf where nothing is hit.
+Stored channels (dotsim.dataset.FRAME_CHANNELS):
+  ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
+  projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
+  depth; visibility and edge masks (dotsim.masks); projector_column and disparity (dotsim.rig),
+  nan where the depth is missing or beyond the rig's max_depth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dotsim.masks import edge_mask, visibility_mask
+from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column
+from generator.config import Config
+from generator.sensor_model import apply_sensor_model
+
+RAW_PASSES = ("projector", "flood", "ambient", "depth")
+# Blender's Z pass says 1e10 where a ray hits nothing; anything this far is "no hit".
+_NO_HIT_DEPTH = 1e9
+
+
+def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
+    """The raw passes as float32 arrays of the camera's shape; ValueError naming what is wrong."""
+    missing = [name for name in RAW_PASSES if name not in raw]
+    if missing:
+        raise ValueError(f"{where}: raw passes lack {missing}; expected {list(RAW_PASSES)}")
+    shape = (rig.camera.height, rig.camera.width)
+    out = {}
+    for name in RAW_PASSES:
+        array = np.asarray(raw[name], dtype=np.float32)
+        if array.shape != shape:
+            raise ValueError(f"{where}: raw pass {name!r} has shape {array.shape}, the camera is {shape}")
+        out[name] = array
+    return out
+
+
+def make_frame(raw: dict, rig: Rig, config: Config, rng: np.random.Generator,
+               where: str = "frame") -> dict[str, np.ndarray]:
+    """Stored channels of one frame from its raw passes (see the module docstring)."""
+    raw = check_raw_passes(raw, rig, where)
+    depth = np.where(raw["depth"] >= _NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
+    ambient = raw["ambient"]
+    flood = ambient + raw["flood"]
+    gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
+    return {
+        "ir": apply_sensor_model(ambient + raw["projector"], config.sensor, rng, config.rig.scale),
+        "ambient": ambient,
+        "flood": flood,
+        "depth": depth,
+        "visibility": visibility_mask(ambient, flood, config.masks.visibility_threshold),
+        "edge": edge_mask(depth, config.masks.edge_threshold, config.masks.edge_dilation),
+        "projector_column": depth_to_projector_column(gt_depth, rig),
+        "disparity": depth_to_disparity(gt_depth, rig),
+    }
