@@ -1,0 +1,225 @@
+"""SceneRenderer: SceneSpec dict -> four frames of raw passes, with Cycles, in ONE path-tracing
+render per frame.
+
+How the passes are separated (ARCHITECTURE.md explains why several lights in one render are
+noisy): materials are grey, so colour channels never mix. One spot light emits the pattern in red
+and the flood rectangle in green (projector.py); the world and the extra lights are pure blue. So
+one render gives projector = R, flood = G, ambient = B, and the Z pass gives planar depth. The
+compositor packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, read back with a
+tiny numpy reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off,
+because each of them would mix channels or change values.
+
+Reuse: one bpy scene for the life of the renderer; between the four frames only the camera and
+projector poses change (persistent data keeps Cycles' scene); between scenes objects are replaced
+and meshes, materials and the pattern image are cached, so memory stays flat.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from .exr import read_exr
+from .geometry import blender_matrix_from_opencv_pose, intrinsics_tuple, projector_pose
+from .projector import ProjectorLight
+from .scene_builder import SceneContent, _field, _number
+
+# Z is 1e10 where a camera ray hits nothing; anything this far is "no hit".
+NO_HIT_DEPTH = 1.0e9
+PASSES = ("projector", "flood", "ambient", "depth")
+GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence Cycles' per-frame status lines (they would break a progress bar); errors still show
+    on stderr."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+def _configure_render(scene: bpy.types.Scene) -> None:
+    """Settings that never change: Cycles, raw linear output, no processing that mixes channels."""
+    scene.render.engine = "CYCLES"
+    cycles = scene.cycles
+    cycles.use_denoising = False  # factory default is on; it would smear dots and mix channels
+    cycles.use_adaptive_sampling = False
+    cycles.sample_clamp_direct = 0.0  # clamping scales a sample's RGB together: channels would mix
+    cycles.sample_clamp_indirect = 0.0
+    cycles.caustics_reflective = False
+    cycles.caustics_refractive = False
+    cycles.sampling_pattern = "TABULATED_SOBOL"  # explicit: measured better than blue noise at 1 spp
+    cycles.use_animated_seed = False
+    # A box filter one pixel wide integrates over the pixel's area like a sensor pixel (and like the
+    # oracle's supersampling); the default 1.5 px Blackman-Harris would blur the dots.
+    cycles.pixel_filter_type = "BOX"
+    cycles.filter_width = 1.0
+    cycles.film_exposure = 1.0
+    scene.render.film_transparent = False
+    scene.render.use_persistent_data = True
+    view = scene.view_settings
+    view.view_transform = "Standard"
+    view.look = "None"
+    view.exposure = 0.0
+    view.gamma = 1.0
+    scene.render.use_compositing = True
+    scene.render.use_sequencer = False
+    layer = scene.view_layers[0]
+    layer.use_pass_combined = True
+    layer.use_pass_z = True
+    settings = scene.render.image_settings
+    settings.file_format = "OPEN_EXR"
+    settings.color_mode = "RGBA"
+    settings.color_depth = "32"
+    settings.exr_codec = "NONE"
+    scene.render.use_file_extension = False
+    _build_compositor(scene)
+
+
+def _build_compositor(scene: bpy.types.Scene) -> None:
+    """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file."""
+    tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
+    tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
+    layers = tree.nodes.new("CompositorNodeRLayers")
+    separate = tree.nodes.new("CompositorNodeSeparateColor")
+    combine = tree.nodes.new("CompositorNodeCombineColor")
+    output = tree.nodes.new("NodeGroupOutput")
+    tree.links.new(layers.outputs["Image"], separate.inputs[0])
+    for k in range(3):
+        tree.links.new(separate.outputs[k], combine.inputs[k])
+    tree.links.new(layers.outputs["Depth"], combine.inputs[3])
+    tree.links.new(combine.outputs[0], output.inputs[0])
+    scene.compositing_node_group = tree
+
+
+def select_device(scene: bpy.types.Scene, device: str) -> str:
+    """Use the GPU when asked and one is present (first of OPTIX, CUDA, HIP, oneAPI, Metal that has
+    devices), else the CPU with a warning. Returns the backend used ("CPU" or the GPU backend)."""
+    if device not in ("CPU", "GPU"):
+        raise ValueError(f"scene spec: render.device must be 'CPU' or 'GPU', got {device!r}")
+    if device == "GPU":
+        preferences = bpy.context.preferences.addons["cycles"].preferences
+        for backend in GPU_BACKENDS:
+            try:
+                preferences.compute_device_type = backend
+            except TypeError:  # backend not compiled into this Blender
+                continue
+            preferences.refresh_devices()
+            gpus = [d for d in preferences.devices if d.type == backend]
+            if gpus:
+                for d in preferences.devices:
+                    d.use = d.type == backend
+                scene.cycles.device = "GPU"
+                return backend
+        warnings.warn("render.device is 'GPU' but Cycles found no GPU device; rendering on the CPU",
+                      RuntimeWarning, stacklevel=2)
+    scene.cycles.device = "CPU"
+    return "CPU"
+
+
+class SceneRenderer:
+    """Renders SceneSpec dicts (plan.md "Generator contract") into raw passes with Cycles.
+
+    One instance owns the bpy scene of the process (it starts from factory settings). Call
+    render(spec) for each scene; close() removes the temp folder. Use one per process.
+    """
+
+    def __init__(self, reset: bool = True):
+        if reset:
+            bpy.ops.wm.read_factory_settings(use_empty=True)
+        self.scene = bpy.context.scene
+        _configure_render(self.scene)
+        self.content = SceneContent(self.scene)
+        self.projector = ProjectorLight(self.scene.collection)
+        shm = Path("/dev/shm")
+        self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
+        self.scene.render.filepath = str(self._tmp / "frame.exr")
+        self.device = "CPU"
+
+    def close(self) -> None:
+        self.content.release()
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> SceneRenderer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _apply_render_settings(self, render: dict) -> None:
+        cycles = self.scene.cycles
+        cycles.samples = int(_number(render, "samples", "render", minimum=1))
+        cycles.seed = int(_number(render, "seed", "render", minimum=0))
+        bounces = int(_number(render, "max_bounces", "render", minimum=0))
+        cycles.max_bounces = bounces
+        cycles.diffuse_bounces = bounces
+        cycles.glossy_bounces = bounces
+        cycles.transmission_bounces = bounces
+        cycles.volume_bounces = 0
+        threads = int(_number(render, "threads", "render", minimum=0))
+        self.scene.render.threads_mode = "FIXED" if threads else "AUTO"
+        if threads:
+            self.scene.render.threads = threads
+        self.device = select_device(self.scene, _field(render, "device", "render"))
+
+    def setup(self, spec: dict) -> list[np.ndarray]:
+        """Build `spec` in the bpy scene (everything except the frame poses); returns the 4x4
+        world_from_camera poses to render."""
+        self._apply_render_settings(_field(spec, "render", "spec"))
+        rig = _field(spec, "rig", "spec")
+        self.content.set_camera(intrinsics_tuple(_field(rig, "camera", "rig"), "rig.camera"))
+        self.projector.set_intrinsics(intrinsics_tuple(_field(rig, "projector", "rig"), "rig.projector"))
+        self._projector_rotation = np.asarray(rig.get("projector_rotation", np.eye(3)), np.float64)
+        self._projector_translation = np.asarray(_field(rig, "projector_translation", "rig"), np.float64)
+        pattern = _field(spec, "pattern", "spec")
+        path = _field(pattern, "path", "pattern")
+        if not Path(path).is_file():
+            raise ValueError(f"scene spec: pattern.path {path} does not exist")
+        self.projector.set_pattern(path, str(pattern.get("sha256") or path))
+        self.projector.set_powers(_number(_field(spec, "projector", "spec"), "power", "projector"),
+                                  _number(_field(spec, "flood", "spec"), "power", "flood"))
+        self.content.build(spec)
+        poses = _field(spec, "poses", "spec")
+        if not isinstance(poses, list) or not poses:
+            raise ValueError("scene spec: poses must be a non-empty list of 4x4 matrices")
+        matrices = []
+        for k, pose in enumerate(poses):
+            matrix = np.asarray(pose, np.float64)
+            if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+                raise ValueError(f"scene spec: poses[{k}] must be a finite 4x4 matrix, got {pose!r}")
+            matrices.append(matrix)
+        return matrices
+
+    def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
+        """Render the built scene from one rig pose: {projector, flood, ambient, depth} float32 (H, W);
+        depth is planar (metres), inf where nothing is hit."""
+        self.content.set_camera_pose(world_from_camera)
+        self.projector.set_pose(blender_matrix_from_opencv_pose(
+            projector_pose(world_from_camera, self._projector_rotation, self._projector_translation)))
+        with _quiet_stdout():
+            bpy.ops.render.render(write_still=True)
+        channels = read_exr(self.scene.render.filepath)
+        depth = channels["A"].copy()
+        depth[depth >= NO_HIT_DEPTH] = np.inf
+        return {"projector": channels["R"].copy(), "flood": channels["G"].copy(),
+                "ambient": channels["B"].copy(), "depth": depth}
+
+    def render(self, spec: dict) -> list[dict[str, np.ndarray]]:
+        """All frames of `spec`: a list (one per pose) of {projector, flood, ambient, depth}."""
+        return [self.render_frame(pose) for pose in self.setup(spec)]
