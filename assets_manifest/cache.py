@@ -1,0 +1,324 @@
+"""The asset cache: build it from a manifest (reproducible, incremental, atomic) and load it.
+
+Layout (docs/ASSETS.md):
+    CACHE_DIR/<split>/index.json
+    CACHE_DIR/<split>/meshes/<asset_id>.npz     see mesh_arrays.py for the arrays
+    CACHE_DIR/<split>/textures/<asset_id>.png   8- or 16-bit grey reflectance
+
+Each asset is keyed by a hash of its source spec and BUILDER_VERSION; a rebuild reuses every asset
+whose key and file checksum are unchanged, so only what changed is built again. Files are written
+under a temporary name and renamed; the index is rewritten (atomically) every few assets with
+"complete": false, so an interrupted build resumes where it stopped.
+"""
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from assets_manifest.images import ImageError, png_bytes, texture_from_image
+from assets_manifest.manifest import AssetSpec, Manifest, ManifestError, file_sha256
+from assets_manifest.mesh_arrays import MeshError, arrays_sha256, finalize_mesh, npz_bytes
+from assets_manifest.package_images import skimage_image_path
+from assets_manifest.params import canonical_json, sample_params, spec_seed
+from assets_manifest.procedural_meshes import MESH_FAMILIES
+from assets_manifest.procedural_textures import TEXTURE_FAMILIES
+from assets_manifest.user_folders import load_image_file, load_mesh_file
+
+CACHE_FORMAT = "dotsim-assets/1"
+# Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
+BUILDER_VERSION = "1"
+DEFAULT_CACHE_DIR = "assets_cache"
+MANIFEST_DIR = Path(__file__).parent / "manifests"
+_INDEX_SAVE_EVERY = 25
+
+
+class AssetCacheError(RuntimeError):
+    """A missing, incomplete or invalid asset cache; the message says which file and what to run."""
+
+
+@dataclass(frozen=True)
+class AssetEntry:
+    """One built asset. `path` is absolute; `scale_hint` is (lo, hi) metres: the largest extent to
+    give a mesh, or the size of one texture tile."""
+
+    id: str
+    kind: str
+    path: str
+    scale_hint: tuple[float, float]
+    sha256: str
+    content_sha256: str
+    license: str
+    source: dict = field(hash=False)
+
+
+@dataclass(frozen=True)
+class AssetCache:
+    """A split's built assets. `clutter_density` multiplies the generator's object-count range
+    (index key "clutter_density"; the test split's differs from train's)."""
+
+    split: str
+    root: Path
+    clutter_density: float
+    meshes: list[AssetEntry]
+    textures: list[AssetEntry]
+    index: dict = field(hash=False)
+
+
+@dataclass
+class BuildSummary:
+    split: str
+    built: list[str] = field(default_factory=list)
+    reused: list[str] = field(default_factory=list)
+    skipped: list[dict] = field(default_factory=list)  # {"id", "source", "reason"}
+    removed: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def line(self) -> str:
+        return (
+            f"assets {self.split}: {len(self.built)} built, {len(self.reused)} reused, "
+            f"{len(self.skipped)} skipped, {len(self.removed)} removed in {self.seconds:.1f} s"
+        )
+
+
+def default_manifest_path(split: str) -> Path:
+    """The manifest shipped with dotsim for `split` (assets_manifest/manifests/<split>.toml)."""
+    return MANIFEST_DIR / f"{split}.toml"
+
+
+def _index_path(cache_dir: str | Path, split: str) -> Path:
+    return Path(cache_dir) / split / "index.json"
+
+
+def _rebuild_hint(cache_dir, split) -> str:
+    return f"run `dotsim assets build --split {split} --cache {cache_dir}`"
+
+
+def read_index(cache_dir: str | Path, split: str) -> dict:
+    """The parsed index.json of a split; AssetCacheError if missing, unreadable or incomplete."""
+    path = _index_path(cache_dir, split)
+    hint = _rebuild_hint(cache_dir, split)
+    if not path.is_file():
+        raise AssetCacheError(f"no asset cache index at {path}: {hint}")
+    try:
+        index = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise AssetCacheError(f"asset cache index {path} is unreadable ({exc}): {hint}") from None
+    if not isinstance(index, dict) or index.get("format") != CACHE_FORMAT:
+        found = index.get("format") if isinstance(index, dict) else type(index).__name__
+        raise AssetCacheError(
+            f"asset cache index {path} has format {found!r}, expected {CACHE_FORMAT!r}: {hint}"
+        )
+    if not index.get("complete"):
+        raise AssetCacheError(f"asset cache index {path} is from an interrupted build: {hint}")
+    return index
+
+
+def load_asset_cache(cache_dir: str | Path, split: str, verify: bool = False) -> AssetCache:
+    """The built assets of `split` under `cache_dir`. Checks that every listed file exists (and with
+    `verify`, that its sha256 matches); raises AssetCacheError naming the index or file and the
+    command that rebuilds it."""
+    index = read_index(cache_dir, split)
+    root = _index_path(cache_dir, split).parent.resolve()
+    hint = _rebuild_hint(cache_dir, split)
+    lists = {}
+    for key in ("meshes", "textures"):
+        entries = []
+        for e in index.get(key, []):
+            path = root / e["path"]
+            if not path.is_file():
+                raise AssetCacheError(f"asset file {path} listed in {root / 'index.json'} is missing: {hint}")
+            if verify and file_sha256(path) != e["sha256"]:
+                raise AssetCacheError(f"asset file {path} does not match its sha256 in the index: {hint}")
+            entries.append(
+                AssetEntry(
+                    e["id"],
+                    e["kind"],
+                    str(path),
+                    tuple(e["scale_hint"]),
+                    e["sha256"],
+                    e["content_sha256"],
+                    e["license"],
+                    e["source"],
+                )
+            )
+        lists[key] = entries
+    return AssetCache(split, root, float(index["clutter_density"]), lists["meshes"], lists["textures"], index)
+
+
+def asset_key(spec: AssetSpec) -> str:
+    """What the built file depends on: kind, source spec and builder version."""
+    source = {k: v for k, v in spec.source.items() if k != "file"}
+    payload = canonical_json({"kind": spec.kind, "source": source, "builder": BUILDER_VERSION})
+    return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def _build_mesh(spec: AssetSpec) -> dict[str, np.ndarray]:
+    source = spec.source
+    if "generator" in source:
+        family = MESH_FAMILIES[source["generator"]]
+        rng = np.random.default_rng(spec_seed(source))
+        mesh = family.make(sample_params(source["params"], family.defaults, rng), rng)
+        return finalize_mesh(mesh.vertices, mesh.faces)
+    return finalize_mesh(*load_mesh_file(source["file"]))
+
+
+def _build_texture(spec: AssetSpec) -> np.ndarray:
+    source = spec.source
+    if "generator" in source:
+        family = TEXTURE_FAMILIES[source["generator"]]
+        rng = np.random.default_rng(spec_seed(source))
+        return texture_from_image(family.make(sample_params(source["params"], family.defaults, rng), rng))
+    if "skimage" in source:
+        path = skimage_image_path(source["skimage"])
+        if not path.is_file():
+            raise ImageError(f"scikit-image {source['skimage']!r} is not bundled in this install ({path})")
+        return texture_from_image(load_image_file(path))
+    return texture_from_image(load_image_file(source["file"]))
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _build_one(spec: AssetSpec) -> tuple[str, bytes, str, dict]:
+    """(relative path, file bytes, content sha256, extra index fields) of one asset."""
+    if spec.kind == "mesh":
+        arrays = _build_mesh(spec)
+        extra = {"vertices": len(arrays["vertices"]), "faces": len(arrays["faces"])}
+        return f"meshes/{spec.id}.npz", npz_bytes(arrays), arrays_sha256(arrays), extra
+    image = _build_texture(spec)
+    extra = {"width": image.shape[1], "height": image.shape[0], "bit_depth": image.dtype.itemsize * 8}
+    return f"textures/{spec.id}.png", png_bytes(image), arrays_sha256({"image": image}), extra
+
+
+def _describe_source(spec: AssetSpec) -> str:
+    s = spec.source
+    if "generator" in s:
+        return f"{s['generator']} seed {s['seed']}"
+    return f"scikit-image {s['skimage']}" if "skimage" in s else s["file"]
+
+
+def _versions() -> dict:
+    import cv2
+    import skimage
+    import trimesh
+    import xatlas
+
+    from dotsim import __version__
+
+    return {
+        "dotsim": __version__,
+        "numpy": np.__version__,
+        "trimesh": trimesh.__version__,
+        "xatlas": getattr(xatlas, "__version__", "unknown"),
+        "scikit-image": skimage.__version__,
+        "opencv": cv2.__version__,
+    }
+
+
+def _write_index(root: Path, manifest: Manifest, entries: dict, skipped: list, complete: bool) -> None:
+    ordered = [entries[s.id] for s in manifest.assets if s.id in entries]
+    versions = _versions()
+    index = {
+        "format": CACHE_FORMAT,
+        "builder_version": BUILDER_VERSION,
+        "dotsim_version": versions["dotsim"],
+        "split": manifest.split,
+        "clutter_density": manifest.clutter_density,
+        "complete": complete,
+        "manifest": {"path": str(manifest.path), "sha256": manifest.sha256},
+        "versions": versions,
+        "meshes": [e for e in ordered if e["kind"] == "mesh"],
+        "textures": [e for e in ordered if e["kind"] == "texture"],
+        "skipped": skipped,
+    }
+    _write_atomic(root / "index.json", (json.dumps(index, indent=1) + "\n").encode())
+
+
+def _previous_entries(root: Path) -> dict:
+    """Entries of an earlier (possibly interrupted) build, by id; empty when there is none usable."""
+    try:
+        index = json.loads((root / "index.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+    if not isinstance(index, dict) or index.get("format") != CACHE_FORMAT:
+        return {}
+    return {e["id"]: e for e in index.get("meshes", []) + index.get("textures", [])}
+
+
+def build_asset_cache(
+    manifest: Manifest, cache_dir: str | Path, split: str | None = None, *, progress: bool = True, log=print
+) -> BuildSummary:
+    """Build (or bring up to date) CACHE_DIR/<split>/ from `manifest`. An asset that cannot be built
+    (unreadable, empty or degenerate mesh; bad image) is skipped with a report line through `log`;
+    the build never stops half-way. Returns the summary (also logged as its last line)."""
+    from tqdm import tqdm
+
+    split = split or manifest.split
+    if split != manifest.split:
+        raise ManifestError(f"{manifest.path} declares split {manifest.split!r}, not {split!r}")
+    start = time.perf_counter()
+    root = Path(cache_dir) / split
+    (root / "meshes").mkdir(parents=True, exist_ok=True)
+    (root / "textures").mkdir(parents=True, exist_ok=True)
+    previous = _previous_entries(root)
+    summary = BuildSummary(split)
+    entries: dict[str, dict] = {}
+    since_save = 0
+    for spec in tqdm(manifest.assets, desc=f"assets {split}", unit="asset", disable=not progress):
+        key = asset_key(spec)
+        meta = {
+            "id": spec.id,
+            "kind": spec.kind,
+            "source": spec.source,
+            "license": spec.license,
+            "scale_hint": list(spec.scale_hint),
+            "key": key,
+        }
+        old = previous.get(spec.id)
+        if (
+            old
+            and old.get("key") == key
+            and (root / old["path"]).is_file()
+            and file_sha256(root / old["path"]) == old["sha256"]
+        ):
+            entries[spec.id] = {**old, **meta}
+            summary.reused.append(spec.id)
+            continue
+        try:
+            relative, data, content, extra = _build_one(spec)
+        except Exception as exc:  # noqa: BLE001 - one bad asset (or a library failing on it) must not stop the build
+            reason = str(exc) if isinstance(exc, MeshError | ImageError) else f"{type(exc).__name__}: {exc}"
+            summary.skipped.append({"id": spec.id, "source": _describe_source(spec), "reason": reason})
+            log(f"skipped {spec.id} ({_describe_source(spec)}): {reason}")
+            continue
+        _write_atomic(root / relative, data)
+        entries[spec.id] = {
+            **meta,
+            "path": relative,
+            "sha256": hashlib.sha256(data).hexdigest(),
+            "content_sha256": content,
+            **extra,
+        }
+        summary.built.append(spec.id)
+        since_save += 1
+        if since_save >= _INDEX_SAVE_EVERY:
+            _write_index(root, manifest, {**previous, **entries}, summary.skipped, complete=False)
+            since_save = 0
+    for asset_id, old in previous.items():
+        if asset_id not in entries:
+            stale = root / old["path"]
+            if stale.is_file():
+                stale.unlink()
+            summary.removed.append(asset_id)
+    _write_index(root, manifest, entries, summary.skipped, complete=True)
+    summary.seconds = time.perf_counter() - start
+    log(summary.line())
+    return summary
