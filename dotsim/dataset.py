@@ -17,6 +17,7 @@ scene; a rerun tells complete scenes (the final directory exists) from leftovers
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -32,6 +33,8 @@ from dotsim import __version__ as DOTSIM_VERSION
 
 FORMAT_VERSION = "1.0"
 DEFAULT_SCENES_PER_SHARD = 100
+# Lossless; chosen over PIZ by bench/read_shards.py --compression (numbers in docs/FORMAT.md).
+EXR_COMPRESSION = "ZIP_COMPRESSION"
 
 # Stored dtype per channel (what read_frame returns). Why each was chosen: docs/FORMAT.md.
 # Masks are uint8 in memory and UINT (32-bit) in the EXR: EXR has no 8-bit pixel type.
@@ -239,12 +242,18 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     return pixels
 
 
-def _write_frame(path: Path, frame: dict, channels, shape, where: str) -> str:
-    """Write one frame EXR at `path` (inside a temp dir); return its sha256."""
+def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int],
+                     channels: tuple[str, ...] | None = None, compression: str = EXR_COMPRESSION,
+                     where: str = "frame") -> str:
+    """Write one frame EXR at `path` (write_scene calls it inside its temp dir); return its sha256.
+
+    compression: an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
+    """
     import OpenEXR
 
+    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
     pixels = _frame_pixels(frame, channels, shape, where)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+    header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               "dotsim_format_version": FORMAT_VERSION}
     OpenEXR.File(header, pixels).write(str(path))
     return sha256_file(path)
@@ -373,7 +382,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
         frame_entries = []
         for k, frame in enumerate(frames):
             name = frame_name(k)
-            sha = _write_frame(tmp / name, frame, channels, shape, f"{where} frame {k}")
+            sha = write_frame_file(tmp / name, frame, shape, channels, where=f"{where} frame {k}")
             frame_entries.append({"file": name, "sha256": sha})
         full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
         full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
@@ -599,13 +608,20 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
 def _shard_checksum(scene_path: Path, file_name: str) -> str | None:
     """sha256 that the scene's shard.json lists for a file, or None when no shard.json lists it."""
     shard_path = scene_path.parent / SHARD_FILE
-    if not shard_path.exists():
+    try:
+        stat = shard_path.stat()
+    except FileNotFoundError:
         return None
+    files = _shard_files(shard_path, stat.st_mtime_ns, stat.st_size).get(scene_path.name, {})
+    return files.get(file_name)
+
+
+@functools.lru_cache(maxsize=64)
+def _shard_files(shard_path: Path, mtime_ns: int, size: int) -> dict[str, dict[str, str]]:
+    """scene name -> {file: sha256} from a shard.json; cached per (path, mtime, size) because a
+    trainer reads frames one by one and would otherwise parse the shard's JSON for each."""
     shard = _load_json(shard_path)
-    for s in shard.get("scenes", []):
-        if s.get("name") == scene_path.name:
-            return s["files"].get(file_name)
-    return None
+    return {s["name"]: s["files"] for s in shard.get("scenes", [])}
 
 
 def read_scene_meta(scene_path: str | os.PathLike, verify: bool = True) -> dict:
