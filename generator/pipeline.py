@@ -209,15 +209,22 @@ def _init_worker(job: _Job) -> None:
     _WORKER["job"] = job
     if job.blender is None:
         # The only place the pipeline touches bpy: one renderer per worker process, reused.
-        from generator.blender.renderer import SceneRenderer
+        from generator.blender.render import SceneRenderer
         _WORKER["renderer"] = SceneRenderer()
 
 
 def scene_meta(job: _Job, spec_dict: dict) -> dict:
-    """scene.json content (the writer adds format/version/frame fields)."""
+    """scene.json content (the writer adds format/version/frame fields). Paths of files inside the
+    dataset (textures) are stored relative to it, so a dataset can move and two runs of the same
+    config and seed give identical metadata wherever they were written."""
+    objects = json.loads(json.dumps(spec_dict["objects"]))
+    for obj in objects:
+        texture = obj["material"]["texture"]
+        if texture is not None and Path(texture["path"]).is_relative_to(job.out):
+            texture["path"] = Path(texture["path"]).relative_to(job.out).as_posix()
     return {"split": job.split, "seed": spec_dict["seed"], "base_seed": job.seed,
             "config": job.config.to_dict(), "rig": spec_dict["rig"], "pattern": job.pattern_meta,
-            "poses": spec_dict["poses"], "objects": spec_dict["objects"], "lights": spec_dict["lights"],
+            "poses": spec_dict["poses"], "objects": objects, "lights": spec_dict["lights"],
             "projector": spec_dict["projector"], "flood": spec_dict["flood"], "world": spec_dict["world"],
             "render": spec_dict["render"], "versions": job.versions}
 

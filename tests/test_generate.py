@@ -1,0 +1,212 @@
+"""`dotsim generate` end to end with real Cycles (tiny scenes), post-render against analytic values,
+resume, determinism, and bad input stopping before anything is written."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dotsim import dataset
+from dotsim.patterns import load_pattern
+from dotsim.rig import get_preset
+from generator import cli
+from generator.config import ConfigError, config_from_dict, load_config
+from generator.pipeline import LOG_DIR, RUN_FILE, generate
+from generator.post_render import make_frame
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "configs" / "tiny.toml"
+
+
+def run_cli(*args: str) -> int:
+    parser = argparse.ArgumentParser(prog="dotsim")
+    cli.add_parser(parser.add_subparsers())
+    parsed = parser.parse_args(["generate", "--no-progress", *args])
+    return parsed.func(parsed)
+
+
+# ----------------------------------------------------------------------------- post-render, no Blender
+
+
+def test_make_frame_against_analytic_wall():
+    rig = get_preset("structure_core").scaled(0.05)
+    h, w = rig.camera.height, rig.camera.width
+    depth = np.full((h, w), 2.0, np.float32)
+    depth[10:20, 10:20] = 1.0           # a box in front of the wall
+    depth[:3, -5:] = 1e10               # nothing hit (Blender's Z pass value)
+    depth[-3:, :4] = 25.0               # beyond max_depth (20 m)
+    ambient = np.full((h, w), 0.1, np.float32)
+    flood_only = np.ones((h, w), np.float32)
+    flood_only[:, 30:33] = 0.0          # a projector shadow
+    projector = flood_only * np.random.default_rng(0).uniform(0, 1, (h, w)).astype(np.float32)
+    config = config_from_dict({})
+    frame = make_frame({"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth},
+                       rig, config, np.random.default_rng(1))
+    assert set(frame) == set(dataset.FRAME_CHANNELS)
+
+    assert np.isinf(frame["depth"][:3, -5:]).all()
+    np.testing.assert_array_equal(frame["depth"][5:, :-5][np.isfinite(depth[5:, :-5])],
+                                  depth[5:, :-5][np.isfinite(depth[5:, :-5])])
+    # Disparity d = fx b / z and, for this rectified rig, the projector column
+    # xp = fxp (x - b) / z + cxp with x = (u - cx) z / fx.
+    u = np.arange(w)[None, :].repeat(h, 0)
+    fx, b = rig.camera.fx, rig.baseline
+    valid = depth <= 20.0
+    np.testing.assert_allclose(frame["disparity"][valid], (fx * b / depth)[valid], rtol=1e-6)
+    x = (u - rig.camera.cx) * depth / fx
+    column = rig.projector.fx * (x - b) / depth + rig.projector.cx
+    np.testing.assert_allclose(frame["projector_column"][valid], column[valid], rtol=1e-5, atol=1e-3)
+    assert np.isnan(frame["disparity"][~valid]).all() and np.isnan(frame["projector_column"][~valid]).all()
+
+    np.testing.assert_array_equal(frame["flood"], ambient + flood_only)
+    np.testing.assert_array_equal(frame["ambient"], ambient)
+    assert not frame["visibility"][:, 30:33].any() and frame["visibility"][:, :29].all()
+    assert frame["edge"][15, 9] and frame["edge"][15, 20] and not frame["edge"][30, 45]
+    levels = frame["ir"].astype(np.float64) * 1023
+    np.testing.assert_allclose(levels, np.round(levels), atol=1e-3)  # 10-bit sensor
+
+
+def test_make_frame_names_bad_raw_passes():
+    rig = get_preset("structure_core").scaled(0.05)
+    raw = {name: np.zeros((3, 3), np.float32) for name in ("projector", "flood", "ambient", "depth")}
+    with pytest.raises(ValueError, match="scene 4 frame 1: raw pass 'projector' has shape"):
+        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0), where="scene 4 frame 1")
+    del raw["depth"]
+    with pytest.raises(ValueError, match=r"lack \['depth'\]"):
+        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------- bad input: nothing written
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("[scene]\nobject_cont = [1, 2]\n", 'did you mean "object_count"'),
+    ("[render]\nsamples = 0\n", "[render] samples = 0: out of range"),
+    ('[pattern]\nsource = "file"\npath = "missing.png"\n', "missing.png"),
+    ('[assets]\nsource = "cache"\ncache_dir = "no_cache"\n', "no_cache"),
+])
+def test_config_errors_stop_before_writing(tmp_path, capsys, text, expected):
+    config = tmp_path / "bad.toml"
+    config.write_text(text)
+    out = tmp_path / "out"
+    assert run_cli("--config", str(config), "--out", str(out), "--split", "train", "--scenes", "1") == 2
+    error = capsys.readouterr().err
+    assert str(config) in error and expected in error
+    assert not out.exists()
+
+
+def test_unwritable_output_stops_before_writing(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert run_cli("--config", str(TINY), "--out", str(blocker / "out"), "--split", "train",
+                   "--scenes", "1") == 2
+    assert "not a directory" in capsys.readouterr().err
+    assert run_cli("--config", str(TINY), "--out", "/proc/dotsim", "--split", "train", "--scenes", "1") == 2
+    assert "not writable" in capsys.readouterr().err
+
+
+def test_bad_blender_executable(tmp_path):
+    with pytest.raises(ConfigError, match="--blender /no/blender: not an executable"):
+        generate(load_config(TINY), tmp_path / "out", "train", 1, blender="/no/blender", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+# ----------------------------------------------------------------------------- real Cycles
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """Two tiny scenes rendered by one worker (shared by the tests below)."""
+    out = tmp_path_factory.mktemp("gen") / "a"
+    summary = generate(load_config(TINY), out, "train", 2, seed=3, progress=False)
+    return out, summary
+
+
+def test_generate_writes_a_readable_dataset(rendered):
+    out, summary = rendered
+    assert (summary.done, summary.skipped, summary.failed, summary.frames) == (2, 0, [], 8)
+    data = dataset.open_dataset(out)
+    assert [s.scene_index for s in data.scenes] == [0, 1]
+    config = load_config(TINY)
+    for ref in data.scenes:
+        scene = dataset.read_scene(ref.path)
+        assert scene.meta["config"] == config.to_dict()  # the full resolved config is recorded
+        assert scene.meta["split"] == "train" and scene.meta["base_seed"] == 3
+        assert len(scene.frames) == 4
+        for frame in scene.frames:
+            assert frame["ir"].shape == (90, 122)
+            finite = np.isfinite(frame["depth"])
+            assert finite.mean() > 0.95  # a closed room: nearly every ray hits something
+            # The stored ground truth follows from the stored depth (d = fx b / z).
+            rig = get_preset("structure_core").scaled(0.1)
+            near = finite & (frame["depth"] <= rig.max_depth)
+            np.testing.assert_allclose(frame["disparity"][near],
+                                       rig.camera.fx * rig.baseline / frame["depth"][near], rtol=1e-5)
+            assert 0.05 < frame["visibility"].mean() <= 1.0
+            assert frame["ir"].max() > 0.5  # auto exposure reached the target level
+        texture_paths = {o["material"]["texture"]["path"] for o in scene.meta["objects"]
+                         if o["material"]["texture"]}
+        assert texture_paths and all((out / p).is_file() for p in texture_paths)
+    pattern = load_pattern(dataset.pattern_path(out))
+    assert pattern.image.shape == (307, 307)  # the scaled projector's resolution
+    assert pattern.sha256 == scene.meta["pattern"]["sha256"]
+
+
+def test_resume_skips_complete_and_redoes_partial(rendered, tmp_path):
+    source, _ = rendered
+    out = tmp_path / "resume"
+    shutil.copytree(source, out)
+    shard = out / "shard_00000"
+    first_scene = (shard / "scene_0000000" / "scene.json").read_bytes()
+    # Scene 1 half-written by a crashed worker (a temp dir whose pid is not alive), final dir gone.
+    shutil.move(shard / "scene_0000001", shard / ".tmp-scene_0000001-999999999")
+    (shard / ".tmp-scene_0000001-999999999" / "frame_3.exr").unlink()
+    summary = generate(load_config(TINY), out, "train", 3, seed=3, progress=False)
+    assert (summary.done, summary.skipped, summary.failed) == (2, 1, [])
+    assert not list(shard.glob(".tmp-*"))
+    assert (shard / "scene_0000000" / "scene.json").read_bytes() == first_scene  # untouched
+    assert [s.scene_index for s in dataset.open_dataset(out).scenes] == [0, 1, 2]
+    # The redone scene equals the original rendering of scene 1.
+    redone = dataset.read_scene(shard / "scene_0000001")
+    original = dataset.read_scene(source / "shard_00000" / "scene_0000001")
+    for a, b in zip(redone.frames, original.frames, strict=True):
+        for name in a:
+            np.testing.assert_array_equal(a[name], b[name])
+    # Once complete, a rerun renders nothing.
+    again = generate(load_config(TINY), out, "train", 3, seed=3, progress=False)
+    assert (again.done, again.skipped) == (0, 3)
+
+
+def test_same_seed_same_dataset_regardless_of_workers(rendered, tmp_path):
+    source, _ = rendered
+    out = tmp_path / "twice"
+    summary = generate(load_config(TINY), out, "train", 2, workers=2, seed=3, progress=False)
+    assert summary.done == 2
+    for index in (0, 1):
+        a = dataset.read_scene(dataset.scene_dir(source, index, 2))
+        b = dataset.read_scene(dataset.scene_dir(out, index, 2))
+        assert a.meta == b.meta
+        for fa, fb in zip(a.frames, b.frames, strict=True):
+            for name in fa:
+                np.testing.assert_array_equal(fa[name], fb[name])
+
+
+def test_other_seed_or_config_refused_on_an_existing_dataset(rendered, tmp_path):
+    source, _ = rendered
+    out = tmp_path / "mixed"
+    shutil.copytree(source, out)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    with pytest.raises(ConfigError, match="base_seed"):
+        generate(load_config(TINY), out, "train", 1, seed=4, progress=False)
+    changed = tmp_path / "changed.toml"
+    changed.write_text(TINY.read_text().replace("samples = 1", "samples = 2"))
+    with pytest.raises(ConfigError, match=r"\[render\]"):
+        generate(load_config(changed), out, "train", 1, seed=3, progress=False)
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
+    assert json.loads((out / RUN_FILE).read_text())["base_seed"] == 3
+    assert not (out / LOG_DIR).exists()
