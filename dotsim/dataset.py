@@ -467,6 +467,16 @@ def _shard_dirs(root: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
+def complete_scenes(dataset_dir: str | os.PathLike) -> list[tuple[int, Path]]:
+    """(scene_index, path) of every complete scene on disk, sorted; needs no index.json, so it
+    works on a dataset still being written (temp dirs are never listed)."""
+    root = Path(dataset_dir)
+    if not root.is_dir():
+        return []
+    return [(index, sdir) for _, shard in _shard_dirs(root) for index, sdir in _scene_dirs(shard)
+            if (sdir / SCENE_FILE).is_file()]
+
+
 def finalize_dataset(dataset_dir: str | os.PathLike) -> dict:
     """Checksum every complete scene and write shard.json per shard and index.json (atomically).
 
