@@ -1,0 +1,205 @@
+"""Import recorded sensor frames (projector on / off pairs) into the dotsim dataset format.
+
+A real capture has no ground truth: each frame stores only the channels a sensor can give,
+
+    ir          projector on (what the simulator's `ir` is), raw value / white level
+    ambient     projector off, same units
+    visibility  where the projector's dots reach the surface, from the on/off difference
+
+and scene.json says so with "has_ground_truth": false and "source": "capture" (docs/CAPTURE.md).
+Depth, projector column, disparity, flood and edge are absent: the format lets a scene list a
+subset of channels (dotsim.dataset.write_scene, `channels`), which beats storing NaN images that
+a trainer could mistake for labels. Rig poses are unknown and stored as null.
+
+Every input file is decoded and checked (count, size, readability) before anything is written,
+so a bad input leaves no output; scenes are written atomically and a rerun skips the scenes
+already written from the same files (by sha256).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
+from capture.frames import CaptureError, RawImage, check_size, list_images, pair_on_off, read_image
+from dotsim import __version__ as DOTSIM_VERSION
+from dotsim import dataset
+from dotsim.rig import Rig
+
+CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
+
+
+@dataclass(frozen=True)
+class FramePair:
+    """One recorded frame: its projector-on and projector-off files with their checksums."""
+
+    on: Path
+    off: Path
+    on_sha256: str
+    off_sha256: str
+    white_level: float
+
+    def sources(self) -> dict:
+        return {"on": {"path": str(self.on.resolve()), "sha256": self.on_sha256},
+                "off": {"path": str(self.off.resolve()), "sha256": self.off_sha256}}
+
+
+def _checked_image(path: Path, rig: Rig) -> RawImage:
+    image = read_image(path)
+    check_size(image, rig.camera.width, rig.camera.height, rig.name)
+    return image
+
+
+def plan_import(on_spec: str, off_spec: str, rig: Rig, white_level: float | None = None,
+                progress: bool = False) -> list[FramePair]:
+    """Find, pair, decode and check every input frame; nothing is kept but names and checksums.
+
+    Raises CaptureError naming the file or argument for: a missing folder / no match, unequal
+    on/off counts, an unreadable image, a size other than the rig camera's, or a file whose sample
+    type (8-bit, 16-bit, EXR float) differs from the first one's: one capture has one white level.
+    """
+    pairs = pair_on_off(list_images(on_spec, what="--on frames"), list_images(off_spec, what="--off frames"))
+    planned = []
+    first = None
+    for on_path, off_path in _progress(pairs, progress, "checking frames"):
+        on = _checked_image(on_path, rig)
+        off = _checked_image(off_path, rig)
+        first = first or on
+        for image in (on, off):
+            if image.pixels.dtype != first.pixels.dtype:
+                raise CaptureError(f"{image.path}: sample type {image.pixels.dtype} differs from "
+                                   f"{first.path} ({first.pixels.dtype}); record all frames the same way")
+        level = on.white_level if white_level is None else float(white_level)
+        planned.append(FramePair(on_path, off_path, on.sha256, off.sha256, level))
+    return planned
+
+
+def frame_channels(pair: FramePair, dot_window: int, threshold: float) -> dict[str, np.ndarray]:
+    """Read one pair again and build its dataset channels (ir, ambient, visibility).
+
+    The checksum is compared with the one taken by plan_import, so a file replaced between the
+    check and the write is refused rather than silently stored under the old checksum.
+    """
+    images = {}
+    for role, path, sha in (("on", pair.on, pair.on_sha256), ("off", pair.off, pair.off_sha256)):
+        image = read_image(path)
+        if image.sha256 != sha:
+            raise CaptureError(f"{path}: file changed during the import (sha256 differs); rerun")
+        images[role] = image.relative(pair.white_level)
+    return {"ir": images["on"], "ambient": images["off"],
+            "visibility": capture_visibility(images["on"], images["off"], dot_window, threshold)}
+
+
+def _progress(items, enabled: bool, description: str):
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=description, unit="frame")
+
+
+def _versions() -> dict:
+    return {"dotsim": DOTSIM_VERSION, "numpy": np.__version__, "opencv": cv2.__version__,
+            "python": platform.python_version()}
+
+
+def scene_meta(pairs: list[FramePair], rig: Rig, split: str, settings: dict,
+               pattern: dict | None) -> dict:
+    """scene.json content for one captured scene (the writer adds format and frame fields)."""
+    return {
+        "split": split,
+        "source": "capture",
+        "has_ground_truth": False,
+        "rig": rig.to_dict(),
+        "pattern": pattern,
+        "poses": [None] * len(pairs),  # the real rig's poses were not measured
+        "capture": {"frames": [pair.sources() for pair in pairs], **settings},
+        "versions": _versions(),
+    }
+
+
+def _checksums(sources: list) -> list[tuple[str, str]]:
+    """(on sha256, off sha256) per frame: what identifies a scene's inputs, wherever the files moved."""
+    return [(frame["on"]["sha256"], frame["off"]["sha256"]) for frame in sources]
+
+
+def _existing_checksums(dataset_dir: Path, scene_index: int, scenes_per_shard: int) -> list | None:
+    path = dataset.scene_dir(dataset_dir, scene_index, scenes_per_shard) / dataset.SCENE_FILE
+    try:
+        return _checksums(json.loads(path.read_text())["capture"]["frames"])
+    except (KeyError, TypeError, ValueError):
+        return None  # not a capture scene
+
+
+def _stray_scenes(dataset_dir: Path, scene_count: int) -> list[Path]:
+    """Scene directories of `dataset_dir` whose index is not among this import's scenes."""
+    stray = []
+    for path in sorted(dataset_dir.glob("shard_*/scene_*")):
+        try:
+            index = int(path.name.split("_")[1])
+        except ValueError:
+            continue
+        if index >= scene_count:
+            stray.append(path)
+    return stray
+
+
+def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathLike, *,
+                  frames_per_scene: int = 4, split: str = "test", white_level: float | None = None,
+                  dot_window: int = DEFAULT_DOT_WINDOW,
+                  visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
+                  capture_settings: dict | None = None, pattern: dict | None = None,
+                  scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD,
+                  progress: bool = True) -> dict:
+    """Import projector on/off frame pairs as a finalized dataset; returns a summary dict.
+
+    Pairs are grouped into scenes of `frames_per_scene` consecutive frames (the count must divide
+    evenly). capture_settings (exposure, gain, ... as the user recorded them) and pattern (the
+    pattern's reference, e.g. an extracted pattern's path and sha256) go into every scene.json.
+    A rerun skips scenes already written from files with the same checksums and refuses a
+    dataset written from other files.
+    """
+    if int(frames_per_scene) != frames_per_scene or frames_per_scene < 1:
+        raise CaptureError(f"--frames-per-scene must be a positive integer, got {frames_per_scene}")
+    if white_level is not None and not (np.isfinite(white_level) and white_level > 0):
+        raise CaptureError(f"--white-level must be a positive number, got {white_level}")
+    pairs = plan_import(on_spec, off_spec, rig, white_level, progress)
+    if len(pairs) % frames_per_scene:
+        raise CaptureError(f"{len(pairs)} frame pairs do not split into scenes of {frames_per_scene} "
+                           f"frames (--frames-per-scene); record a multiple of {frames_per_scene} "
+                           f"pairs or pass --frames-per-scene 1")
+    out_dir = Path(out_dir)
+    scenes = [pairs[k:k + frames_per_scene] for k in range(0, len(pairs), frames_per_scene)]
+    if out_dir.exists():
+        stray = _stray_scenes(out_dir, len(scenes))
+        if stray:
+            raise CaptureError(f"{out_dir}: holds {stray[0]}, which this import of {len(scenes)} scene(s) "
+                               f"would not write; choose an empty --out")
+        dataset.remove_partial_scenes(out_dir)
+    settings = {"white_level": pairs[0].white_level, "frames_per_scene": frames_per_scene,
+                "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
+                "settings": capture_settings or {}}
+    written = skipped = 0
+    for scene_index, scene_pairs in enumerate(_progress(scenes, progress, "importing scenes")):
+        if dataset.is_scene_complete(out_dir, scene_index, scenes_per_shard):
+            expected = _checksums([pair.sources() for pair in scene_pairs])
+            if _existing_checksums(out_dir, scene_index, scenes_per_shard) != expected:
+                raise CaptureError(f"{dataset.scene_dir(out_dir, scene_index, scenes_per_shard)}: was "
+                                   f"imported from other files; choose an empty --out")
+            skipped += 1
+            continue
+        frames = [frame_channels(pair, dot_window, visibility_threshold) for pair in scene_pairs]
+        meta = scene_meta(scene_pairs, rig, split, settings, pattern)
+        dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
+                            channels=CAPTURE_CHANNELS)
+        written += 1
+    index = dataset.finalize_dataset(out_dir)
+    return {"dataset": str(out_dir), "frames": len(pairs), "scenes": len(scenes), "written": written,
+            "skipped": skipped, "index_scenes": index["scene_count"]}
