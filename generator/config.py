@@ -97,7 +97,8 @@ class SceneConfig:
     room_height: tuple[float, float] = _spec((2.4, 4.0), "room height, m", low=0.5, high=50.0)
     albedo: tuple[float, float] = _spec((0.05, 0.95), "infrared reflectance", low=0.0, high=1.0)
     textured_share: float = _spec(0.8, "share of surfaces with a reflectance texture", low=0.0, high=1.0)
-    texture_scale: tuple[float, float] = _spec((0.5, 4.0), "texture repeats per metre", low=0.01,
+    texture_scale: tuple[float, float] = _spec((0.5, 4.0), "texture tiles per metre of surface (built-in "
+                                               "textures; cached ones carry their own tile size)", low=0.01,
                                                high=1000.0)
     texture_contrast: tuple[float, float] = _spec((0.2, 1.0), "texture contrast (0 = flat albedo)",
                                                   low=0.0, high=1.0)
@@ -184,10 +185,13 @@ class AssetsConfig:
     source: str = _spec("primitives", "primitives: built-in shapes with procedural textures; cache: "
                         "meshes and textures of the split from the asset cache (`dotsim assets build`)",
                         choices=("primitives", "cache"))
-    cache_dir: str = _spec("", "asset cache directory when source = \"cache\"", path=True)
-    train_density: float = _spec(1.0, "object-count factor for the train split", low=0.0, high=10.0)
-    test_density: float = _spec(1.3, "object-count factor for the test split (the seed's test clutter "
-                                "density differs from train's)", low=0.0, high=10.0)
+    cache_dir: str = _spec("", "asset cache directory when source = \"cache\" (holds <split>/index.json, "
+                           "built by `dotsim assets build`)", path=True)
+    train_density: float = _spec(1.0, "object-count factor for the train split with built-in primitives "
+                                 "(an asset cache carries its own clutter_density per split)", low=0.0,
+                                 high=10.0)
+    test_density: float = _spec(1.3, "object-count factor for the test split with built-in primitives (the"
+                                " seed's test clutter density differs from train's)", low=0.0, high=10.0)
 
 
 SECTIONS: dict[str, type] = {

@@ -29,7 +29,7 @@ import sys
 import tempfile
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -41,7 +41,15 @@ from dotsim import dataset
 from dotsim.patterns import DotPattern, PatternError, generate_dot_pattern, load_pattern
 from generator.config import Config, ConfigError, check_output_dir
 from generator.post_render import RAW_PASSES, make_frame
-from generator.scene_spec import STREAM_SENSOR, SceneResources, build_rig, sample_scene_spec, scene_rng
+from generator.scene_spec import (
+    STREAM_SENSOR,
+    MeshAsset,
+    SceneResources,
+    TextureAsset,
+    build_rig,
+    sample_scene_spec,
+    scene_rng,
+)
 
 RUN_FILE = "generate.json"
 TEXTURE_DIR = "textures"
@@ -115,7 +123,7 @@ def _png16_bytes(image: np.ndarray) -> bytes:
     return data.tobytes()
 
 
-def builtin_textures(out: Path, split: str) -> tuple[str, ...]:
+def builtin_textures(out: Path, split: str) -> tuple[TextureAsset, ...]:
     """Procedural reflectance textures (assets_manifest families) under DATASET/textures, made once.
 
     Each split draws its own seeds, so train and test never share a texture; files that exist are
@@ -126,7 +134,7 @@ def builtin_textures(out: Path, split: str) -> tuple[str, ...]:
 
     folder = out / TEXTURE_DIR
     folder.mkdir(parents=True, exist_ok=True)
-    paths = []
+    textures = []
     for family_index, (family_name, family) in enumerate(sorted(TEXTURE_FAMILIES.items())):
         for k in range(BUILTIN_TEXTURES_PER_FAMILY):
             path = folder / f"{split}_{family_name}_{k}.png"
@@ -134,8 +142,30 @@ def builtin_textures(out: Path, split: str) -> tuple[str, ...]:
                 rng = np.random.default_rng((_SPLIT_CODE[split], family_index, k))
                 image = family.make(sample_params({}, family.defaults, rng), rng)
                 dataset.atomic_write_bytes(path, _png16_bytes(image))
-            paths.append(str(path))
-    return tuple(paths)
+            textures.append(TextureAsset(str(path)))
+    return tuple(textures)
+
+
+def cached_assets(config: Config, split: str) -> SceneResources:
+    """Meshes and textures of `split` from the asset cache ([assets] cache_dir), without pattern
+    fields (filled in by the caller). Raises ConfigError naming the cache when it is not usable."""
+    from assets_manifest.cache import AssetCacheError, load_asset_cache
+
+    where = f"{config.source}: [assets] cache_dir = {config.assets.cache_dir!r}"
+    try:
+        cache = load_asset_cache(config.assets.cache_dir, split)
+    except AssetCacheError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    if not cache.meshes:
+        raise ConfigError(f"{where}: the {split} split has no meshes; allowed: a cache built with "
+                          'meshes, or source = "primitives"')
+    meshes = []
+    for entry in cache.meshes:
+        with np.load(entry.path) as arrays:
+            extent = float(np.ptp(arrays["vertices"], axis=0).max())
+        meshes.append(MeshAsset(entry.path, entry.id, extent, tuple(entry.scale_hint)))
+    textures = tuple(TextureAsset(entry.path, tuple(entry.scale_hint)) for entry in cache.textures)
+    return SceneResources("", "", textures, tuple(meshes), cache.clutter_density)
 
 
 def _write_pattern(out: Path, pattern: DotPattern) -> Path:
@@ -361,6 +391,8 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
         pattern = make_pattern(config, rig.projector.width, rig.projector.height)
     except PatternError as exc:
         raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
+    assets = cached_assets(config, split) if config.assets.source == "cache" else None
+    software = versions(blender)
 
     began = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
@@ -369,12 +401,12 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     if not (out / RUN_FILE).exists():
         record_bytes = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
         dataset.write_dataset_file(out, RUN_FILE, record_bytes)
-    textures = builtin_textures(out, split)
-    resources = SceneResources(pattern_path=str(pattern_file), pattern_sha256=pattern.sha256,
-                               textures=textures)
+    if assets is None:
+        assets = SceneResources("", "", textures=builtin_textures(out, split))
+    resources = replace(assets, pattern_path=str(pattern_file), pattern_sha256=pattern.sha256)
     pattern_meta = {"source": pattern.source, "sha256": pattern.sha256, "file": pattern_file.name,
                     "width": rig.projector.width, "height": rig.projector.height, "params": pattern.params}
-    job = _Job(config, out, split, seed, resources, pattern_meta, versions(blender), blender)
+    job = _Job(config, out, split, seed, resources, pattern_meta, software, blender)
 
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard

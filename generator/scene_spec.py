@@ -56,23 +56,36 @@ def build_rig(config: Config) -> Rig:
 
 @dataclass(frozen=True)
 class MeshAsset:
-    """A mesh from the asset cache: its .npz path, id, and largest extent in metres (for scaling)."""
+    """A mesh from the asset cache: its .npz path and id, its largest extent as stored (m), and the
+    range of largest extents (m) to scale it to."""
     path: str
     id: str
     extent: float
+    size_range: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class TextureAsset:
+    """A reflectance texture (PNG) and the range of its tile size in metres (None: the config's
+    [scene] texture_scale decides)."""
+    path: str
+    tile_size: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
 class SceneResources:
     """Files a scene refers to, prepared by the pipeline before sampling.
 
-    textures: absolute PNG paths to draw surface textures from (may be empty: untextured).
+    textures: textures to draw surfaces from (may be empty: untextured).
     meshes: asset meshes of the split; empty means built-in primitives.
+    density: object-count factor of the split (None: the config's [assets] factor for the split;
+    an asset cache carries its own clutter density per split).
     """
     pattern_path: str
     pattern_sha256: str
-    textures: tuple[str, ...] = ()
+    textures: tuple[TextureAsset, ...] = ()
     meshes: tuple[MeshAsset, ...] = ()
+    density: float | None = None
 
 
 @dataclass(frozen=True)
@@ -178,29 +191,34 @@ def ray_box_exit(origin: np.ndarray, direction: np.ndarray, lo: np.ndarray, hi: 
 
 
 def _room_planes(size: tuple[float, float, float]) -> list[tuple[str, tuple, tuple, list]]:
-    """(name, location, rotation_euler, plane size) of the six room surfaces, normals inwards."""
+    """(name, location, rotation_euler, plane size) of the six room surfaces, normals inwards
+    (z size 1: a plane has no thickness, and a zero scale would make its normals degenerate)."""
     w, d, h = size
     half_pi = math.pi / 2
     return [
-        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), [w, d, 0.0]),
-        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), [w, d, 0.0]),
-        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), [w, h, 0.0]),
-        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), [w, h, 0.0]),
-        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), [h, d, 0.0]),
-        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), [h, d, 0.0]),
+        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), [w, d, 1.0]),
+        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), [w, d, 1.0]),
+        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), [w, h, 1.0]),
+        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), [w, h, 1.0]),
+        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), [h, d, 1.0]),
+        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), [h, d, 1.0]),
     ]
 
 
-def _material(rng: np.random.Generator, config: Config, textures: tuple[str, ...],
-              glossy_allowed: bool) -> Material:
+def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureAsset, ...],
+              glossy_allowed: bool, extent: float) -> Material:
+    """A surface material; `extent` (m, the object's largest size) turns the texture's physical tile
+    size into the UV scale the renderer applies (UVs span about one object)."""
     sc = config.scene
     glossy = glossy_allowed and rng.random() < sc.glossy_share
     roughness = _uniform(rng, sc.glossy_roughness if glossy else sc.roughness)
     specular = _uniform(rng, sc.glossy_specular if glossy else sc.specular)
     texture = None
     if textures and rng.random() < sc.textured_share:
-        texture = {"path": textures[int(rng.integers(len(textures)))],
-                   "scale": _log_uniform(rng, *sc.texture_scale),
+        chosen = textures[int(rng.integers(len(textures)))]
+        tiles_per_metre = (1.0 / _log_uniform(rng, *chosen.tile_size) if chosen.tile_size
+                           else _log_uniform(rng, *sc.texture_scale))
+        texture = {"path": chosen.path, "scale": extent * tiles_per_metre,
                    "contrast": _uniform(rng, sc.texture_contrast)}
     return Material(albedo=_uniform(rng, sc.albedo), roughness=roughness, specular=specular,
                     texture=texture)
@@ -293,19 +311,24 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
 
     objects = [SceneObject(name=name, mesh={"kind": "primitive", "shape": "plane", "size": size},
                            location=location, rotation_euler=rotation, scale=(1.0, 1.0, 1.0),
-                           material=_material(rng, config, resources.textures, glossy_allowed=False))
+                           material=_material(rng, config, resources.textures, glossy_allowed=False,
+                                              extent=max(size)))
                for name, location, rotation, size in _room_planes(room)]
 
-    count = round(int(rng.integers(sc.object_count[0], sc.object_count[1] + 1)) * config.density(split))
+    density = config.density(split) if resources.density is None else resources.density
+    count = round(int(rng.integers(sc.object_count[0], sc.object_count[1] + 1)) * density)
     for k in range(count):
         in_view = rng.random() < sc.in_view_share
         location, distance = _object_position(rng, config, rig, cam_rot, cam_pos, room_lo, room_hi,
                                               in_view)
         # At most half the distance: no object swallows the camera, even after the rig moves.
-        extent = _log_uniform(rng, min(sc.object_size[0], distance / 2), min(sc.object_size[1],
-                                                                             distance / 2))
         if resources.meshes:
             asset = resources.meshes[int(rng.integers(len(resources.meshes)))]
+            low, high = asset.size_range
+        else:
+            low, high = sc.object_size
+        extent = _log_uniform(rng, min(low, distance / 2), min(high, distance / 2))
+        if resources.meshes:
             mesh = {"kind": "asset", "path": asset.path, "id": asset.id}
             scale = (extent / asset.extent,) * 3
         else:
@@ -316,7 +339,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         objects.append(SceneObject(
             name=f"object_{k:04d}", mesh=mesh, location=tuple(float(v) for v in location),
             rotation_euler=tuple(float(v) for v in rotation), scale=scale,
-            material=_material(rng, config, resources.textures, glossy_allowed=True)))
+            material=_material(rng, config, resources.textures, glossy_allowed=True, extent=extent)))
 
     lights = tuple(
         PointLight(location=tuple(float(v) for v in rng.uniform(room_lo + 0.1, room_hi - 0.1)),

@@ -12,13 +12,15 @@ from dotsim.rig import Rig
 from generator.config import config_from_dict
 from generator.scene_spec import (
     SceneResources,
+    TextureAsset,
     build_rig,
     camera_rotation,
     ray_box_exit,
     sample_scene_spec,
 )
 
-RESOURCES = SceneResources("/data/pattern.png", "ab" * 32, ("/data/t0.png", "/data/t1.png"))
+RESOURCES = SceneResources("/data/pattern.png", "ab" * 32,
+                           (TextureAsset("/data/t0.png"), TextureAsset("/data/t1.png", (0.5, 0.5))))
 SHAPES = {"plane", "box", "sphere", "cylinder", "cone", "torus"}
 
 
@@ -132,7 +134,10 @@ def test_objects_inside_room_and_never_swallow_the_camera():
         centre = np.array(d["poses"][frame])[:3, 3]
         for obj in d["objects"]:
             if obj["name"].startswith("object_"):
-                radius = 0.5 * np.linalg.norm(obj["mesh"]["size"])
+                size = np.array(obj["mesh"]["size"])
+                if obj["mesh"]["shape"] == "plane":
+                    size[2] = 0.0  # a plane's z size is a (thickness-less) scale, not an extent
+                radius = 0.5 * np.linalg.norm(size)
                 assert np.linalg.norm(np.array(obj["location"]) - centre) > radius
 
 
@@ -195,4 +200,14 @@ def test_textures_and_glossy_shares():
                       for o in objects])
     assert 0.43 <= textured <= 0.57 and 0.14 <= glossy <= 0.26
     assert {o["material"]["texture"]["path"] for o in objects if o["material"]["texture"]} == \
-        set(RESOURCES.textures)
+        {t.path for t in RESOURCES.textures}
+    # UV scale = object extent x tiles per metre: t1 has 0.5 m tiles, t0 the config's 0.5-4 per metre.
+    for o in objects:
+        texture = o["material"]["texture"]
+        if texture:
+            extent = max(o["mesh"]["size"][:2] + ([o["mesh"]["size"][2]] if o["mesh"]["shape"] != "plane"
+                                                  else []))
+            if texture["path"] == "/data/t1.png":
+                assert texture["scale"] == pytest.approx(extent * 2.0)
+            else:
+                assert 0.5 * extent * 0.999 <= texture["scale"] <= 4.0 * extent * 1.001
