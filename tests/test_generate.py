@@ -210,3 +210,60 @@ def test_other_seed_or_config_refused_on_an_existing_dataset(rendered, tmp_path)
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
     assert json.loads((out / RUN_FILE).read_text())["base_seed"] == 3
     assert not (out / LOG_DIR).exists()
+
+
+CACHE_MANIFEST = """
+[split]
+name = "test"
+clutter_density = 2.0
+
+[[meshes]]
+name = "blob"
+generator = "noise_displaced_sphere"
+seeds = [0, 1]
+params = { subdivisions = 2 }
+scale = [0.1, 0.3]
+license = "CC0-1.0"
+
+[[textures]]
+name = "noise"
+generator = "fractal_noise"
+seeds = [0, 1]
+params = { size = 64, octaves = 3 }
+scale = [0.2, 0.5]
+license = "CC0-1.0"
+"""
+
+
+def test_generate_from_asset_cache(tmp_path):
+    from assets_manifest.cache import build_asset_cache, load_asset_cache
+    from assets_manifest.manifest import load_manifest
+
+    manifest = tmp_path / "test.toml"
+    manifest.write_text(CACHE_MANIFEST)
+    build_asset_cache(load_manifest(manifest), tmp_path / "cache", "test", progress=False,
+                      log=lambda *args: None)
+    config_path = tmp_path / "cached.toml"
+    config_path.write_text(TINY.read_text() + '\n[assets]\nsource = "cache"\ncache_dir = "cache"\n'
+                           '\n[motion]\ntranslation = 0.0\nrotation = 0.0\n')
+    config = load_config(config_path)
+    out = tmp_path / "out"
+    summary = generate(config, out, "test", 1, progress=False)
+    assert summary.done == 1
+    scene = dataset.read_scene(dataset.scene_dir(out, 0, 2))
+    cache = load_asset_cache(tmp_path / "cache", "test")
+    objects = [o for o in scene.meta["objects"] if o["name"].startswith("object_")]
+    # The cache's clutter density (2) multiplies the config's object count range [8, 16].
+    assert 16 <= len(objects) <= 32
+    assert {o["mesh"]["path"] for o in objects} <= {m.path for m in cache.meshes}
+    assert all(o["mesh"]["kind"] == "asset" for o in objects)
+    # Scaled so the largest extent lies in the asset's scale hint (or half its distance, if less).
+    pose = np.array(scene.meta["poses"][0])
+    for o in objects:
+        with np.load(o["mesh"]["path"]) as arrays:
+            extent = np.ptp(arrays["vertices"], axis=0).max() * o["scale"][0]
+        distance = np.linalg.norm(np.array(o["location"]) - pose[:3, 3])
+        assert min(0.1, distance / 2) * 0.999 <= extent <= min(0.3, distance / 2) * 1.001
+    textures = {o["material"]["texture"]["path"] for o in scene.meta["objects"] if o["material"]["texture"]}
+    assert textures and textures <= {t.path for t in cache.textures}
+    assert not (out / "textures").exists()  # no built-in textures in cache mode
