@@ -267,3 +267,47 @@ def test_generate_from_asset_cache(tmp_path):
     textures = {o["material"]["texture"]["path"] for o in scene.meta["objects"] if o["material"]["texture"]}
     assert textures and textures <= {t.path for t in cache.textures}
     assert not (out / "textures").exists()  # no built-in textures in cache mode
+
+
+# ----------------------------------------------------------------------------- --blender EXE path
+
+
+def test_blender_executable_path(rendered, tmp_path):
+    """The bpy-less path: spec JSON -> `EXE --background --python run_in_blender.py -- ...` -> raw npz.
+
+    No Blender executable is installed here, so EXE is a two-line shell script that runs the same
+    entry script with the bpy module (run_in_blender.py accepts both invocations); everything after
+    it - spec files, batches, npz reading, post-render - is the real path and must reproduce the
+    in-process rendering exactly."""
+    import sys
+
+    shim = tmp_path / "blender"
+    shim.write_text('#!/bin/sh\n[ "$1" = --version ] && { echo "Blender 5.0.1 (bpy module)"; exit 0; }\n'
+                    f'while [ "$1" != --python ]; do shift; done; shift\nexec {sys.executable} "$@"\n')
+    shim.chmod(0o755)
+    source, _ = rendered
+    out = tmp_path / "exe"
+    assert run_cli("--config", str(TINY), "--out", str(out), "--split", "train", "--scenes", "2",
+                   "--seed", "3", "--blender", str(shim)) == 0
+    for index in (0, 1):
+        a = dataset.read_scene(dataset.scene_dir(source, index, 2))
+        b = dataset.read_scene(dataset.scene_dir(out, index, 2))
+        assert b.meta["versions"]["blender"] == "Blender 5.0.1 (bpy module)"
+        assert {k: v for k, v in a.meta.items() if k != "versions"} == \
+            {k: v for k, v in b.meta.items() if k != "versions"}
+        for fa, fb in zip(a.frames, b.frames, strict=True):
+            for name in fa:
+                np.testing.assert_array_equal(fa[name], fb[name])
+
+
+def test_failing_scenes_are_logged_and_the_run_goes_on(tmp_path, capsys):
+    # /bin/false is an executable that renders nothing: every scene fails, each with a log.
+    out = tmp_path / "fail"
+    assert run_cli("--config", str(TINY), "--out", str(out), "--split", "train", "--scenes", "3",
+                   "--blender", "/bin/false") == 1
+    captured = capsys.readouterr()
+    assert "0 scenes rendered (0 frames), 0 already complete, 3 failed" in captured.err
+    logs = sorted(p.name for p in (out / LOG_DIR).iterdir())
+    assert logs == [f"scene_000000{k}.log" for k in range(3)]
+    assert "blender wrote no scene_0000001_raw.npz" in (out / LOG_DIR / logs[1]).read_text()
+    assert not list(out.glob("shard_*/scene_*"))
