@@ -596,6 +596,14 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
         raise FormatError(f"{index_path}: missing; {hint}")
     index = _load_json(index_path)
     check_format_version(index.get("format_version"), index_path)
+    if verify:
+        for name, sha in index.get("files", {}).items():
+            path = root / name
+            if not path.is_file():
+                raise FormatError(f"{path}: missing (listed in {index_path})")
+            if sha256_file(path) != sha:
+                raise FormatError(f"{path}: sha256 differs from the one in {index_path} (file changed "
+                                  f"or corrupt; rerun finalize_dataset if it was rewritten on purpose)")
     refs = []
     for entry in _require(index, "shards", list, index_path):
         shard_path = root / entry["name"] / SHARD_FILE

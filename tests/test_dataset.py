@@ -113,6 +113,10 @@ def test_index_and_shard_checksums_match_files(tmp_path):
                 assert hashlib.sha256(data).hexdigest() == sha
     opened = ds.open_dataset(tmp_path)
     assert [s.scene_index for s in opened.scenes] == [0, 1, 2, 3, 4]
+    (tmp_path / "pattern.png").write_bytes(b"another pattern")
+    with pytest.raises(ds.FormatError, match=r"pattern\.png: sha256 differs from the one in .*index\.json"):
+        ds.open_dataset(tmp_path)
+    (tmp_path / "pattern.png").write_bytes(b"not really a png")
     assert [s.scene_index for s in opened.split("test")] == [4]
     frame = ds.read_frame(opened.scenes[2].frame_paths[1])
     assert frame["depth"].shape == (H, W)
