@@ -75,9 +75,10 @@ class RawImage:
         return self.pixels.shape
 
     def relative(self, white_level: float | None = None) -> np.ndarray:
-        """Pixels / white level as float32 (white_level None: the format's full scale)."""
+        """Pixels / white level as float64 (white_level None: the format's full scale). float64 so the
+        dataset's float16 is one rounding of the exact value, not a rounding of a float32 rounding."""
         level = self.white_level if white_level is None else white_level
-        return (self.pixels.astype(np.float64) / level).astype(np.float32)
+        return self.pixels.astype(np.float64) / level
 
 
 def _decode_png(path: Path, data: bytes) -> np.ndarray:
