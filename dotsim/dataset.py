@@ -270,6 +270,7 @@ def _decode_frame(data: bytes, path: Path, channels, shape) -> dict[str, np.ndar
     if version is not None:
         check_format_version(version, path)
     stored = exr.channels()
+    source = "height, width of the rig camera in scene.json"
     if channels is None:
         channels = [c for c in FRAME_CHANNELS if c in stored]
         if not channels:
@@ -284,10 +285,10 @@ def _decode_frame(data: bytes, path: Path, channels, shape) -> dict[str, np.ndar
             raise FormatError(f"{path}: unknown channel {name!r}; known: {list(FRAME_CHANNELS)}")
         a = stored[name].pixels
         if shape is None:
-            shape = a.shape
+            shape, source = a.shape, f"the shape of channel {name!r}"
         if a.shape != tuple(shape):
             raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected {tuple(shape)} "
-                              f"(height, width of the rig camera)")
+                              f"({source})")
         want = FRAME_CHANNELS[name]
         if name in MASK_CHANNELS:
             if a.dtype != np.uint32:
@@ -436,7 +437,9 @@ def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = F
     """
     root = Path(dataset_dir)
     removed = []
-    candidates = list(root.glob(TMP_PREFIX + "*")) + list(root.glob("shard_*/" + TMP_PREFIX + "*"))
+    # Temp names live beside their final names: top level, shard dirs, and other first-level dirs
+    # (e.g. the generator's logs/).
+    candidates = list(root.glob(TMP_PREFIX + "*")) + list(root.glob("*/" + TMP_PREFIX + "*"))
     for p in sorted(candidates):
         m = _TMP_PID_RE.search(p.name)
         if m and not include_live and _pid_alive(int(m.group(1))):
