@@ -144,7 +144,9 @@ def validate(cfg: Config, where: str = "config") -> None:
     if m.backbone not in ("conv", "unet"):
         raise ConfigError(f"{where} [model].backbone: {m.backbone!r}; allowed: 'conv', 'unet'")
     if len(m.backbone_channels) != len(m.backbone_kernels) or not m.backbone_channels:
-        raise ConfigError(f"{where} [model]: backbone_channels and backbone_kernels need the same nonzero length")
+        raise ConfigError(
+            f"{where} [model]: backbone_channels and backbone_kernels need the same nonzero length"
+        )
     if any(k % 2 == 0 for k in m.backbone_kernels):
         raise ConfigError(f"{where} [model].backbone_kernels: {m.backbone_kernels} must all be odd")
     if levels < 1 or any(c < 2 for c in m.classes):

@@ -17,6 +17,7 @@ neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does.
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import torch
 import torch.nn.functional as F
@@ -25,11 +26,42 @@ from torch import nn
 from trainer.config import ModelConfig
 
 
+class _IndexedLinearFunction(torch.autograd.Function):
+    """Forward: gather each pixel's weights and one batched matmul. Backward written out because
+    autograd's backward of index_select scatters a (pixels, out, in) block with scatter_add, measured
+    ~100x slower on CPU than index_add_ of the per-pixel outer products (80 vs 0.6 ms, 6000 pixels)."""
+
+    @staticmethod
+    def forward(ctx, x, idx, weight, bias, chunk):
+        ctx.save_for_backward(x, idx, weight)
+        ctx.chunk = chunk
+        outs = []
+        for s in range(0, x.shape[0], chunk):
+            i = idx[s : s + chunk]
+            w = weight.index_select(0, i).to(x.dtype)
+            outs.append(torch.bmm(w, x[s : s + chunk, :, None])[..., 0] + bias.index_select(0, i).to(x.dtype))
+        return torch.cat(outs) if outs else x.new_zeros(0, weight.shape[1])
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, idx, weight = ctx.saved_tensors
+        grad_w = torch.zeros_like(weight)
+        grad_b = weight.new_zeros(weight.shape[:2])
+        grad_x = torch.empty_like(x)
+        for s in range(0, x.shape[0], ctx.chunk):
+            i, g, xs = idx[s : s + ctx.chunk], grad[s : s + ctx.chunk], x[s : s + ctx.chunk]
+            w = weight.index_select(0, i).to(g.dtype)
+            grad_x[s : s + ctx.chunk] = torch.bmm(w.transpose(1, 2), g[:, :, None])[..., 0]
+            grad_w.index_add_(0, i, g.float()[:, :, None] * xs.float()[:, None, :])
+            grad_b.index_add_(0, i, g.float())
+        return grad_x, None, grad_w, grad_b, None
+
+
 class IndexedLinear(nn.Module):
     """y_p = W[idx_p] @ x_p + b[idx_p]: a linear layer whose weights each pixel picks from a table.
 
-    Weights are gathered per pixel (index_select) and applied with one batched matmul, in chunks of
-    `chunk` pixels to bound the memory of the gathered (chunk, out, in) block; no loop over classes.
+    No loop over pixels or classes: weights are gathered per pixel and applied with one batched matmul,
+    in chunks of `chunk` pixels to bound the memory of the gathered (chunk, out, in) block.
     Initialised like nn.Linear (uniform in +-1/sqrt(in)).
     """
 
@@ -41,14 +73,7 @@ class IndexedLinear(nn.Module):
         self.chunk = chunk
 
     def forward(self, x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        outs = []
-        for s in range(0, x.shape[0], self.chunk):
-            i = idx[s : s + self.chunk]
-            w = self.weight.index_select(0, i)
-            outs.append(torch.bmm(w, x[s : s + self.chunk, :, None])[..., 0] + self.bias.index_select(0, i))
-        if not outs:
-            return x.new_zeros(0, self.weight.shape[1])
-        return torch.cat(outs)
+        return _IndexedLinearFunction.apply(x, idx, self.weight, self.bias, self.chunk)
 
 
 class IndexedMLP(nn.Module):
@@ -97,10 +122,10 @@ class UNetBackbone(nn.Module):
         self.stem = nn.Sequential(*_conv_bn(2, stem, cfg.backbone_kernels[0], 2))
         widths = [stem, *cfg.unet_channels]
         self.down = nn.ModuleList(
-            nn.Sequential(*_conv_bn(a, b, 3, 2), *_conv_bn(b, b, 3)) for a, b in zip(widths, widths[1:])
+            nn.Sequential(*_conv_bn(a, b, 3, 2), *_conv_bn(b, b, 3)) for a, b in pairwise(widths)
         )
         self.up = nn.ModuleList(
-            nn.Sequential(*_conv_bn(b + a, a, 3)) for a, b in zip(widths, widths[1:])
+            nn.Sequential(*_conv_bn(b + a, a, 3)) for a, b in pairwise(widths)
         )
         self.out = nn.Sequential(*_conv_bn(stem, cfg.backbone_channels[-1], 3))
 

@@ -1,0 +1,147 @@
+"""Training samples from dotsim shards: IR crops with the GT projector column at half resolution.
+
+A sample keeps the identity of the network's lines: crops start on even full-resolution rows and carry
+their first half-resolution row (`row0`), so the per-line weights see the rows they are meant for. The
+targets are read at the full-resolution pixels the half-resolution outputs sit on, (2i, 2j) of the crop
+(trainer/model.py), so no target is interpolated. Augmentations (gain, noise, vertical jitter) draw from
+an RNG keyed by (seed, epoch, frame index): the same sample comes out in any worker and after a resume.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from dotsim.dataset import FormatError, open_dataset, read_frame, read_scene_meta
+from dotsim.rig import Rig
+from trainer.config import DataConfig
+
+TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")
+
+
+class DataError(ValueError):
+    """The data folder cannot be used with this configuration or checkpoint."""
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    path: Path
+    scene_index: int
+    frame_index: int
+
+
+def list_frames(data_dir: str | Path, split: str) -> tuple[list[FrameRef], Rig, dict]:
+    """Frames of the scenes of `split` ("all" for every scene) and the one rig they share.
+
+    Returns (frames, rig, pattern meta of the first scene). Errors name the folder, the split and the
+    splits present, or the scene whose rig differs from the first one's.
+    """
+    data_dir = Path(data_dir)
+    try:
+        ds = open_dataset(data_dir)
+    except FormatError as e:
+        raise DataError(f"{data_dir}: not a usable dotsim dataset: {e}") from e
+    scenes = ds.scenes if split == "all" else ds.split(split)
+    if not scenes:
+        present: dict[str, int] = {}
+        for s in ds.scenes:
+            present[str(s.split)] = present.get(str(s.split), 0) + 1
+        raise DataError(
+            f"{data_dir}: no scenes with split {split!r} "
+            f"(splits present: {present or 'none, empty dataset'}); choose one of those or 'all'"
+        )
+    frames, rig, pattern, first = [], None, None, None
+    for s in scenes:
+        meta = read_scene_meta(s.path)
+        scene_rig = Rig.from_dict(meta["rig"])
+        if rig is None:
+            rig, pattern, first = scene_rig, meta["pattern"], s.path
+        elif scene_rig != rig:
+            raise DataError(f"{s.path}: its rig differs from {first}'s; a dataset for training has one rig")
+        frames += [FrameRef(p, s.scene_index, k) for k, p in enumerate(s.frame_paths)]
+    return frames, rig, pattern
+
+
+def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarray]:
+    """Full-resolution arrays of one frame: ir (float32), column (normalised by the projector width,
+    nan where invalid), valid (pattern visible, column finite and inside the projector image), edge."""
+    column = frame["projector_column"].astype(np.float32) / rig.projector.width
+    valid = (frame["visibility"] > 0) & np.isfinite(column) & (column >= 0) & (column <= 1)
+    return {
+        "ir": frame["ir"].astype(np.float32),
+        "column": np.where(valid, column, np.nan).astype(np.float32),
+        "valid": valid,
+        "edge": frame["edge"].astype(np.float32),
+    }
+
+
+class FrameDataset(Dataset):
+    """Frames as training samples; `augment` turns on crops and the seed's augmentations."""
+
+    def __init__(self, frames: list[FrameRef], rig: Rig, cfg: DataConfig, seed: int, augment: bool):
+        self.frames, self.rig, self.cfg, self.seed, self.augment = frames, rig, cfg, seed, augment
+        self.epoch = 0
+        h, w = rig.camera.height, rig.camera.width
+        self.crop_h = min(cfg.crop_height or h, h - h % 2)
+        self.crop_w = min(cfg.crop_width or w, w - w % 2)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        ref = self.frames[i]
+        t = frame_targets(read_frame(ref.path, channels=TRAIN_CHANNELS), self.rig)
+        h, w = t["ir"].shape
+        rng = np.random.default_rng([self.seed, self.epoch, i])
+        y0 = x0 = jitter = 0
+        if self.augment:
+            y0 = 2 * int(rng.integers(0, (h - self.crop_h) // 2 + 1))
+            x0 = int(rng.integers(0, w - self.crop_w + 1))
+            j = self.cfg.vertical_jitter
+            jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
+        rows = slice(y0 + jitter, y0 + jitter + self.crop_h)
+        cols = slice(x0, x0 + self.crop_w)
+        ir = t["ir"][rows, cols]
+        if self.augment:
+            ir = ir * rng.uniform(*self.cfg.intensity_scale)
+            if self.cfg.noise_std > 0:
+                ir = ir + rng.normal(0.0, self.cfg.noise_std, ir.shape).astype(np.float32)
+        half = (rows.start, cols.start)
+        sample = {
+            "ir": torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None],
+            "row0": torch.tensor(y0 // 2),
+        }
+        for key in ("column", "valid", "edge"):
+            sub = t[key][half[0] : rows.stop : 2, half[1] : cols.stop : 2]
+            sample[key] = torch.from_numpy(np.ascontiguousarray(sub))
+        sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
+        return sample
+
+
+class EpochSampler(Sampler[int]):
+    """A seeded permutation of all frames per epoch (shuffles across and within shards), skipping the
+    first `skip` samples of the first epoch it serves so a resumed run sees what an unbroken run would."""
+
+    def __init__(self, n: int, seed: int, epoch: int = 0, skip: int = 0):
+        self.n, self.seed, self.epoch, self.skip = n, seed, epoch, skip
+
+    def __iter__(self):
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch)
+        order = torch.randperm(self.n, generator=g).tolist()
+        return iter(order[self.skip :])
+
+    def __len__(self) -> int:
+        return self.n - self.skip
+
+
+def make_loader(ds: FrameDataset, batch_size: int, epoch: int, skip: int, workers: int) -> DataLoader:
+    """Loader for one epoch (workers are recreated per epoch so they see ds.epoch)."""
+    ds.epoch = epoch
+    return DataLoader(
+        ds, batch_size=batch_size, sampler=EpochSampler(len(ds), ds.seed, epoch, skip),
+        num_workers=workers, drop_last=True, persistent_workers=False,
+    )

@@ -1,0 +1,179 @@
+"""Evaluation: outlier rates o(t) of the network and of StereoSGBM on the same frames, error images.
+
+o(t) is the share of valid pixels whose disparity error exceeds t camera pixels at full resolution
+(t = 0.5, 1, 2, 5). Valid: the pattern is visible and the GT disparity is finite and positive. A pixel a
+method gives no estimate for counts as an outlier, so no method gains by abstaining. The network's
+half-resolution output is brought to full resolution by linear interpolation that keeps the native
+samples at pixels (2i, 2j) exactly (upsample_half), then converted column -> depth -> disparity with
+dotsim.rig. Rows are split by GT depth range as well as overall.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dotsim.dataset import atomic_write_bytes, pattern_path, read_frame
+from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth, reference_image
+from trainer.data import DataError, list_frames
+from trainer.model import GigaDepthNet
+from trainer.sgbm import num_disparities_for, sgbm_disparity
+from trainer.train import build_model, check_rig, load_checkpoint
+
+THRESHOLDS = (0.5, 1.0, 2.0, 5.0)
+DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
+EVAL_CHANNELS = ("ir", "visibility", "depth", "disparity")
+
+
+def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
+                   thresholds=THRESHOLDS) -> tuple[int, list[int]]:
+    """(valid pixels, [pixels with |pred - gt| > t for t in thresholds]); nan predictions are outliers."""
+    err = np.abs(np.asarray(pred, np.float64) - gt)[valid]
+    err = np.where(np.isfinite(err), err, np.inf)
+    return int(valid.sum()), [int((err > t).sum()) for t in thresholds]
+
+
+def upsample_half(half: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(h, w) values at full-res pixels (2i, 2j) -> (height, width): linear in between, the native
+    samples kept exactly, the odd last row/column (if any) extrapolated linearly from the two before."""
+    def along(a: np.ndarray, n: int, axis: int) -> np.ndarray:
+        a = np.moveaxis(a, axis, 0)
+        out = np.empty((n, *a.shape[1:]), np.float64)
+        out[0::2] = a[: (n + 1) // 2]
+        inner = (a[:-1] + a[1:]) / 2
+        out[1::2][: len(inner)] = inner[: n // 2]
+        if n % 2 == 0:  # the last (odd) index has no sample to its right
+            out[n - 1] = 2 * a[n // 2 - 1] - a[n // 2 - 2] if len(a) > 1 else a[-1]
+        return np.moveaxis(out, 0, axis)
+
+    return along(along(np.asarray(half, np.float64), height, 0), width, 1)
+
+
+def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu"):
+    """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth."""
+    model.eval()
+    with torch.no_grad():
+        x = torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None, None].to(device)
+        column = model(x)[0].float().cpu().numpy()
+    column = upsample_half(column, rig.camera.height, rig.camera.width)
+    depth = projector_column_to_depth(column, rig, normalised=True)
+    return depth_to_disparity(depth, rig), depth
+
+
+def error_image(err: np.ndarray, valid: np.ndarray, max_px: float = 5.0) -> np.ndarray:
+    """BGR uint8: |error| 0..max_px on the turbo colour map, outliers (> max_px or no estimate)
+    black, pixels without ground truth mid grey (as the seed's figures)."""
+    err = np.abs(err)
+    scaled = np.clip(np.nan_to_num(err, nan=0.0) / max_px * 255, 0, 255).astype(np.uint8)
+    img = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
+    img[~(err <= max_px)] = 0
+    img[~valid] = 128
+    return img
+
+
+def _labelled(img: np.ndarray, text: str) -> np.ndarray:
+    img = img.copy()
+    cv2.putText(img, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+    return img
+
+
+def write_png(path: Path, img: np.ndarray) -> None:
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"{path}: PNG encoding failed")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def load_reference(data_dir: Path, rig: Rig) -> np.ndarray:
+    """The dataset's pattern (DATASET/pattern.png) as seen from infinity on the camera grid."""
+    path = pattern_path(data_dir)
+    pattern = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if pattern is None:
+        raise DataError(f"{path}: missing or unreadable; SGBM needs the dataset's projector pattern")
+    if pattern.ndim == 3:
+        pattern = pattern[..., 0]
+    pattern = pattern.astype(np.float64) / np.iinfo(pattern.dtype).max
+    try:
+        return reference_image(pattern, rig, supersample=4)
+    except ValueError as e:
+        raise DataError(f"{path}: {e}") from e
+
+
+def format_table(rows: list[dict]) -> str:
+    head = "| method | depth range (m) | pixels | " + " | ".join(f"o({t:g})" for t in THRESHOLDS) + " |"
+    lines = [head, "|" + "---|" * (3 + len(THRESHOLDS))]
+    for r in rows:
+        rates = " | ".join(f"{r[f'o({t:g})']:.4f}" if r["pixels"] else "-" for t in THRESHOLDS)
+        lines.append(f"| {r['method']} | {r['range']} | {r['pixels']} | {rates} |")
+    return "\n".join(lines) + "\n"
+
+
+def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
+             device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
+             progress: bool = True) -> list[dict]:
+    """Evaluate a checkpoint and StereoSGBM on `split` of data_dir; write OUT/eval.md, OUT/eval.csv and
+    OUT/errors/*.png (IR | network error | SGBM error, first `images` frames). Returns the table rows."""
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    ckpt, cfg, rig = load_checkpoint(checkpoint, device)
+    frames, data_rig, _ = list_frames(data_dir, split)
+    check_rig(rig, data_rig, f"checkpoint {checkpoint}", str(data_dir))
+    model = build_model(cfg, rig).to(device)
+    model.load_state_dict(ckpt["model"])
+    reference = load_reference(data_dir, rig)
+    n_disp = num_disparities_for(rig)
+    if max_frames > 0:
+        frames = frames[:max_frames]
+    (out_dir / "errors").mkdir(parents=True, exist_ok=True)
+    bins = list(zip(depth_bins[:-1], depth_bins[1:], strict=True))
+    ranges = [("all", None)] + [(f"{a:g}-{b:g}", (a, b)) for a, b in bins]
+    counts = {(m, r): np.zeros(1 + len(THRESHOLDS), np.int64) for m in ("network", "sgbm") for r, _ in ranges}
+    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
+        f = read_frame(ref.path, channels=EVAL_CHANNELS)
+        ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
+        valid = (f["visibility"] > 0) & np.isfinite(gt) & (gt > 0)
+        preds = {"network": predict_disparity(model, rig, ir, device)[0],
+                 "sgbm": sgbm_disparity(ir, reference, n_disp)}
+        for method, pred in preds.items():
+            for name, lim in ranges:
+                sel = valid if lim is None else valid & (f["depth"] >= lim[0]) & (f["depth"] < lim[1])
+                pixels, outliers = outlier_counts(pred, gt, sel)
+                counts[(method, name)] += np.array([pixels, *outliers])
+        if n < images:
+            grey = cv2.cvtColor(_to_grey(ir), cv2.COLOR_GRAY2BGR)
+            panels = [_labelled(grey, "IR")] + [
+                _labelled(error_image(preds[m] - gt, valid), f"{m} |err| 0-5px") for m in preds
+            ]
+            sep = np.full((ir.shape[0], 2, 3), 255, np.uint8)
+            strip = np.concatenate([p for panel in panels for p in (panel, sep)][:-1], axis=1)
+            write_png(out_dir / "errors" / f"scene_{ref.scene_index:07d}_frame_{ref.frame_index}.png", strip)
+    rows = []
+    for (method, name), c in counts.items():
+        row = {"method": method, "range": name, "pixels": int(c[0])}
+        for k, t in enumerate(THRESHOLDS):
+            row[f"o({t:g})"] = c[1 + k] / c[0] if c[0] else float("nan")
+        rows.append(row)
+    table = format_table(rows)
+    header = (f"Evaluation of {checkpoint} on {len(frames)} frame(s) of {data_dir} (split {split!r}); "
+              f"SGBM with {n_disp} disparities, block 5, P1 200, P2 800.\n\n")
+    atomic_write_bytes(out_dir / "eval.md", (header + table).encode())
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write_bytes(out_dir / "eval.csv", buf.getvalue().encode())
+    if progress:
+        print(table, end="")
+        print(f"evaluated {len(frames)} frame(s); table in {out_dir / 'eval.md'} and eval.csv, "
+              f"error images in {out_dir / 'errors'}")
+    return rows
+
+
+def _to_grey(ir: np.ndarray) -> np.ndarray:
+    scale = max(float(np.percentile(ir, 99.5)), 1e-12)
+    return np.clip(ir / scale * 255, 0, 255).astype(np.uint8)

@@ -1,0 +1,213 @@
+"""The training loop: teacher-forced tree losses, checkpoints with exact resume, TensorBoard logging.
+
+RUN/checkpoint.pt holds everything a resume needs (model, optimiser, scheduler, step, config, rig, RNG
+states); RUN/tb/ the TensorBoard scalars and images. Given the same config, data and seed a CPU run is
+deterministic, and a resumed run continues with the losses an unbroken run would have had.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dotsim.rig import Rig
+from trainer.config import Config, config_from_dict
+from trainer.data import DataError, FrameDataset, list_frames, make_loader
+from trainer.model import GigaDepthNet
+
+CHECKPOINT = "checkpoint.pt"
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
+    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2))."""
+    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2)
+
+
+def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config) -> tuple[torch.Tensor, dict[str, float]]:
+    """Weighted loss of one batch: sum_l ce_weights[l] * CE_l + l1_weight * L1, each the mean over the
+    valid pixels weighted by 1 + edge_weight * edge (GigaDepth weights edges up: the column jumps there)."""
+    feat = model.features(batch["ir"])
+    valid = batch["valid"]
+    terms = model.loss_terms(feat, batch["row0"], batch["column"], valid)
+    weight = 1.0 + cfg.train.edge_weight * batch["edge"][valid]
+    norm = weight.sum().clamp_min(1.0)
+    parts = {f"ce{k + 1}": (ce * weight).sum() / norm for k, ce in enumerate(terms["ce"])}
+    parts["l1"] = (terms["l1"] * weight).sum() / norm
+    loss = sum(w * parts[f"ce{k + 1}"] for k, w in enumerate(cfg.train.ce_weights))
+    loss = loss + cfg.train.l1_weight * parts["l1"]
+    return loss, {k: float(v.detach()) for k, v in parts.items()}
+
+
+def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int):
+    t = cfg.train
+    if t.optimizer == "sgd":
+        opt = torch.optim.SGD(model.parameters(), lr=t.lr, momentum=t.momentum, weight_decay=t.weight_decay)
+    else:
+        opt = torch.optim.Adam(model.parameters(), lr=t.lr, weight_decay=t.weight_decay)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(1, t.lr_step_epochs * steps_per_epoch),
+                                            gamma=t.lr_gamma)
+    return opt, sched
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    tmp = path.with_name(f".tmp-{path.name}-{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:
+    """Read a checkpoint and the config and rig it was trained with; clear errors for other files."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: checkpoint not found")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as e:  # torch raises many kinds for non-checkpoint files
+        raise DataError(f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e})") from e
+    if not isinstance(ckpt, dict) or not {"model", "config", "rig"} <= set(ckpt):
+        raise DataError(f"{path}: not a dotsim trainer checkpoint (needs model, config and rig entries)")
+    return ckpt, config_from_dict(ckpt["config"], f"{path} config"), Rig.from_dict(ckpt["rig"])
+
+
+def check_rig(expected: Rig, found: Rig, what: str, source: str) -> None:
+    """Refuse data whose rig (resolution, intrinsics, baseline) differs from the model's."""
+    if expected != found:
+        diffs = [k for k in expected.to_dict() if expected.to_dict()[k] != found.to_dict()[k]]
+        raise DataError(
+            f"{source}: rig {found.name!r} ({found.camera.width}x{found.camera.height}) differs from the "
+            f"{what}'s rig {expected.name!r} ({expected.camera.width}x{expected.camera.height}) in {diffs}"
+        )
+
+
+def _rng_states() -> dict:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def _set_rng_states(s: dict) -> None:
+    torch.set_rng_state(s["torch"])
+    np.random.set_state(s["numpy"])
+    random.setstate(s["python"])
+
+
+def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
+    """IR, GT column, predicted column and |error| (leaf units, 0..5) of the first sample."""
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        pred = model(batch["ir"][:1], batch["row0"][:1])[0].float()
+    model.train(was_training)
+    ir = batch["ir"][0, 0]
+    writer.add_image("ir", (ir / ir.max().clamp_min(1e-6)).clamp(0, 1)[None], step)
+    valid = batch["valid"][0]
+    gt = torch.where(valid, batch["column"][0], torch.zeros_like(pred))
+    lo, hi = gt[valid].min() if valid.any() else 0, gt[valid].max() if valid.any() else 1
+    scale = lambda x: ((x - lo) / max(float(hi - lo), 1e-6)).clamp(0, 1)[None]  # noqa: E731
+    writer.add_image("column_gt", scale(gt), step)
+    writer.add_image("column_pred", scale(pred), step)
+    err = ((pred - gt).abs() * model.leaves * (1 - 2 * model.cfg.column_padding) / 5).clamp(0, 1) * valid
+    writer.add_image("error_leaves_0_to_5", err[None], step)
+
+
+def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
+          device: str = "cpu", split: str = "train", progress: bool = True) -> dict:
+    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    out_dir = Path(out_dir)
+    ckpt_path = out_dir / CHECKPOINT
+    frames, rig, _ = list_frames(data_dir, split)
+    t = cfg.train
+    steps_per_epoch = len(frames) // t.batch_size
+    if steps_per_epoch == 0:
+        raise DataError(f"{data_dir}: {len(frames)} frame(s) in split {split!r}, fewer than batch_size "
+                        f"{t.batch_size}")
+    total_steps = t.epochs * steps_per_epoch
+    if t.max_steps > 0:
+        total_steps = min(total_steps, t.max_steps)
+    if device == "cuda" and not torch.cuda.is_available():
+        raise DataError("--device cuda: no CUDA device is available; use --device cpu")
+
+    seed_everything(cfg.seed)
+    model = build_model(cfg, rig).to(device)
+    opt, sched = make_optimizer(model, cfg, steps_per_epoch)
+    use_amp = device == "cuda" and t.amp
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    step = 0
+    if ckpt_path.exists():
+        if not resume:
+            raise DataError(f"{ckpt_path}: exists; pass --resume to continue it or choose another --out")
+        ckpt, old_cfg, old_rig = load_checkpoint(ckpt_path, device)
+        if old_cfg != cfg:
+            raise DataError(f"{ckpt_path}: was trained with another config; resume needs the same one")
+        check_rig(old_rig, rig, "checkpoint", str(data_dir))
+        model.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        sched.load_state_dict(ckpt["scheduler"])
+        scaler.load_state_dict(ckpt["scaler"])
+        step = ckpt["step"]
+        _set_rng_states(ckpt["rng"])
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    def save() -> None:
+        atomic_torch_save({
+            "model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+            "scaler": scaler.state_dict(), "step": step, "config": cfg.to_dict(), "rig": rig.to_dict(),
+            "rng": _rng_states(), "torch_version": torch.__version__,
+        }, ckpt_path)
+
+    ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
+    writer = SummaryWriter(str(out_dir / "tb"), purge_step=step)
+    losses: list[float] = []
+    start = time.perf_counter()
+    model.train()
+    bar = tqdm(total=total_steps, initial=step, desc="train", unit="step", disable=not progress)
+    while step < total_steps:
+        epoch, within = divmod(step, steps_per_epoch)
+        loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers)
+        for batch in loader:
+            batch = {k: v.to(device) for k, v in batch.items()}
+            with torch.autocast("cuda", dtype=torch.float16, enabled=use_amp):
+                loss, parts = batch_loss(model, batch, cfg)
+            if not math.isfinite(float(loss)):
+                raise FloatingPointError(f"step {step}: loss is {float(loss)}; lower [train].lr")
+            opt.zero_grad(set_to_none=True)
+            scaler.scale(loss).backward()
+            scaler.step(opt)
+            scaler.update()
+            sched.step()
+            step += 1
+            losses.append(float(loss))
+            bar.update(1)
+            bar.set_postfix(loss=f"{float(loss):.4f}", epoch=epoch)
+            if step % t.log_every == 0 or step == total_steps:
+                writer.add_scalar("loss/total", float(loss), step)
+                for k, v in parts.items():
+                    writer.add_scalar(f"loss/{k}", v, step)
+                writer.add_scalar("lr", sched.get_last_lr()[0], step)
+            if step % t.image_every == 0 or step == total_steps:
+                _log_images(writer, step, model, batch)
+            if step % t.checkpoint_every == 0 or step == total_steps:
+                save()
+            if step >= total_steps:
+                break
+    bar.close()
+    writer.close()
+    seconds = time.perf_counter() - start
+    if progress:
+        last = f"{losses[-1]:.4f}" if losses else "n/a (already complete)"
+        print(f"trained {len(losses)} step(s) to step {step}/{total_steps} in {seconds:.1f} s, "
+              f"last loss {last}; checkpoint {ckpt_path}")
+    return {"step": step, "losses": losses, "seconds": seconds}
