@@ -500,14 +500,13 @@ def finalize_dataset(dataset_dir: str | os.PathLike) -> dict:
             if index // scenes_per_shard != shard_index:
                 raise FormatError(f"{sdir}: scene {index} belongs in {shard_name(index // scenes_per_shard)} "
                                   f"(scenes_per_shard={scenes_per_shard})")
-            scene_bytes = (sdir / SCENE_FILE).read_bytes() if (sdir / SCENE_FILE).exists() else None
-            if scene_bytes is None:
+            if not (sdir / SCENE_FILE).is_file():
                 raise FormatError(f"{sdir / SCENE_FILE}: missing (a scene dir without scene.json "
                                   f"was not written by write_scene)")
-            meta = _load_json(sdir / SCENE_FILE, scene_bytes)
-            check_format_version(meta.get("format_version"), sdir / SCENE_FILE)
+            scene_bytes = (sdir / SCENE_FILE).read_bytes()
+            meta = parse_scene_meta(sdir / SCENE_FILE, scene_bytes)
             files = {SCENE_FILE: sha256_bytes(scene_bytes)}
-            for entry in _require(meta, "frames", list, sdir / SCENE_FILE):
+            for entry in meta["frames"]:
                 path = sdir / entry["file"]
                 if not path.is_file():
                     raise FormatError(f"{path}: missing (listed in {SCENE_FILE})")
@@ -657,6 +656,12 @@ def read_scene_meta(scene_path: str | os.PathLike, verify: bool = True) -> dict:
         expected = _shard_checksum(scene_path, SCENE_FILE)
         if expected is not None and sha256_bytes(data) != expected:
             raise FormatError(f"{path}: sha256 differs from the one in {scene_path.parent / SHARD_FILE}")
+    return parse_scene_meta(path, data)
+
+
+def parse_scene_meta(path: Path, data: bytes) -> dict:
+    """Validate scene.json bytes: JSON object, known major version, every required key, the
+    channel list, the frame list, the rig camera size. Returns the dict."""
     meta = _load_json(path, data)
     check_format_version(meta.get("format_version"), path)
     for key in REQUIRED_META_KEYS + WRITER_META_KEYS:
@@ -666,6 +671,11 @@ def read_scene_meta(scene_path: str | os.PathLike, verify: bool = True) -> dict:
     unknown = [c for c in channels if c not in FRAME_CHANNELS]
     if unknown:
         raise FormatError(f"{path}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
+    frames = _require(meta, "frames", list, path)
+    if len(frames) != _require(meta, "frame_count", int, path) or not all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
+            for e in frames):
+        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file, sha256}}")
     camera_size(meta, path)
     return meta
 
