@@ -238,9 +238,13 @@ _WORKER: dict = {}
 def _init_worker(job: _Job) -> None:
     _WORKER["job"] = job
     if job.blender is None:
-        # The only place the pipeline touches bpy: one renderer per worker process, reused.
-        from generator.blender.render import SceneRenderer
-        _WORKER["renderer"] = SceneRenderer()
+        try:
+            # The only place the pipeline touches bpy: one renderer per worker process, reused.
+            from generator.blender.render import SceneRenderer
+            _WORKER["renderer"] = SceneRenderer()
+        except Exception:
+            # Raising here would break the whole pool without a traceback; fail each scene instead.
+            _WORKER["start_error"] = traceback.format_exc()
 
 
 def scene_meta(job: _Job, spec_dict: dict) -> dict:
@@ -342,6 +346,11 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
 
 
 def _render_batch(indices: list[int]) -> list[SceneResult]:
+    if "start_error" in _WORKER:
+        text = f"the render worker could not start:\n{_WORKER['start_error']}"
+        for index in indices:
+            _log_failure(_WORKER["job"], index, text)
+        return [SceneResult(index, False, error=text) for index in indices]
     if _WORKER["job"].blender is None:
         return _render_in_process(indices)
     return _render_with_blender(indices)
