@@ -31,6 +31,7 @@ from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, captu
 from capture.frames import CaptureError, RawImage, check_size, list_images, pair_on_off, read_image
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset
+from dotsim.patterns import DotPattern, load_pattern
 from dotsim.rig import Rig
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
@@ -110,9 +111,24 @@ def _versions() -> dict:
             "python": platform.python_version()}
 
 
+def write_pattern(dataset_dir: Path, pattern: DotPattern) -> dict:
+    """Store the sensor's pattern as DATASET/pattern.png (kept when a rerun finds the same one) and
+    return the scene.json `pattern` entry referring to it, as the generator writes it."""
+    path = dataset.pattern_path(dataset_dir)
+    if path.exists():
+        if load_pattern(path).sha256 != pattern.sha256:
+            raise CaptureError(f"{path}: differs from --pattern {pattern.source}; choose an empty --out")
+    else:
+        dataset_dir.mkdir(parents=True, exist_ok=True)
+        pattern.save_png(path)
+    return {"source": pattern.source, "sha256": pattern.sha256, "file": path.name,
+            "width": pattern.width, "height": pattern.height, "params": pattern.params}
+
+
 def scene_meta(pairs: list[FramePair], rig: Rig, split: str, settings: dict,
                pattern: dict | None) -> dict:
-    """scene.json content for one captured scene (the writer adds format and frame fields)."""
+    """scene.json content for one captured scene (the writer adds format and frame fields).
+    pattern: the write_pattern entry, or None when the sensor's pattern is not known."""
     return {
         "split": split,
         "source": "capture",
@@ -155,14 +171,15 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                   frames_per_scene: int = 4, split: str = "test", white_level: float | None = None,
                   dot_window: int = DEFAULT_DOT_WINDOW,
                   visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
-                  capture_settings: dict | None = None, pattern: dict | None = None,
+                  capture_settings: dict | None = None, pattern: DotPattern | None = None,
                   scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD,
                   progress: bool = True) -> dict:
     """Import projector on/off frame pairs as a finalized dataset; returns a summary dict.
 
     Pairs are grouped into scenes of `frames_per_scene` consecutive frames (the count must divide
-    evenly). capture_settings (exposure, gain, ... as the user recorded them) and pattern (the
-    pattern's reference, e.g. an extracted pattern's path and sha256) go into every scene.json.
+    evenly). capture_settings (exposure, gain, ... as the user recorded them) go into every
+    scene.json; pattern (the sensor's pattern, e.g. extracted from wall captures; it must have the
+    rig projector's resolution) is stored as DATASET/pattern.png and referenced by every scene.
     A rerun skips scenes already written from files with the same checksums and refuses a
     dataset written from other files.
     """
@@ -183,6 +200,10 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
             raise CaptureError(f"{out_dir}: holds {stray[0]}, which this import of {len(scenes)} scene(s) "
                                f"would not write; choose an empty --out")
         dataset.remove_partial_scenes(out_dir)
+    if pattern is not None and pattern.image.shape != (rig.projector.height, rig.projector.width):
+        raise CaptureError(f"pattern {pattern.source} is {pattern.width} x {pattern.height} px but rig "
+                           f"{rig.name!r} projector is {rig.projector.width} x {rig.projector.height} px")
+    pattern_entry = None if pattern is None else write_pattern(out_dir, pattern)
     settings = {"white_level": pairs[0].white_level, "frames_per_scene": frames_per_scene,
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
                 "settings": capture_settings or {}}
@@ -196,7 +217,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
             skipped += 1
             continue
         frames = [frame_channels(pair, dot_window, visibility_threshold) for pair in scene_pairs]
-        meta = scene_meta(scene_pairs, rig, split, settings, pattern)
+        meta = scene_meta(scene_pairs, rig, split, settings, pattern_entry)
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
                             channels=CAPTURE_CHANNELS)
         written += 1

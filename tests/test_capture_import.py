@@ -5,13 +5,16 @@ format's half float), checksums against hashlib on the file bytes, and the visib
 against the projector's reach computed by the oracle with an all-white pattern.
 """
 
+import argparse
 import hashlib
+import json
 
 import cv2
 import numpy as np
 import OpenEXR
 import pytest
 
+from capture import cli
 from capture.dots import capture_visibility
 from capture.frames import CaptureError
 from capture.import_frames import CAPTURE_CHANNELS, import_frames
@@ -189,3 +192,32 @@ def test_rerun_resumes_and_refuses_other_files(tmp_path, rig):
     with pytest.raises(CaptureError, match="scene_0000000: was imported from other files"):
         import_frames(str(tmp_path / "other"), str(tmp_path / "off"), rig, tmp_path / "data",
                       frames_per_scene=1, progress=False)
+
+
+def test_cli_import_records_settings_and_pattern(tmp_path, rig, capsys):
+    write_frames(tmp_path / "on", random_frames(rig, 2, np.uint16, 1))
+    write_frames(tmp_path / "off", random_frames(rig, 2, np.uint16, 2))
+    (tmp_path / "settings.json").write_text(json.dumps({"exposure_us": 1600, "gain": 2}))
+    pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=5)
+    pattern.save_png(tmp_path / "pattern.png")
+    parser = argparse.ArgumentParser(prog="dotsim")
+    cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    argv = ["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
+            "--scale", "0.1", "--out", str(tmp_path / "data"), "--frames-per-scene", "2",
+            "--white-level", "1023", "--settings", str(tmp_path / "settings.json"),
+            "--pattern", str(tmp_path / "pattern.png")]
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    assert "imported 2 frame pairs as 1 scene(s)" in capsys.readouterr().out
+    data = open_dataset(tmp_path / "data")
+    meta = data.read_scene(0).meta
+    assert meta["capture"]["settings"] == {"exposure_us": 1600, "gain": 2}
+    assert meta["capture"]["white_level"] == 1023
+    assert meta["pattern"]["sha256"] == pattern.sha256
+    assert (tmp_path / "data" / "pattern.png").read_bytes() == (tmp_path / "pattern.png").read_bytes()
+    assert "pattern.png" in data.index["files"]
+    # a pattern of the wrong size for the rig is refused, naming the file
+    args = parser.parse_args(argv[:-1] + [str(tmp_path / "small.png")])
+    generate_dot_pattern(50, 40, seed=1).save_png(tmp_path / "small.png")
+    assert args.func(args) == 2
+    assert f"{tmp_path / 'small.png'}: pattern is 50x40" in capsys.readouterr().err

@@ -9,15 +9,18 @@ projector px per camera px) keeps the pattern's own error 5x under the 0.5 px di
 of the o(0.5) metric. With 2% noise the measured median is about 0.06-0.1 px.
 """
 
+import hashlib
+import json
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
 from capture.wall_pattern import WallPatternError, extract_wall_pattern
 from dotsim.oracle import expected_pattern_image
-from dotsim.patterns import generate_dot_pattern
+from dotsim.patterns import generate_dot_pattern, load_pattern
 from dotsim.rig import get_preset, rotation_matrix
 
 DISTANCE = 1.5  # metres
@@ -149,3 +152,54 @@ def test_bad_inputs_are_refused(rig, pattern):
         extract_wall_pattern([np.zeros(shape)], [np.zeros((10, 12))], rig, DISTANCE)
     with pytest.raises(WallPatternError, match="positive number of metres"):
         extract_wall_pattern([np.zeros(shape)], None, rig, -1.0)
+
+
+def run_cli(argv):
+    """Run `dotsim capture ...` through the subcommand's own parser (as dotsim.cli does)."""
+    import argparse
+
+    from capture import cli
+
+    parser = argparse.ArgumentParser(prog="dotsim")
+    cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_cli_writes_pattern_centres_and_record_from_png_files(tmp_path, rig, pattern, capsys):
+    """16-bit PNG files in (quantised as a sensor would save them), pattern + CSV + JSON out; once
+    with --distance and once with a millimetre depth-map PNG of the same wall."""
+    depth = np.full((rig.camera.height, rig.camera.width), DISTANCE)
+    on, off = render_captures(rig, pattern, depth, n_captures=2, noise=0.02)
+    for name, images in (("on", on), ("off", off)):
+        (tmp_path / name).mkdir()
+        for k, image in enumerate(images):
+            cv2.imwrite(str(tmp_path / name / f"wall_{k}.png"), np.round(np.clip(image, 0, 1) * 65535)
+                        .astype(np.uint16))
+    cv2.imwrite(str(tmp_path / "depth.png"), np.full(depth.shape, DISTANCE * 1000, np.uint16))
+    for geometry in (["--distance", str(DISTANCE)], ["--depth-map", str(tmp_path / "depth.png")]):
+        out = tmp_path / f"pattern{len(geometry[1])}.png"
+        assert run_cli(["capture", "pattern", "--wall", str(tmp_path / "on"), "--off",
+                        str(tmp_path / "off" / "*.png"), *geometry, "--rig", "structure_core",
+                        "--scale", "0.25", "-o", str(out)]) == 0
+        printed = capsys.readouterr().out
+        assert "2 on / 2 off capture(s)" in printed and "wrote" in printed
+        loaded = load_pattern(out, expected_shape=(rig.projector.height, rig.projector.width))
+        centres = np.loadtxt(out.with_suffix(".csv"), delimiter=",", skiprows=1)
+        record = json.loads(out.with_suffix(".json").read_text())
+        assert len(centres) == record["extraction"]["dots_in_projector"]
+        assert record["pattern"]["sha256"] == loaded.sha256
+        assert record["sources"]["on"][0]["sha256"] == hashlib.sha256(
+            (tmp_path / "on" / "wall_0.png").read_bytes()).hexdigest()
+        found = cKDTree(pattern.centres).query(centres[:, :2])[0]
+        assert np.median(found) < 0.2 and (found < 0.5).mean() > 0.99
+
+
+def test_cli_reports_bad_input_naming_it(tmp_path, capsys):
+    assert run_cli(["capture", "pattern", "--wall", str(tmp_path / "missing"), "--distance", "1.5",
+                    "-o", str(tmp_path / "p.png")]) == 2
+    assert f"--wall: {tmp_path / 'missing'} does not exist" in capsys.readouterr().err
+    assert run_cli(["capture", "pattern", "--wall", str(tmp_path), "--distance", "1.5", "--rig", "nosuch",
+                    "-o", str(tmp_path / "p.png")]) == 2
+    assert "--rig 'nosuch': neither a preset" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

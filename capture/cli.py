@@ -1,0 +1,250 @@
+"""`dotsim capture`: import recorded sensor frames as a dataset, or extract a pattern from wall captures."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
+from capture.frames import CaptureError, list_images, read_image
+from capture.import_frames import import_frames
+from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
+from dotsim.dataset import FormatError, atomic_write_bytes
+from dotsim.patterns import PatternError, load_pattern, pattern_statistics
+from dotsim.rig import DEFAULT_PRESET, PRESETS, Rig, get_preset
+
+# Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
+PNG_DEPTH_SCALE = 0.001
+
+
+def load_rig(spec: str, scale: float = 1.0) -> Rig:
+    """A rig preset by name, or a calibrated rig from a JSON file (Rig.to_dict() layout); then scaled.
+
+    Raises CaptureError naming the file or listing the presets.
+    """
+    if spec in PRESETS:
+        rig = get_preset(spec)
+    elif spec.endswith(".json"):
+        try:
+            rig = Rig.from_dict(json.loads(Path(spec).read_text()))
+        except OSError as error:
+            raise CaptureError(f"--rig {spec}: cannot read ({error.strerror})") from None
+        except ValueError as error:  # bad JSON or a bad rig field (JSONDecodeError is a ValueError)
+            raise CaptureError(f"--rig {spec}: not a rig ({error})") from None
+    else:
+        raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}) "
+                           f"nor a .json rig file")
+    if scale != 1.0:
+        try:
+            rig = rig.scaled(scale)
+        except ValueError as error:
+            raise CaptureError(f"--scale: {error}") from None
+    return rig
+
+
+def _rig_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rig", default=DEFAULT_PRESET,
+                        help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}) or a "
+                        "calibrated rig as a JSON file in Rig.to_dict() layout; the frames must have its "
+                        "camera resolution")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
+                        "resolution; default 1)")
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "capture",
+        help="import real sensor frames as a dataset, or extract a dot pattern from wall captures",
+        description="Tools for real sensor recordings, saved by the sensor's own SDK as greyscale "
+        "8/16-bit PNG or EXR frames (docs/CAPTURE.md says how to record them).",
+    )
+    actions = parser.add_subparsers(dest="capture_command", metavar="ACTION", required=True)
+
+    imp = actions.add_parser(
+        "import",
+        help="write projector-on/off frame pairs into the dotsim dataset format (no ground truth)",
+        description="Read projector-on and projector-off frames, pair them in natural sort order "
+        "(frame_2 before frame_10; the counts must be equal), check every file (readable, greyscale, "
+        "the rig camera's size, one sample type) before writing anything, and write a finalized "
+        "dataset: channels ir (projector on), ambient (projector off) and visibility (from their "
+        "difference), values = raw / white level. scene.json says has_ground_truth: false and "
+        "lists every source file with its sha256. A rerun resumes; other files into the same "
+        "--out are refused.",
+    )
+    imp.add_argument("--on", required=True, metavar="DIR_OR_GLOB",
+                     help="projector-on frames: a folder of .png/.exr files, one file, or a quoted glob")
+    imp.add_argument("--off", required=True, metavar="DIR_OR_GLOB", help="projector-off frames, likewise")
+    _rig_arguments(imp)
+    imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
+    imp.add_argument("--frames-per-scene", type=int, default=4,
+                     help="consecutive frame pairs per scene; must divide the pair count (default 4)")
+    imp.add_argument("--split", choices=("train", "test"), default="test",
+                     help="split recorded for every scene (default test)")
+    imp.add_argument("--white-level", type=float,
+                     help="raw value stored as 1.0 (default: full scale of the files: 255, 65535, "
+                     "or 1 for EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
+    imp.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+                     help="px; at least the widest gap between neighbouring dots in the image "
+                     f"(default {DEFAULT_DOT_WINDOW})")
+    imp.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
+                     help="visible where the dots add more than this share of the 99th-percentile "
+                     f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
+    imp.add_argument("--settings", type=Path,
+                     help="JSON file of capture settings (exposure, gain, sensor serial, ...) copied into "
+                     "every scene.json")
+    imp.add_argument("--pattern", type=Path,
+                     help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
+                     "DATASET/pattern.png and referenced by every scene")
+    imp.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    imp.set_defaults(func=_import)
+
+    pat = actions.add_parser(
+        "pattern",
+        help="extract the projector's dot pattern from captures of a flat wall",
+        description="Average the projector-on wall captures (minus the projector-off ones), detect "
+        "the dots with sub-pixel centres, trace each to the projector image through the rig "
+        "(camera ray -> wall at the given depth -> projector pixel), and draw them as Gaussian "
+        "dots at the projector's resolution. Writes OUTPUT (16-bit PNG), OUTPUT.csv (projector "
+        "and camera centres of every dot) and OUTPUT.json (statistics, sources, settings), and "
+        "prints the statistics. Only the part of the projector's field the camera sees is recovered.",
+    )
+    pat.add_argument("--wall", required=True, nargs="+", metavar="IMG",
+                     help="projector-on wall captures: files, folders or quoted globs (averaged)")
+    pat.add_argument("--off", nargs="+", metavar="IMG", default=[],
+                     help="projector-off captures of the same wall (averaged and subtracted); "
+                     "leave out in a dark room")
+    depth = pat.add_mutually_exclusive_group(required=True)
+    depth.add_argument("--distance", type=float, metavar="Z",
+                       help="planar distance of the wall in metres (wall facing the camera squarely)")
+    depth.add_argument("--depth-map", type=Path, metavar="FILE",
+                       help="the wall's planar depth map at the camera resolution (PNG in millimetres or "
+                       "EXR in metres; 0 = no reading), e.g. the sensor's own, for a tilted wall")
+    pat.add_argument("--depth-scale", type=float,
+                     help="metres per depth-map unit (default 0.001 for PNG, 1 for EXR)")
+    _rig_arguments(pat)
+    pat.add_argument("--dot-sigma", type=float,
+                     help="Gaussian std of the pattern's dots in projector px (default: measured "
+                     "from the captures)")
+    pat.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+                     help="px; at least the widest gap between neighbouring dots in the image: sets "
+                     f"the local brightness scale (default {DEFAULT_DOT_WINDOW})")
+    pat.add_argument("--detect-threshold", type=float, default=DEFAULT_DETECT_THRESHOLD,
+                     help="keep local maxima above this share of the local dot brightness "
+                     f"(default {DEFAULT_DETECT_THRESHOLD})")
+    pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
+    pat.set_defaults(func=_pattern)
+
+
+def _fail(action: str, error: Exception) -> int:
+    print(f"dotsim capture {action}: error: {error}", file=sys.stderr)
+    return 2
+
+
+def _read_json(path: Path, what: str) -> dict:
+    try:
+        value = json.loads(path.read_text())
+    except OSError as error:
+        raise CaptureError(f"{what} {path}: cannot read ({error.strerror})") from None
+    except ValueError as error:
+        raise CaptureError(f"{what} {path}: not valid JSON ({error})") from None
+    if not isinstance(value, dict):
+        raise CaptureError(f"{what} {path}: expected a JSON object, found {type(value).__name__}")
+    return value
+
+
+def _import(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    try:
+        rig = load_rig(args.rig, args.scale)
+        settings = _read_json(args.settings, "--settings") if args.settings else {}
+        pattern = None
+        if args.pattern:
+            pattern = load_pattern(args.pattern, expected_shape=(rig.projector.height, rig.projector.width))
+        summary = import_frames(args.on, args.off, rig, args.out, frames_per_scene=args.frames_per_scene,
+                                split=args.split, white_level=args.white_level, dot_window=args.dot_window,
+                                visibility_threshold=args.visibility_threshold, capture_settings=settings,
+                                pattern=pattern, scenes_per_shard=args.scenes_per_shard)
+    except (CaptureError, PatternError, FormatError, ValueError) as error:
+        return _fail("import", error)
+    print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "
+          f"{summary['dataset']} ({summary['written']} written, {summary['skipped']} already there) in "
+          f"{time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def read_depth_map(path: Path, scale: float | None) -> np.ndarray:
+    """A depth image as planar depth in metres (float64); 0 / non-finite -> nan (no reading)."""
+    image = read_image(path)
+    if scale is None:
+        scale = 1.0 if image.pixels.dtype == np.float32 else PNG_DEPTH_SCALE
+    if not (np.isfinite(scale) and scale > 0):
+        raise CaptureError(f"--depth-scale must be a positive number, got {scale}")
+    depth = image.pixels.astype(np.float64) * scale
+    return np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
+
+
+def _load_wall_images(specs: list[str], what: str) -> list:
+    paths = [path for spec in specs for path in list_images(spec, what=what)]
+    return [read_image(path) for path in paths]
+
+
+def _pattern(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    try:
+        if args.output.suffix.lower() != ".png":
+            raise CaptureError(f"-o {args.output}: the pattern is written as a .png file")
+        rig = load_rig(args.rig, args.scale)
+        on = _load_wall_images(args.wall, "--wall")
+        off = _load_wall_images(args.off, "--off")
+        for image in on + off:
+            if image.shape != on[0].shape:
+                raise CaptureError(f"{image.path}: {image.shape[1]} x {image.shape[0]} px, but "
+                                   f"{on[0].path} is {on[0].shape[1]} x {on[0].shape[0]} px")
+        if args.depth_map is not None:
+            wall_depth = read_depth_map(args.depth_map, args.depth_scale)
+        else:
+            wall_depth = args.distance
+        result = extract_wall_pattern([image.relative() for image in on], [image.relative() for image in off],
+                                      rig, wall_depth, dot_sigma=args.dot_sigma, window=args.dot_window,
+                                      detect_threshold=args.detect_threshold)
+        statistics = pattern_statistics(result.pattern)
+    except (CaptureError, WallPatternError, PatternError, ValueError) as error:
+        return _fail("pattern", error)
+    csv = io.StringIO()
+    csv.write("x_projector,y_projector,x_camera,y_camera\n")
+    np.savetxt(csv, np.hstack([result.projector_centres, result.camera_centres]), fmt="%.4f", delimiter=",")
+    record = {
+        "pattern": {"file": args.output.name, "sha256": result.pattern.sha256, "width": result.pattern.width,
+                    "height": result.pattern.height, "params": result.pattern.params},
+        "extraction": result.stats,
+        "statistics": statistics,
+        "rig": rig.to_dict(),
+        "wall": ({"depth_map": str(args.depth_map.resolve()), "depth_scale": args.depth_scale}
+                 if args.depth_map is not None else {"distance": args.distance}),
+        "sources": {"on": [{"path": str(i.path.resolve()), "sha256": i.sha256} for i in on],
+                    "off": [{"path": str(i.path.resolve()), "sha256": i.sha256} for i in off]},
+        "settings": {"dot_window": args.dot_window, "detect_threshold": args.detect_threshold},
+    }
+    # the centres and the record first: the pattern file appearing means the set is complete
+    atomic_write_bytes(args.output.with_suffix(".csv"), csv.getvalue().encode())
+    atomic_write_bytes(args.output.with_suffix(".json"), (json.dumps(record, indent=2) + "\n").encode())
+    result.pattern.save_png(args.output)
+    stats = result.stats
+    print(f"{len(on)} on / {len(off)} off capture(s): {stats['dots_detected']} dots detected, "
+          f"{stats['dots_in_projector']} kept ({stats['dots_on_border']} cut by the image border), "
+          f"dot sigma {stats['dot_sigma']:.2f} projector px (measured {stats['dot_sigma_measured']:.2f})")
+    s = statistics
+    print(f"pattern {s['width']}x{s['height']}: {s['dot_count']} dots, density {s['density']:.5f} dots/px, "
+          f"spacing mean {s['mean_spacing']:.2f} / min {s['min_spacing']:.2f} px, row windows "
+          f"{s['window']} px unique {100 * s['row_window_uniqueness']:.1f}% "
+          f"(empty {100 * s['flat_window_share']:.1f}%)")
+    print(f"wrote {args.output}, {args.output.with_suffix('.csv').name}, "
+          f"{args.output.with_suffix('.json').name} in {time.perf_counter() - start:.1f} s")
+    return 0
