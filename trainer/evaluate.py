@@ -20,7 +20,9 @@ import torch
 from tqdm import tqdm
 
 from dotsim.dataset import atomic_write_bytes, pattern_path, read_frame
+from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth, reference_image
+from dotsim.show import write_image
 from trainer.data import DataError, list_frames
 from trainer.model import GigaDepthNet
 from trainer.sgbm import num_disparities_for, sgbm_disparity
@@ -83,26 +85,14 @@ def _labelled(img: np.ndarray, text: str) -> np.ndarray:
     return img
 
 
-def write_png(path: Path, img: np.ndarray) -> None:
-    ok, buf = cv2.imencode(".png", img)
-    if not ok:
-        raise OSError(f"{path}: PNG encoding failed")
-    atomic_write_bytes(path, buf.tobytes())
-
-
 def load_reference(data_dir: Path, rig: Rig) -> np.ndarray:
     """The dataset's pattern (DATASET/pattern.png) as seen from infinity on the camera grid."""
     path = pattern_path(data_dir)
-    pattern = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if pattern is None:
-        raise DataError(f"{path}: missing or unreadable; SGBM needs the dataset's projector pattern")
-    if pattern.ndim == 3:
-        pattern = pattern[..., 0]
-    pattern = pattern.astype(np.float64) / np.iinfo(pattern.dtype).max
     try:
-        return reference_image(pattern, rig, supersample=4)
-    except ValueError as e:
-        raise DataError(f"{path}: {e}") from e
+        pattern = load_pattern(path, (rig.projector.height, rig.projector.width))
+    except PatternError as e:
+        raise DataError(f"{e} (SGBM matches against the dataset's projector pattern)") from e
+    return reference_image(pattern.image, rig, supersample=4)
 
 
 def format_table(rows: list[dict]) -> str:
@@ -151,7 +141,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
             ]
             sep = np.full((ir.shape[0], 2, 3), 255, np.uint8)
             strip = np.concatenate([p for panel in panels for p in (panel, sep)][:-1], axis=1)
-            write_png(out_dir / "errors" / f"scene_{ref.scene_index:07d}_frame_{ref.frame_index}.png", strip)
+            name = f"scene_{ref.scene_index:07d}_frame_{ref.frame_index}.png"
+            write_image(out_dir / "errors" / name, strip)
     rows = []
     for (method, name), c in counts.items():
         row = {"method": method, "range": name, "pixels": int(c[0])}

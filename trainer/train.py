@@ -181,19 +181,20 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
             batch = {k: v.to(device) for k, v in batch.items()}
             with torch.autocast("cuda", dtype=torch.float16, enabled=use_amp):
                 loss, parts = batch_loss(model, batch, cfg)
-            if not math.isfinite(float(loss)):
-                raise FloatingPointError(f"step {step}: loss is {float(loss)}; lower [train].lr")
+            value = float(loss.detach())
+            if not math.isfinite(value):
+                raise FloatingPointError(f"step {step}: loss is {value}; lower [train].lr")
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.step(opt)
             scaler.update()
             sched.step()
             step += 1
-            losses.append(float(loss))
+            losses.append(value)
             bar.update(1)
-            bar.set_postfix(loss=f"{float(loss):.4f}", epoch=epoch)
+            bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
             if step % t.log_every == 0 or step == total_steps:
-                writer.add_scalar("loss/total", float(loss), step)
+                writer.add_scalar("loss/total", value, step)
                 for k, v in parts.items():
                     writer.add_scalar(f"loss/{k}", v, step)
                 writer.add_scalar("lr", sched.get_last_lr()[0], step)

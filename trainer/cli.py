@@ -1,0 +1,95 @@
+"""`dotsim train`, `dotsim eval`, `dotsim infer`: the trainer's commands (docs/TRAINER.md)."""
+
+from __future__ import annotations
+
+import argparse
+
+from dotsim.dataset import FormatError
+from trainer.config import ConfigError, load_config
+from trainer.data import DataError
+
+
+def _device(value: str) -> str:
+    if value not in ("cpu", "cuda"):
+        raise argparse.ArgumentTypeError(f"device {value!r}: choose cpu or cuda")
+    return value
+
+
+def _guarded(run):
+    """Report the trainer's expected errors as one line and exit status 1 instead of a traceback."""
+    def wrapper(args: argparse.Namespace) -> int:
+        try:
+            run(args)
+        except (ConfigError, DataError, FormatError, FloatingPointError) as e:
+            print(f"dotsim {args.command}: {e}")
+            return 1
+        return 0
+    return wrapper
+
+
+def _train(args: argparse.Namespace) -> None:
+    from trainer.train import train
+
+    train(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
+          split=args.split)
+
+
+def _eval(args: argparse.Namespace) -> None:
+    from trainer.evaluate import evaluate
+
+    evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
+             max_frames=args.max_frames, images=args.images)
+
+
+def _infer(args: argparse.Namespace) -> None:
+    from trainer.infer import infer
+
+    infer(args.checkpoint, args.inputs, args.out, device=args.device)
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "train", help="train the GigaDepth branching network on a dotsim dataset",
+        description="Train the GigaDepth network (conv backbone + classification tree over the projector "
+        "column) on the scenes of --split in DATA. Writes RUN/checkpoint.pt (model, optimiser, schedule, "
+        "step, config, rig, RNG states; saved every [train].checkpoint_every steps and at the end) and "
+        "TensorBoard logs in RUN/tb (tensorboard --logdir RUN/tb). A CPU run with the same config, data "
+        "and seed is deterministic.")
+    p.add_argument("--config", required=True, metavar="TOML",
+                   help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml")
+    p.add_argument("--data", required=True, metavar="DIR", help="finalized dotsim dataset directory")
+    p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
+    p.add_argument("--resume", action="store_true",
+                   help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "
+                   "checkpoint is an error")
+    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda (mixed precision)")
+    p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
+    p.set_defaults(func=_guarded(_train))
+
+    p = subparsers.add_parser(
+        "eval", help="outlier rates o(0.5..5) of a checkpoint and of StereoSGBM, error images",
+        description="Evaluate a checkpoint and OpenCV StereoSGBM (IR vs the pattern as seen from infinity, "
+        "GigaDepth's settings) on the same frames: o(t) = share of valid pixels (pattern visible, finite "
+        "GT) whose disparity error exceeds t = 0.5, 1, 2, 5 camera pixels at full resolution (no "
+        "estimate counts as an outlier), overall and per GT depth range. Writes OUT/eval.md, OUT/eval.csv "
+        "and OUT/errors/*.png (IR | network error | SGBM error; 0-5 px turbo, outliers black, no GT grey).")
+    p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
+    p.add_argument("--data", required=True, metavar="DIR", help="finalized dotsim dataset with ground truth")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
+    p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
+    p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
+    p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
+    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda")
+    p.set_defaults(func=_guarded(_eval))
+
+    p = subparsers.add_parser(
+        "infer", help="disparity/depth EXR, colour PNG and PLY point cloud from IR frames",
+        description="Run a trained checkpoint on IR frames: dotsim frame EXRs (rendered or captured; their "
+        "'ir' channel is used) or plain IR images (1-channel PNG, 8/16 bit, or EXR) of the checkpoint's "
+        "camera size. Writes per input NAME.exr (channels disparity [camera px], depth [m]), NAME.png "
+        "(colour-mapped disparity) and NAME.ply (points in metres, camera frame).")
+    p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda")
+    p.set_defaults(func=_guarded(_infer))

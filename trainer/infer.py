@@ -1,0 +1,128 @@
+"""Inference on rendered or captured frames: disparity and depth EXR, a colour PNG, a PLY point cloud.
+
+Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
+images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
+Outputs per input, named after it: NAME.exr (float32 channels disparity [camera px] and depth [m], nan
+where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none),
+NAME.ply (binary little-endian: x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from dotsim.dataset import FormatError, atomic_write_bytes, read_frame
+from dotsim.rig import Rig, backproject
+from dotsim.show import colourise, write_image
+from trainer.data import DataError
+from trainer.evaluate import predict_disparity
+from trainer.train import build_model, load_checkpoint
+
+
+def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
+    """IR image (H, W) float32 from a dotsim frame EXR, a plain EXR or a PNG; errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: input not found")
+    if path.suffix.lower() == ".exr":
+        try:
+            ir = read_frame(path, channels=("ir",))["ir"]
+        except FormatError:
+            ir = _plain_exr(path)
+    elif path.suffix.lower() == ".png":
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if raw is None:
+            raise DataError(f"{path}: not a readable PNG")
+        if raw.ndim == 3:
+            raise DataError(f"{path}: {raw.shape[2]}-channel PNG; an IR image has one channel")
+        ir = raw.astype(np.float32) / np.iinfo(raw.dtype).max
+    else:
+        raise DataError(f"{path}: unsupported input {path.suffix!r}; give a frame .exr, an IR .exr or a .png")
+    expected = (rig.camera.height, rig.camera.width)
+    if ir.shape != expected:
+        raise DataError(f"{path}: image is {ir.shape[1]}x{ir.shape[0]}, the checkpoint's camera "
+                        f"({rig.name}) is {expected[1]}x{expected[0]}")
+    return np.asarray(ir, np.float32)
+
+
+def _plain_exr(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    try:
+        channels = OpenEXR.File(str(path), separate_channels=True).channels()
+    except Exception as e:  # OpenEXR raises plain RuntimeError for non-EXR files
+        raise DataError(f"{path}: not a readable OpenEXR file ({e})") from e
+    names = [n for n in channels if n in ("ir", "Y", "R", "V")] or list(channels)
+    if len(channels) != 1 and names == list(channels):
+        raise DataError(f"{path}: EXR has channels {sorted(channels)}; expected 'ir' or one channel")
+    return channels[names[0]].pixels.astype(np.float32)
+
+
+def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = path.with_name(f".tmp-{path.name}")
+    pixels = {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}
+    OpenEXR.File(header, pixels).write(str(tmp))
+    tmp.replace(path)
+
+
+def ply_bytes(points: np.ndarray, grey: np.ndarray) -> bytes:
+    """Binary PLY of (N, 3) float32 points with (N,) uint8 grey colours."""
+    vertex = np.empty(len(points), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                          ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for k, axis in enumerate("xyz"):
+        vertex[axis] = points[:, k]
+    for c in ("red", "green", "blue"):
+        vertex[c] = grey
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(points)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    buf = io.BytesIO()
+    buf.write(header.encode("ascii"))
+    buf.write(vertex.tobytes())
+    return buf.getvalue()
+
+
+def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
+          progress: bool = True) -> list[Path]:
+    """Run the network on each input; returns the written EXR paths (PNG and PLY lie beside them)."""
+    ckpt, cfg, rig = load_checkpoint(checkpoint, device)
+    model = build_model(cfg, rig).to(device)
+    model.load_state_dict(ckpt["model"])
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
+    names = [_output_name(Path(p)) for p in inputs]
+    if len(set(names)) != len(names):
+        raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
+    written = []
+    todo = list(zip(names, irs, strict=True))
+    for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):
+        disparity, depth = predict_disparity(model, rig, ir, device)
+        write_exr(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
+        finite = np.isfinite(disparity)
+        lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
+        write_image(out_dir / f"{name}.png", colourise(disparity, lo, hi))
+        points = backproject(depth, rig.camera)
+        keep = np.isfinite(depth) & (depth > 0)
+        grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
+        atomic_write_bytes(out_dir / f"{name}.ply", ply_bytes(points[keep].astype(np.float32), grey[keep]))
+        written.append(out_dir / f"{name}.exr")
+    if progress:
+        print(f"wrote disparity/depth EXR, PNG and PLY for {len(written)} frame(s) to {out_dir}")
+    return written
+
+
+def _output_name(path: Path) -> str:
+    """frame_2.exr inside scene_0000007 -> scene_0000007_frame_2; other files keep their stem."""
+    if path.parent.name.startswith("scene_") and path.stem.startswith("frame_"):
+        return f"{path.parent.name}_{path.stem}"
+    return path.stem
