@@ -268,6 +268,8 @@ def build_asset_cache(
     root = Path(cache_dir) / split
     (root / "meshes").mkdir(parents=True, exist_ok=True)
     (root / "textures").mkdir(parents=True, exist_ok=True)
+    for leftover in [*root.glob("meshes/.*.tmp*"), *root.glob("textures/.*.tmp*"), *root.glob(".*.tmp*")]:
+        leftover.unlink()  # temporaries of a build that was killed mid-write
     previous = _previous_entries(root)
     summary = BuildSummary(split)
     entries: dict[str, dict] = {}

@@ -114,10 +114,13 @@ def test_interrupted_build_is_refused_then_resumed(tmp_path):
     index["complete"] = False
     index_path.write_text(json.dumps(index))
     (cache / "train" / "meshes" / "seat_0000.npz").unlink()
+    leftover = cache / "train" / "meshes" / ".seat_0000.npz.tmp123"
+    leftover.write_bytes(b"half-written")
     with pytest.raises(AssetCacheError, match=r"interrupted build.*dotsim assets build --split train"):
         load_asset_cache(cache, "train")
     resumed = build(manifest, cache)
     assert resumed.built == ["seat_0000"] and len(resumed.reused) == 5
+    assert not leftover.exists()
     assert len(load_asset_cache(cache, "train").meshes) == 3
 
 
