@@ -46,7 +46,7 @@ def synthetic_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     ir = np.round(np.clip(level, 0, 1) * 1023) / 1023
     gt = np.where(depth <= rig.max_depth, depth, np.nan)
     return {"ir": ir, "ambient": ambient, "flood": flood, "depth": depth,
-            "visibility": visibility_mask(ambient, flood), "edge": edge_mask(depth),
+            "visibility": visibility_mask(ambient, flood, depth=depth), "edge": edge_mask(depth),
             "projector_column": depth_to_projector_column(gt, rig), "disparity": depth_to_disparity(gt, rig)}
 
 

@@ -9,30 +9,42 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-# Percentile of the flood pass taken as its exposure scale: robust to a few specular highlights
-# or a hot light, unlike the maximum.
+# Percentile taken as an image's exposure scale: robust to a few specular highlights or a hot
+# light, unlike the maximum.
 EXPOSURE_PERCENTILE = 99.0
 
 
-def exposure_scale(flood: np.ndarray) -> float:
-    """Robust brightness scale of a flood pass: its 99th percentile over finite pixels (0 if none)."""
-    finite = np.asarray(flood, dtype=np.float64)
+def exposure_scale(image: np.ndarray) -> float:
+    """Robust brightness scale of an image: its 99th percentile over finite pixels (0 if none)."""
+    finite = np.asarray(image, dtype=np.float64)
     finite = finite[np.isfinite(finite)]
     return float(np.percentile(finite, EXPOSURE_PERCENTILE)) if finite.size else 0.0
 
 
 def visibility_mask(ambient: np.ndarray, flood: np.ndarray, threshold: float = 0.05,
-                    relative: bool = True) -> np.ndarray:
+                    relative: bool = True, depth: np.ndarray | None = None) -> np.ndarray:
     """Where the projector lights the surface the camera sees: bool (H, W).
 
     ambient: the frame with the projector off; flood: the same frame with the projector replaced
-    by a uniformly lit rectangle (ambient included), both in the same linear units. A pixel is
-    visible where flood - ambient > threshold. relative=True (default) makes the threshold a
-    fraction of the flood pass's exposure scale (exposure_scale, its 99th percentile), so one
-    setting fits any light power or exposure; relative=False compares with `threshold` in the
-    passes' own units. Projector shadows, surfaces beyond the projector's field and black
-    surfaces get False, as do non-finite pixels. A flood pass with no light at all (scale 0)
-    gives an all-False mask rather than marking noise as visible.
+    by a uniformly lit rectangle (ambient included), both in the same linear units. The signal is
+    the flood's own contribution, flood - ambient, and a pixel is visible where it exceeds the
+    threshold.
+
+    depth (planar metres, inf where nothing is hit; recommended): the signal is multiplied by
+    depth^2 first, undoing the inverse-square falloff of the projector's light, so it measures
+    albedo x cos(incidence) and a wall at 5 m counts like the same wall at 0.5 m (the sensor's
+    exposure and LCN make dots at both visible; without this, near objects set the scale and a
+    5 % threshold dropped everything beyond about 1.5 m -- measured on a rendered room: 17 % of
+    pixels visible without depth, 83 % with, 15 % having no flood light at all). z^2 stands in
+    for the squared distance to the projector (up to 1.6x apart in the corners of a 69 degree
+    field), which a relative threshold tolerates. Pixels without finite depth are not visible.
+
+    relative=True (default) makes the threshold a fraction of the signal's exposure scale (its
+    99th percentile, exposure_scale), so one setting fits any light power or exposure;
+    relative=False compares with `threshold` in the signal's own units (radiance, or radiance x
+    m^2 with depth). Projector shadows, surfaces beyond the projector's field and black surfaces
+    get False, as do non-finite pixels. A frame with no flood light at all (scale 0) gives an
+    all-False mask rather than marking noise as visible.
     """
     ambient = np.asarray(ambient, dtype=np.float64)
     flood = np.asarray(flood, dtype=np.float64)
@@ -40,13 +52,20 @@ def visibility_mask(ambient: np.ndarray, flood: np.ndarray, threshold: float = 0
         raise ValueError(f"ambient {ambient.shape} and flood {flood.shape} must be (H, W) of one shape")
     if not np.isfinite(threshold) or threshold < 0:
         raise ValueError(f"threshold must be a finite number >= 0, got {threshold}")
+    signal = flood - ambient
+    if depth is not None:
+        depth = np.asarray(depth, dtype=np.float64)
+        if depth.shape != flood.shape:
+            raise ValueError(f"depth {depth.shape} must have the shape of flood {flood.shape}")
+        hit = np.isfinite(depth) & (depth > 0)
+        signal = np.where(hit, signal * np.square(np.where(hit, depth, 0.0)), np.nan)
     if relative:
-        scale = exposure_scale(flood)
+        scale = exposure_scale(signal)
         if scale <= 0:
             return np.zeros(flood.shape, dtype=bool)
         threshold = threshold * scale
     with np.errstate(invalid="ignore"):
-        return (flood - ambient) > threshold  # NaN compares False
+        return signal > threshold  # NaN compares False
 
 
 def depth_gradient(depth: np.ndarray) -> np.ndarray:

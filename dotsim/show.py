@@ -92,6 +92,8 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     """
     if not frames:
         raise ValueError("contact_sheet needs at least one frame")
+    if int(tile_width) < 16:
+        raise ValueError(f"tile width must be at least 16 px, got {tile_width}")
     channels = [c for c in COLUMNS if c in frames[0]]
     if not channels:
         raise ValueError(f"frames have none of the channels {list(COLUMNS)}")

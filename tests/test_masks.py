@@ -49,13 +49,27 @@ def test_visibility_relative_and_absolute():
     flood[:, :5] += 1.0  # lit by the flood rectangle
     flood[:, 5:7] += 0.02  # faintly lit: below 5% of exposure
     flood[:, 9] = np.nan
-    scale = exposure_scale(flood)
-    assert scale == pytest.approx(1.1)
+    assert exposure_scale(flood - ambient) == pytest.approx(1.0)
     assert columns(visibility_mask(ambient, flood, threshold=0.05)) == {0, 1, 2, 3, 4}
     assert columns(visibility_mask(ambient, flood, threshold=0.01, relative=False)) == set(range(7))
     # Relative threshold follows exposure: scaling both passes changes nothing.
     np.testing.assert_array_equal(visibility_mask(ambient * 7, flood * 7, 0.05),
                                   visibility_mask(ambient, flood, 0.05))
+
+
+def test_visibility_with_depth_undoes_inverse_square_falloff():
+    # Same albedo at 0.5 m (columns 0-3), 5 m (4-7), a projector shadow (8) and no hit (9):
+    # the flood's contribution is albedo / z^2, so the far wall gets 1 % of the near one.
+    depth = np.array([0.5] * 4 + [5.0] * 4 + [2.0, np.inf])[None, :].repeat(5, axis=0)
+    ambient = np.full(depth.shape, 0.02)
+    lit = np.where(np.isfinite(depth), 0.6 / np.square(np.where(np.isfinite(depth), depth, 1)), 0.0)
+    lit[:, 8] = 0.0
+    flood = ambient + lit
+    assert columns(visibility_mask(ambient, flood)) == {0, 1, 2, 3}  # far wall lost to falloff
+    assert columns(visibility_mask(ambient, flood, depth=depth)) == set(range(8))
+    # A dark surface (albedo 2 % of the bright one) stays below a 5 % relative threshold.
+    lit[:, 4:8] *= 0.02
+    assert columns(visibility_mask(ambient, ambient + lit, depth=depth)) == {0, 1, 2, 3}
 
 
 def test_shadow_and_dark_frame_are_not_visible():
@@ -72,5 +86,7 @@ def test_bad_arguments_are_named():
         edge_mask(np.ones((5, 5)), dilation=-1)
     with pytest.raises(ValueError, match="threshold"):
         edge_mask(np.ones((5, 5)), threshold=0)
-    with pytest.raises(ValueError, match="same shape|one shape"):
+    with pytest.raises(ValueError, match="one shape"):
         visibility_mask(np.ones((5, 5)), np.ones((5, 6)))
+    with pytest.raises(ValueError, match="depth"):
+        visibility_mask(np.ones((5, 5)), np.ones((5, 5)), depth=np.ones((4, 5)))

@@ -86,3 +86,5 @@ def test_show_frame_file_and_dataset_and_errors(tmp_path, capsys):
 def test_contact_sheet_rejects_empty():
     with pytest.raises(ValueError, match="at least one frame"):
         show.contact_sheet([], "t")
+    with pytest.raises(ValueError, match="tile width must be at least 16 px, got 0"):
+        show.contact_sheet([constant_frame(0)], "t", tile_width=0)
