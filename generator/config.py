@@ -83,13 +83,22 @@ class PatternConfig:
 class SceneConfig:
     object_count: tuple[int, int] = _spec((100, 500), "objects per scene (before the split's "
                                           "density factor)", low=0, high=10000)
-    distance: tuple[float, float] = _spec((0.3, 10.0), "depth of object centres from the camera, m "
-                                          "(drawn log-uniformly)", low=0.05, high=100.0)
+    distance: tuple[float, float] = _spec((0.3, 10.0), "depth of object centres in front of the camera "
+                                          "(or projector), m, and never beyond the room's walls",
+                                          low=0.05, high=100.0)
+    distance_sampling: str = _spec("uniform", "how object depths are drawn within `distance` (uniform: "
+                                   "rendered pixel depths spread from 0.3 to 5 m, median about 1 m; "
+                                   "log-uniform crowds the view with near objects)",
+                                   choices=("log-uniform", "uniform"))
     in_view_share: float = _spec(0.85, "share of objects placed inside the camera's view; the rest go "
                                  "inside the projector's view only, to cast shadows the camera cannot "
                                  "see", low=0.0, high=1.0)
     object_size: tuple[float, float] = _spec((0.05, 0.8), "largest extent of an object, m (log-uniform;"
-                                             " also at most half its distance)", low=0.001, high=20.0)
+                                             " also at most max_angular_size x its distance)",
+                                             low=0.001, high=20.0)
+    max_angular_size: float = _spec(0.25, "largest object extent as a fraction of its distance: keeps "
+                                    "near objects from filling the view (and from reaching the camera)",
+                                    low=0.0, high=0.8, low_open=True)
     shapes: tuple[str, ...] = _spec(("box", "sphere", "cylinder", "cone", "torus", "plane"),
                                     "primitive shapes drawn when no asset cache is used",
                                     choices=PRIMITIVE_SHAPES)

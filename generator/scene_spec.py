@@ -245,7 +245,8 @@ def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot
                      in_view: bool) -> tuple[np.ndarray, float]:
     """World position and camera depth of one object centre.
 
-    In view: a uniform camera pixel back-projected to a log-uniform depth that stays inside the room.
+    In view: a uniform camera pixel back-projected to a depth drawn within [scene] distance that stays inside
+    the room.
     Out of view: a uniform projector pixel whose point the camera does not see (rejection sampling;
     falls back to the last try), so the object casts shadows only the projector's view explains.
     """
@@ -261,7 +262,9 @@ def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot
             origin_cam = rig.t
             ray_cam = rig.R.T @ np.array([(x - proj.cx) / proj.fx, (y - proj.cy) / proj.fy, 1.0])
         exit_t = ray_box_exit(cam_pos + cam_rot @ origin_cam, cam_rot @ ray_cam, room_lo, room_hi)
-        t = _log_uniform(rng, near, max(near, min(far, exit_t - 0.05)))
+        limit = max(near, min(far, exit_t - 0.05))
+        t = (_log_uniform(rng, near, limit) if config.scene.distance_sampling == "log-uniform"
+             else _uniform(rng, (near, limit)))
         point_cam = origin_cam + t * ray_cam
         if in_view or point_cam[2] <= 0:
             break
@@ -321,13 +324,14 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         in_view = rng.random() < sc.in_view_share
         location, distance = _object_position(rng, config, rig, cam_rot, cam_pos, room_lo, room_hi,
                                               in_view)
-        # At most half the distance: no object swallows the camera, even after the rig moves.
+        # Bounded by the distance: no object fills the view or swallows the camera when the rig moves.
         if resources.meshes:
             asset = resources.meshes[int(rng.integers(len(resources.meshes)))]
             low, high = asset.size_range
         else:
             low, high = sc.object_size
-        extent = _log_uniform(rng, min(low, distance / 2), min(high, distance / 2))
+        cap = sc.max_angular_size * distance
+        extent = _log_uniform(rng, min(low, cap), min(high, cap))
         if resources.meshes:
             mesh = {"kind": "asset", "path": asset.path, "id": asset.id}
             scale = (extent / asset.extent,) * 3
