@@ -1,6 +1,6 @@
 """Benchmark: building the default asset caches, and building a 500-object scene in Blender from them.
 
-    python -m bench.assets_build [--repeats 3] [--objects 500] [--scenes 4] [--no-blender]
+    python -m bench.assets_build [--repeats 3] [--objects 500] [--scenes 4] [--no-blender] [--cache DIR]
 
 1. Cold build of each shipped split (train, test) into a fresh temp cache, `--repeats` times, and a
    no-op rebuild (incremental: everything reused); medians and their ratio.
@@ -54,7 +54,7 @@ def bench_builds(root: Path, repeats: int) -> Path:
     return cache
 
 
-def _scene_objects(cache, n: int, seed: int, use_assets: bool) -> list[dict]:
+def _scene_objects(cache, n: int, seed: int, use_assets: bool, textured: bool) -> list[dict]:
     from generator.blender.demo_scenes import material, primitive
 
     rng = np.random.default_rng(seed)
@@ -70,7 +70,9 @@ def _scene_objects(cache, n: int, seed: int, use_assets: bool) -> list[dict]:
                 "path": texture.path,
                 "scale": float(rng.uniform(*texture.scale_hint)),
                 "contrast": float(rng.uniform(0.3, 1.0)),
-            },
+            }
+            if textured
+            else None,
         )
         if use_assets:
             mesh = cache.meshes[int(rng.integers(len(cache.meshes)))]
@@ -103,32 +105,35 @@ def bench_blender(cache_dir: Path, n_objects: int, scenes: int, root: Path) -> N
 
     cache = load_asset_cache(cache_dir, "test")
     rig = get_preset("structure_core").scaled(0.25)
-    pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, density=0.1, seed=0)
+    pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, density=0.05, seed=0)
     pattern_path = root / "pattern.png"
     pattern.save_png(pattern_path)
+    variants = {
+        "cache meshes + cache textures": (True, True),
+        "cache meshes, untextured": (True, False),
+        "primitives + cache textures": (False, True),
+        "primitives, untextured": (False, False),
+    }
     results = {}
-    for label, use_assets in (("cache meshes", True), ("primitives", False)):
+    for label, (use_assets, textured) in variants.items():
         times = []
         with SceneRenderer() as renderer:
             for s in range(scenes):
                 spec = base_spec(rig.to_dict(), str(pattern_path), pattern.sha256)
-                spec["objects"] = _scene_objects(cache, n_objects, seed=s, use_assets=use_assets)
+                spec["objects"] = _scene_objects(cache, n_objects, s, use_assets, textured)
                 times.append(_timed(renderer.setup, spec))
         results[label] = times
-        distinct = ""
-        if use_assets:
-            distinct = (
-                f" ({len({o['mesh']['path'] for o in spec['objects']})} distinct meshes in the last scene)"
-            )
         print(
-            f"blender build, {n_objects} {label}: first scene {times[0]:.2f} s, later scenes median "
-            f"{statistics.median(times[1:]):.2f} s{distinct}"
+            f"blender build, {n_objects} objects, {label}: first scene {times[0]:.2f} s, "
+            f"later scenes median {statistics.median(times[1:]):.2f} s"
         )
-    first_ratio = results["cache meshes"][0] / results["primitives"][0]
-    later_ratio = statistics.median(results["cache meshes"][1:]) / statistics.median(
-        results["primitives"][1:]
+    baseline = statistics.median(results["primitives, untextured"][1:])
+    print(
+        "later-scene build time relative to untextured primitives: "
+        + ", ".join(f"{label} {statistics.median(t[1:]) / baseline:.1f}x" for label, t in results.items())
     )
-    print(f"cache meshes / primitives: first scene {first_ratio:.1f}x, later scenes {later_ratio:.1f}x")
+    distinct = len({o["mesh"]["path"] for o in _scene_objects(cache, n_objects, 0, True, False)})
+    print(f"(a {n_objects}-object scene draws {distinct} distinct meshes of {len(cache.meshes)})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,10 +144,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--objects", type=int, default=500, help="objects per Blender scene (default 500)")
     parser.add_argument("--scenes", type=int, default=4, help="scenes built per renderer (default 4)")
     parser.add_argument("--no-blender", action="store_true", help="only time the cache builds")
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        help="an already built cache: skip the build timings and "
+        "build the Blender scenes from its test split",
+    )
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="dotsim_bench_assets_") as tmp:
         root = Path(tmp)
-        cache = bench_builds(root, args.repeats)
+        cache = args.cache or bench_builds(root, args.repeats)
         if not args.no_blender:
             bench_blender(cache, args.objects, args.scenes, root)
     return 0
