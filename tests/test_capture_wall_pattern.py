@@ -107,6 +107,29 @@ def test_flat_wall_recovers_the_known_dots(rig, pattern):
     assert np.median(result.pattern.image[rows, cols]) > 0.8
 
 
+def test_cycles_wall_render_recovers_the_known_dots(rig, pattern, tmp_path):
+    """The same check on a real Cycles render of a wall (the generator's Blender stage), which
+    knows nothing of the oracle. Measured: median error 0.037 projector px at 16 samples (0.14
+    at 4, 0.010 at 64: Cycles' anti-aliasing noise), every visible dot recovered."""
+    pytest.importorskip("bpy")
+    from generator.blender import demo_scenes
+    from generator.blender.render import SceneRenderer
+
+    pattern.save_png(tmp_path / "pattern.png")
+    spec = demo_scenes.base_spec(rig.to_dict(), str(tmp_path / "pattern.png"), pattern.sha256, samples=16)
+    spec["objects"] = [demo_scenes.wall(DISTANCE)]
+    with SceneRenderer() as renderer:
+        frame = renderer.render(spec)[0]
+    np.testing.assert_allclose(frame["depth"], DISTANCE, rtol=1e-6)
+    on, off = frame["projector"] + frame["ambient"], frame["ambient"]
+    result = extract_wall_pattern([on], [off], rig, DISTANCE)
+    recall, errors, precision = match(result, pattern, rig, (0, 0, 1), DISTANCE)
+    assert recall > 0.95
+    assert np.median(errors) < 0.2
+    assert precision > 0.99
+    assert result.dot_sigma == pytest.approx(DOT_SIGMA, rel=0.15)
+
+
 def test_wrong_distance_is_caught_by_the_comparison(rig, pattern):
     """The check can fail: 2 m instead of 1.5 m shifts every dot by f_p b (1/1.5 - 1/2) = 5.9 px."""
     depth = np.full((rig.camera.height, rig.camera.width), DISTANCE)
