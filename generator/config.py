@@ -173,11 +173,11 @@ class SensorConfig:
 
 @dataclass(frozen=True)
 class MasksConfig:
-    visibility_threshold: float = _spec(0.02, "flood minus ambient, as a fraction of the flood pass's "
-                                        "99th percentile, above which the pattern counts as visible "
-                                        "(auto exposure maps that percentile near full scale, so 0.02 "
-                                        "leaves dots of about 16 of 1023 levels, several times the "
-                                        "default noise)", low=0.0, high=1.0)
+    visibility_threshold: float = _spec(0.05, "(flood - ambient) x depth^2, as a fraction of its 99th "
+                                        "percentile, above which the pattern counts as visible (depth^2 "
+                                        "undoes the projector's inverse-square falloff, so far walls "
+                                        "count like near ones; dotsim.masks.visibility_mask)",
+                                        low=0.0, high=1.0)
     edge_threshold: float = _spec(0.1, "relative depth change per pixel (Sobel magnitude / depth) above "
                                   "which a pixel is an edge (dotsim.masks.edge_mask)", low=0.0,
                                   high=1000.0, low_open=True)
