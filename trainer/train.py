@@ -11,6 +11,7 @@ import math
 import os
 import random
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +93,11 @@ def check_rig(expected: Rig, found: Rig, what: str, source: str) -> None:
         )
 
 
+def _without_length(cfg: Config) -> Config:
+    """The config without how long to train: a resumed run may be extended."""
+    return replace(cfg, train=replace(cfg.train, epochs=1, max_steps=0))
+
+
 def _rng_states() -> dict:
     return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
 
@@ -150,8 +156,9 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         if not resume:
             raise DataError(f"{ckpt_path}: exists; pass --resume to continue it or choose another --out")
         ckpt, old_cfg, old_rig = load_checkpoint(ckpt_path, device)
-        if old_cfg != cfg:
-            raise DataError(f"{ckpt_path}: was trained with another config; resume needs the same one")
+        if _without_length(old_cfg) != _without_length(cfg):
+            raise DataError(f"{ckpt_path}: was trained with another config; resume needs the same one "
+                            "(only [train].epochs and max_steps may change)")
         check_rig(old_rig, rig, "checkpoint", str(data_dir))
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
