@@ -36,8 +36,9 @@ def renderer():
 
 @pytest.fixture(scope="module")
 def pattern(tmp_path_factory):
-    dots = generate_dot_pattern(RIG.projector.width, RIG.projector.height, density=0.04, min_spacing=2.0,
-                                dot_sigma=0.7, seed=3)
+    dots = generate_dot_pattern(
+        RIG.projector.width, RIG.projector.height, density=0.04, min_spacing=2.0, dot_sigma=0.7, seed=3
+    )
     path = tmp_path_factory.mktemp("pattern") / "pattern.png"
     dots.save_png(path)
     return dots, str(path)
@@ -94,8 +95,10 @@ def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
     power, albedo, wall_z = 20.0, 0.8, 3.0
     lower, upper = (-0.1, -0.1, 0.5), (0.1, 0.1, 0.7)
     spec = _spec(pattern, samples=4, projector_power=power, flood_power=power, world_strength=0.0)
-    spec["objects"] = [ds.wall(wall_z, albedo=albedo),
-                       ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6))]
+    spec["objects"] = [
+        ds.wall(wall_z, albedo=albedo),
+        ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6)),
+    ]
     frame = renderer.render(spec)[0]
 
     rays = pixel_rays(*pixel_grid(RIG.camera), RIG.camera)
@@ -163,10 +166,17 @@ def test_channels_separate_exactly(renderer, pattern, tmp_path, only):
     cv2.imwrite(str(texture_path), texture)
     on = {name: float(name == only) for name in ("projector", "flood", "ambient")}
     lights = [{"type": "POINT", "location": [0.5, -1.0, 0.5], "power": 30.0 * on["ambient"], "radius": 0.1}]
-    spec = _spec(pattern, samples=2, projector_power=20 * on["projector"], flood_power=20 * on["flood"],
-                 world_strength=0.3 * on["ambient"], lights=lights)
+    spec = _spec(
+        pattern,
+        samples=2,
+        projector_power=20 * on["projector"],
+        flood_power=20 * on["flood"],
+        world_strength=0.3 * on["ambient"],
+        lights=lights,
+    )
     spec["objects"] = [ds.wall(4.0)] + ds.clutter(
-        12, seed=5, texture={"path": str(texture_path), "scale": 2.0, "contrast": 0.8})
+        12, seed=5, texture={"path": str(texture_path), "scale": 2.0, "contrast": 0.8}
+    )
     for obj in spec["objects"][1::2]:
         obj["material"].update(roughness=0.1, specular=1.0)
     frame = renderer.render(spec)[0]
@@ -187,20 +197,27 @@ def test_four_poses_render_four_frames_from_moved_camera(renderer, pattern):
     np.testing.assert_allclose(frames[1]["depth"], 1.9, rtol=1e-6)
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda s: s["pattern"].update(path="/nonexistent/pattern.png"), "pattern.path"),
-    (lambda s: s["objects"][0]["mesh"].update(shape="pyramid"), "pyramid"),
-    (lambda s: s["objects"][0]["mesh"].update(kind="asset", path="/nonexistent/mesh.npz"), "objects[0].mesh"),
-    (lambda s: s["render"].update(device="TPU"), "render.device"),
-    (lambda s: s["projector"].update(power=-1.0), "projector.power"),
-    (lambda s: s["poses"].append([[1, 0], [0, 1]]), "poses[1]"),
-    (lambda s: s["lights"].append({"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}),
-     "lights[0].type"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda s: s["pattern"].update(path="/nonexistent/pattern.png"), "pattern.path"),
+        (lambda s: s["objects"][0]["mesh"].update(shape="pyramid"), "pyramid"),
+        (
+            lambda s: s["objects"][0]["mesh"].update(kind="asset", path="/nonexistent/mesh.npz"),
+            "objects[0].mesh",
+        ),
+        (lambda s: s["render"].update(device="TPU"), "render.device"),
+        (lambda s: s["projector"].update(power=-1.0), "projector.power"),
+        (lambda s: s["poses"].append([[1, 0], [0, 1]]), "poses[1]"),
+        (
+            lambda s: s["lights"].append({"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}),
+            "lights[0].type",
+        ),
+    ],
+)
 def test_bad_spec_errors_name_the_field(renderer, pattern, change, message):
     spec = _spec(pattern)
     spec["objects"] = [ds.wall(2.0)]
     change(spec)
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
         renderer.render(spec)
-

@@ -14,12 +14,25 @@ import numpy as np
 IDENTITY_POSE = np.eye(4).tolist()
 
 
-def base_spec(rig: dict, pattern_path: str, pattern_sha256: str, *, samples: int = 1, seed: int = 0,
-              projector_power: float = 20.0, flood_power: float = 20.0, world_strength: float = 0.05,
-              lights: list | None = None, poses: list | None = None, threads: int = 0) -> dict:
+def base_spec(
+    rig: dict,
+    pattern_path: str,
+    pattern_sha256: str,
+    *,
+    samples: int = 1,
+    seed: int = 0,
+    projector_power: float = 20.0,
+    flood_power: float = 20.0,
+    world_strength: float = 0.05,
+    lights: list | None = None,
+    poses: list | None = None,
+    threads: int = 0,
+) -> dict:
     """A SceneSpec with no objects; add them to spec["objects"]."""
     return {
-        "scene_index": 0, "split": "test", "seed": seed,
+        "scene_index": 0,
+        "split": "test",
+        "seed": seed,
         "render": {"samples": samples, "seed": seed, "max_bounces": 4, "device": "CPU", "threads": threads},
         "rig": rig,
         "pattern": {"path": pattern_path, "sha256": pattern_sha256},
@@ -32,26 +45,46 @@ def base_spec(rig: dict, pattern_path: str, pattern_sha256: str, *, samples: int
     }
 
 
-def material(albedo: float = 0.8, roughness: float = 0.8, specular: float = 0.5,
-             texture: dict | None = None) -> dict:
+def material(
+    albedo: float = 0.8, roughness: float = 0.8, specular: float = 0.5, texture: dict | None = None
+) -> dict:
     return {"albedo": albedo, "texture": texture, "roughness": roughness, "specular": specular}
 
 
-def primitive(name: str, shape: str, size, location, rotation=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0),
-              mat: dict | None = None) -> dict:
-    return {"name": name, "mesh": {"kind": "primitive", "shape": shape, "size": [float(s) for s in size]},
-            "location": [float(v) for v in location], "rotation_euler": [float(v) for v in rotation],
-            "scale": [float(v) for v in scale], "material": mat or material()}
+def primitive(
+    name: str,
+    shape: str,
+    size,
+    location,
+    rotation=(0.0, 0.0, 0.0),
+    scale=(1.0, 1.0, 1.0),
+    mat: dict | None = None,
+) -> dict:
+    return {
+        "name": name,
+        "mesh": {"kind": "primitive", "shape": shape, "size": [float(s) for s in size]},
+        "location": [float(v) for v in location],
+        "rotation_euler": [float(v) for v in rotation],
+        "scale": [float(v) for v in scale],
+        "material": mat or material(),
+    }
 
 
 def wall(z: float, width: float = 100.0, albedo: float = 0.8) -> dict:
     """A plane facing the camera at planar depth z (the plane's +z normal turned towards -z)."""
-    return primitive("wall", "plane", (width, width, 0.0), (0.0, 0.0, z), rotation=(math.pi, 0.0, 0.0),
-                     mat=material(albedo=albedo, roughness=1.0, specular=0.0))
+    return primitive(
+        "wall",
+        "plane",
+        (width, width, 0.0),
+        (0.0, 0.0, z),
+        rotation=(math.pi, 0.0, 0.0),
+        mat=material(albedo=albedo, roughness=1.0, specular=0.0),
+    )
 
 
-def clutter(n_objects: int, seed: int, depth_range=(0.8, 4.0), half_fov: float = 0.5,
-            texture: dict | None = None) -> list[dict]:
+def clutter(
+    n_objects: int, seed: int, depth_range=(0.8, 4.0), half_fov: float = 0.5, texture: dict | None = None
+) -> list[dict]:
     """`n_objects` random primitives (random shape, size, pose, albedo, roughness) inside a cone of
     half-angle `half_fov` (radians) around the camera's +z, at depths in `depth_range` metres."""
     rng = np.random.default_rng(seed)
@@ -61,9 +94,19 @@ def clutter(n_objects: int, seed: int, depth_range=(0.8, 4.0), half_fov: float =
         z = rng.uniform(*depth_range)
         x, y = np.tan(rng.uniform(-half_fov, half_fov, 2)) * z
         size = rng.uniform(0.05, 0.4, 3) * z / 2
-        objects.append(primitive(
-            f"object_{k}", shapes[rng.integers(len(shapes))], size, (x, y, z),
-            rotation=rng.uniform(0, 2 * math.pi, 3),
-            mat=material(albedo=float(rng.uniform(0.2, 0.9)), roughness=float(rng.uniform(0.2, 1.0)),
-                         specular=float(rng.uniform(0.0, 0.6)), texture=texture)))
+        objects.append(
+            primitive(
+                f"object_{k}",
+                shapes[rng.integers(len(shapes))],
+                size,
+                (x, y, z),
+                rotation=rng.uniform(0, 2 * math.pi, 3),
+                mat=material(
+                    albedo=float(rng.uniform(0.2, 0.9)),
+                    roughness=float(rng.uniform(0.2, 1.0)),
+                    specular=float(rng.uniform(0.0, 0.6)),
+                    texture=texture,
+                ),
+            )
+        )
     return objects

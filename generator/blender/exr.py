@@ -26,10 +26,10 @@ def _read_header(data: bytes, path: Path) -> tuple[dict[str, tuple[str, bytes]],
         name_end = data.index(b"\0", offset)
         type_end = data.index(b"\0", name_end + 1)
         name = data[offset:name_end].decode()
-        kind = data[name_end + 1:type_end].decode()
+        kind = data[name_end + 1 : type_end].decode()
         size = struct.unpack_from("<i", data, type_end + 1)[0]
         start = type_end + 5
-        attributes[name] = (kind, data[start:start + size])
+        attributes[name] = (kind, data[start : start + size])
         offset = start + size
     return attributes, offset + 1
 
@@ -65,5 +65,6 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     for line_offset in line_offsets.tolist():
         y = struct.unpack_from("<i", data, line_offset)[0] - y0
         image[y] = np.frombuffer(data, "<f4", count=chunk // 4 - 2, offset=line_offset + 8).reshape(
-            len(channels), width)
+            len(channels), width
+        )
     return {name: image[:, k, :] for k, (name, _) in enumerate(channels)}

@@ -36,8 +36,9 @@ def intrinsics_tuple(d: dict, where: str) -> tuple[int, int, float, float, float
             raise ValueError(f"{where}.{key} must be a number, got {d[key]!r}") from None
     width, height, fx, fy, cx, cy = values
     if width < 1 or height < 1 or width != int(width) or height != int(height):
-        raise ValueError(f"{where} width/height must be positive integers, "
-                         f"got {d['width']!r} x {d['height']!r}")
+        raise ValueError(
+            f"{where} width/height must be positive integers, got {d['width']!r} x {d['height']!r}"
+        )
     if fx <= 0 or fy <= 0:
         raise ValueError(f"{where} fx/fy must be positive, got {fx}, {fy}")
     return int(width), int(height), fx, fy, cx, cy
@@ -71,8 +72,9 @@ def blender_matrix_from_opencv_pose(world_from_opencv: np.ndarray) -> np.ndarray
     return pose @ OPENCV_TO_BLENDER_AXES
 
 
-def projector_pose(world_from_camera: np.ndarray, rotation: np.ndarray,
-                   translation: np.ndarray) -> np.ndarray:
+def projector_pose(
+    world_from_camera: np.ndarray, rotation: np.ndarray, translation: np.ndarray
+) -> np.ndarray:
     """World-from-projector pose (4x4, OpenCV axes) of a projector riding on the camera.
 
     The rig defines X_proj = R (X_cam - t), so X_cam = R^T X_proj + t: camera_from_projector is
@@ -84,8 +86,9 @@ def projector_pose(world_from_camera: np.ndarray, rotation: np.ndarray,
     return np.asarray(world_from_camera, np.float64) @ camera_from_projector
 
 
-def projector_uv_coefficients(width: int, height: int, fx: float, fy: float, cx: float,
-                              cy: float) -> tuple[float, float, float, float]:
+def projector_uv_coefficients(
+    width: int, height: int, fx: float, fy: float, cx: float, cy: float
+) -> tuple[float, float, float, float]:
     """(a_u, b_u, a_v, b_v) with texture U = a_u (dx/dz) + b_u and V = a_v (dy/dz) + b_v, where
     (dx, dy, dz) is a direction in the spot light's local frame (Blender: looks down -Z, +Y up).
 
@@ -97,8 +100,9 @@ def projector_uv_coefficients(width: int, height: int, fx: float, fy: float, cx:
     return -fx / width, (cx + 0.5) / width, -fy / height, 1.0 - (cy + 0.5) / height
 
 
-def spot_cone_angle(width: int, height: int, fx: float, fy: float, cx: float, cy: float,
-                    margin_deg: float = 2.0) -> float:
+def spot_cone_angle(
+    width: int, height: int, fx: float, fy: float, cx: float, cy: float, margin_deg: float = 2.0
+) -> float:
     """Full spot cone angle (radians) that contains every pattern pixel's ray plus a margin, so the
     cone never clips the pattern (the texture's CLIP extension bounds the lit area instead)."""
     corners_u = np.array([-0.5, width - 0.5, -0.5, width - 0.5]) - cx
@@ -106,8 +110,10 @@ def spot_cone_angle(width: int, height: int, fx: float, fy: float, cx: float, cy
     half = np.max(np.arctan(np.hypot(corners_u / fx, corners_v / fy)))
     angle = 2.0 * half + math.radians(margin_deg)
     if angle >= math.pi:
-        raise ValueError(f"projector field of view {math.degrees(2 * half):.1f} deg is too wide "
-                         "for a spot light (must be below 180 deg)")
+        raise ValueError(
+            f"projector field of view {math.degrees(2 * half):.1f} deg is too wide "
+            "for a spot light (must be below 180 deg)"
+        )
     return float(angle)
 
 
@@ -163,8 +169,12 @@ def _disc(z: float, radius: float, segments: int, facing_up: bool) -> MeshData:
     """Flat disc cap at height z with planar UVs; triangles wound to face +z or -z."""
     angle = np.linspace(0.0, 2 * np.pi, segments + 1)
     r = np.array([0.0, radius])
-    points = np.stack(np.broadcast_arrays(r[None, :] * np.cos(angle)[:, None],
-                                          r[None, :] * np.sin(angle)[:, None], np.full((1, 1), z)), -1)
+    points = np.stack(
+        np.broadcast_arrays(
+            r[None, :] * np.cos(angle)[:, None], r[None, :] * np.sin(angle)[:, None], np.full((1, 1), z)
+        ),
+        -1,
+    )
     if facing_up:  # unreversed, the angle-then-radius winding faces -z
         points = points[::-1]
     uv = points[..., :2] / (2 * radius) + 0.5
@@ -208,8 +218,10 @@ def primitive_mesh(shape: str, segments: int = 32) -> MeshData:
         radius = 0.5 * np.ones_like(vv) if shape == "cylinder" else 0.5 * (1.0 - vv)
         points = np.stack([radius * np.cos(pp), radius * np.sin(pp), vv - 0.5], -1)
         uu, vv = np.meshgrid(u, v, indexing="ij")
-        parts = [_grid_mesh(points, np.stack([uu, vv], -1), smooth=True),
-                 _disc(-0.5, 0.5, segments, facing_up=False)]
+        parts = [
+            _grid_mesh(points, np.stack([uu, vv], -1), smooth=True),
+            _disc(-0.5, 0.5, segments, facing_up=False),
+        ]
         if shape == "cylinder":
             parts.append(_disc(0.5, 0.5, segments, facing_up=True))
         return _merge(parts)
@@ -238,15 +250,17 @@ def load_npz_mesh(path: str | Path) -> MeshData:
         if key not in arrays:
             raise ValueError(f"asset mesh {path} has no '{key}' array (has {sorted(arrays)})")
         if arrays[key].ndim != 2 or arrays[key].shape[1] != columns:
-            raise ValueError(f"asset mesh {path}: '{key}' must have shape (N, {columns}), "
-                             f"got {arrays[key].shape}")
+            raise ValueError(
+                f"asset mesh {path}: '{key}' must have shape (N, {columns}), got {arrays[key].shape}"
+            )
     vertices, faces = arrays["vertices"], arrays["faces"]
     count = len(vertices)
     for key in ("uvs", "normals"):
         if len(arrays[key]) != count:
             raise ValueError(f"asset mesh {path}: '{key}' has {len(arrays[key])} rows, vertices has {count}")
     if not np.issubdtype(faces.dtype, np.integer) or (
-            faces.size and (faces.min() < 0 or faces.max() >= count)):
+        faces.size and (faces.min() < 0 or faces.max() >= count)
+    ):
         raise ValueError(f"asset mesh {path}: 'faces' must be integer indices in [0, {count})")
     if not np.all(np.isfinite(vertices)):
         raise ValueError(f"asset mesh {path}: 'vertices' has non-finite values")

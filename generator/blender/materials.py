@@ -71,8 +71,13 @@ def build_material(name: str, image: bpy.types.Image | None) -> bpy.types.Materi
         tree.links.new(texture.outputs["Color"], grey.inputs["Color"])
         contrast = _attribute(tree.nodes, "dotsim_contrast")
         # r = albedo * (1 - c + 2 c t): the texture's mean grey 0.5 keeps the mean at albedo.
-        gain = _math(tree, "MULTIPLY_ADD", grey.outputs["Val"], _math(tree, "MULTIPLY", contrast, 2.0),
-                     _math(tree, "SUBTRACT", 1.0, contrast))
+        gain = _math(
+            tree,
+            "MULTIPLY_ADD",
+            grey.outputs["Val"],
+            _math(tree, "MULTIPLY", contrast, 2.0),
+            _math(tree, "SUBTRACT", 1.0, contrast),
+        )
         reflectance = _math(tree, "MULTIPLY", gain, albedo)
         reflectance.node.use_clamp = True
     tree.links.new(reflectance, bsdf.inputs["Base Color"])  # float -> grey colour
@@ -108,9 +113,6 @@ class MaterialCache:
         while len(self._materials) > self.capacity:
             self._remove(self._materials.popitem(last=False)[1])
         return material
-
-    def unused_keys(self, keep: set[str]) -> list[str]:
-        return [key for key in self._materials if key not in keep]
 
     @staticmethod
     def _remove(material: bpy.types.Material) -> None:

@@ -127,8 +127,11 @@ def select_device(scene: bpy.types.Scene, device: str) -> str:
                     d.use = d.type == backend
                 scene.cycles.device = "GPU"
                 return backend
-        warnings.warn("render.device is 'GPU' but Cycles found no GPU device; rendering on the CPU",
-                      RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            "render.device is 'GPU' but Cycles found no GPU device; rendering on the CPU",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     scene.cycles.device = "CPU"
     return "CPU"
 
@@ -192,8 +195,10 @@ class SceneRenderer:
         if not Path(path).is_file():
             raise ValueError(f"scene spec: pattern.path {path} does not exist")
         self.projector.set_pattern(path, str(pattern.get("sha256") or path))
-        self.projector.set_powers(_number(_field(spec, "projector", "spec"), "power", "projector"),
-                                  _number(_field(spec, "flood", "spec"), "power", "flood"))
+        self.projector.set_powers(
+            _number(_field(spec, "projector", "spec"), "power", "projector"),
+            _number(_field(spec, "flood", "spec"), "power", "flood"),
+        )
         self.content.build(spec)
         poses = _field(spec, "poses", "spec")
         if not isinstance(poses, list) or not poses:
@@ -210,15 +215,22 @@ class SceneRenderer:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth} float32 (H, W);
         depth is planar (metres), inf where nothing is hit."""
         self.content.set_camera_pose(world_from_camera)
-        self.projector.set_pose(blender_matrix_from_opencv_pose(
-            projector_pose(world_from_camera, self._projector_rotation, self._projector_translation)))
+        self.projector.set_pose(
+            blender_matrix_from_opencv_pose(
+                projector_pose(world_from_camera, self._projector_rotation, self._projector_translation)
+            )
+        )
         with _quiet_stdout():
             bpy.ops.render.render(write_still=True)
         channels = read_exr(self.scene.render.filepath)
         depth = channels["A"].copy()
         depth[depth >= NO_HIT_DEPTH] = np.inf
-        return {"projector": channels["R"].copy(), "flood": channels["G"].copy(),
-                "ambient": channels["B"].copy(), "depth": depth}
+        return {
+            "projector": channels["R"].copy(),
+            "flood": channels["G"].copy(),
+            "ambient": channels["B"].copy(),
+            "depth": depth,
+        }
 
     def render(self, spec: dict) -> list[dict[str, np.ndarray]]:
         """All frames of `spec`: a list (one per pose) of {projector, flood, ambient, depth}."""

@@ -29,11 +29,12 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 def _arguments(argv: list[str]) -> argparse.Namespace:
     # Blender passes its own arguments too; ours follow "--".
     if "--" in argv:
-        argv = argv[argv.index("--") + 1:]
+        argv = argv[argv.index("--") + 1 :]
     parser = argparse.ArgumentParser(
         prog="run_in_blender.py",
         description="Render SceneSpec JSON files with Cycles into DIR/<spec stem>_raw.npz "
-                    "(arrays projector_K, flood_K, ambient_K, depth_K per frame K).")
+        "(arrays projector_K, flood_K, ambient_K, depth_K per frame K).",
+    )
     parser.add_argument("specs", nargs="+", type=Path, help="SceneSpec JSON files (plan.md contract)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     return parser.parse_args(argv)
@@ -76,8 +77,11 @@ def main(argv: list[str]) -> int:
                 print(f"FAILED {spec_path}:\n{traceback.format_exc()}", file=sys.stderr, flush=True)
     finally:
         renderer.close()
-    print(f"run_in_blender: {len(args.specs) - failures} of {len(args.specs)} specs rendered, "
-          f"{failures} failed, {time.perf_counter() - start:.1f} s", flush=True)
+    print(
+        f"run_in_blender: {len(args.specs) - failures} of {len(args.specs)} specs rendered, "
+        f"{failures} failed, {time.perf_counter() - start:.1f} s",
+        flush=True,
+    )
     return 1 if failures else 0
 
 

@@ -54,8 +54,9 @@ class MeshCache:
 
     def __init__(self, capacity: int = 256):
         self.capacity = capacity
-        self._primitives = {shape: mesh_from_data(f"dotsim_{shape}", primitive_mesh(shape))
-                            for shape in PRIMITIVE_SHAPES}
+        self._primitives = {
+            shape: mesh_from_data(f"dotsim_{shape}", primitive_mesh(shape)) for shape in PRIMITIVE_SHAPES
+        }
         self._assets: OrderedDict[str, bpy.types.Mesh] = OrderedDict()
 
     def primitive(self, shape: str) -> bpy.types.Mesh:

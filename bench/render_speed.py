@@ -1,0 +1,231 @@
+"""Seconds per frame and projector-pass quality of the one-render way against three renders.
+
+    python -m bench.render_speed [--sizes 640,1216] [--objects 300] [--repeats 3] [--reference-samples 128]
+
+Scene: a wall 6 m away and N random textured primitives between 0.8 and 5 m (demo_scenes.clutter),
+Structure Core rig scaled to each width, default procedural pattern, projector 100 W, flood 100 W,
+world strength 0.05 and two extra point lights (50 W each) unless --no-lights.
+
+Ways compared on the same built scene and pose, each timed `repeats` times (median reported):
+- one render (SceneRenderer): projector = R, flood = G, ambient = B of one Cycles render.
+- three renders (GigaDepth's Unity way): projector on, projector off, rectangle on, all lights
+  white; projector = on - off and flood = rectangle - off, off = ambient. Emulated with the same
+  renderer by switching powers and summing R + G + B (materials are grey, so the sum is exactly
+  what white lights give).
+Quality: correlation of each way's projector pass with a projector-only render at
+--reference-samples samples (projector alone: flood, world and extra lights off) over flood-lit
+pixels (flood above 5% of its 99th percentile).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from dotsim.patterns import generate_dot_pattern
+from dotsim.rig import Rig, get_preset
+from generator.blender import demo_scenes as ds
+
+FULL_WIDTH = 1216
+
+
+def bench_rig(width: int) -> Rig:
+    """Structure Core scaled to `width` camera pixels (1216 = full size)."""
+    rig = get_preset("structure_core")
+    return rig if width == FULL_WIDTH else rig.scaled(width / FULL_WIDTH)
+
+
+def write_inputs(rig: Rig, folder: Path, n_textures: int = 8) -> tuple[str, str, list[str]]:
+    """Default procedural pattern at the rig's projector size and a few random grey textures
+    (blurred noise PNGs); returns (pattern path, pattern sha256, texture paths)."""
+    pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    pattern_path = folder / f"pattern_{rig.projector.width}.png"
+    pattern.save_png(pattern_path)
+    rng = np.random.default_rng(0)
+    textures = []
+    for k in range(n_textures):
+        noise = cv2.GaussianBlur(rng.random((256, 256)).astype(np.float32), (0, 0), 1 + 2 * k)
+        noise = (noise - noise.min()) / (noise.max() - noise.min())
+        path = folder / f"texture_{k}.png"
+        cv2.imwrite(str(path), (noise * 255).astype(np.uint8))
+        textures.append(str(path))
+    return str(pattern_path), pattern.sha256, textures
+
+
+def bench_spec(
+    rig: Rig,
+    inputs: tuple[str, str, list[str]],
+    n_objects: int,
+    *,
+    seed: int = 0,
+    samples: int = 1,
+    lights: bool = True,
+    threads: int = 0,
+) -> dict:
+    """The benchmark scene (see the module docstring) as a SceneSpec."""
+    pattern_path, sha, textures = inputs
+    point_lights = (
+        [{"type": "POINT", "location": [x, -1.5, 2.0], "power": 50.0, "radius": 0.1} for x in (-1.5, 1.5)]
+        if lights
+        else []
+    )
+    spec = ds.base_spec(
+        rig.to_dict(),
+        pattern_path,
+        sha,
+        samples=samples,
+        seed=seed,
+        projector_power=100.0,
+        flood_power=100.0,
+        world_strength=0.05,
+        lights=point_lights,
+        threads=threads,
+    )
+    objects = ds.clutter(n_objects, seed=seed, depth_range=(0.8, 5.0), half_fov=0.55)
+    for k, obj in enumerate(objects):
+        obj["material"]["texture"] = {
+            "path": textures[k % len(textures)],
+            "scale": 1.0 + k % 3,
+            "contrast": 0.6,
+        }
+    spec["objects"] = [ds.wall(6.0)] + objects
+    return spec
+
+
+def correlation(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    a = a[mask] - a[mask].mean()
+    b = b[mask] - b[mask].mean()
+    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
+
+
+def flood_lit(flood: np.ndarray) -> np.ndarray:
+    return flood > 0.05 * np.percentile(flood, 99)
+
+
+def timed(function):
+    start = time.perf_counter()
+    result = function()
+    return result, time.perf_counter() - start
+
+
+def one_render(renderer, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    frame, seconds = timed(lambda: renderer.render_frame(pose))
+    return frame["projector"], frame["flood"], seconds
+
+
+def three_renders(renderer, pose: np.ndarray, spec: dict) -> tuple[np.ndarray, np.ndarray, float]:
+    """GigaDepth's way: on / off / rectangle renders with white light, differences give the passes."""
+    projector_power, flood_power = spec["projector"]["power"], spec["flood"]["power"]
+    totals, seconds = [], 0.0
+    for powers in ((projector_power, 0.0), (0.0, 0.0), (0.0, flood_power)):
+        renderer.projector.set_powers(*powers)
+        frame, elapsed = timed(lambda: renderer.render_frame(pose))
+        seconds += elapsed
+        totals.append(frame["projector"] + frame["flood"] + frame["ambient"])
+    renderer.projector.set_powers(projector_power, flood_power)
+    on, off, rectangle = totals
+    return on - off, rectangle - off, seconds
+
+
+def reference_projector(renderer, spec: dict, samples: int) -> np.ndarray:
+    """Projector-only render (flood, world and extra lights off) at `samples` samples."""
+    reference = dict(
+        spec,
+        render=dict(spec["render"], samples=samples),
+        flood={"power": 0.0},
+        world={"strength": 0.0},
+        lights=[],
+    )
+    return renderer.render(reference)[0]["projector"]
+
+
+def measure(
+    renderer, rig: Rig, inputs, n_objects: int, repeats: int, reference_samples: int, lights: bool
+) -> dict:
+    spec = bench_spec(rig, inputs, n_objects, lights=lights)
+    reference = reference_projector(renderer, spec, reference_samples)
+    (poses,), setup_seconds = timed(lambda: [renderer.setup(spec)])
+    pose = poses[0]
+    renderer.render_frame(pose)  # first frame after a build also syncs the scene into Cycles
+    results = {"setup_s": setup_seconds}
+    for name, way in (
+        ("one", lambda: one_render(renderer, pose)),
+        ("three", lambda: three_renders(renderer, pose, spec)),
+    ):
+        runs = [way() for _ in range(repeats)]
+        lit = flood_lit(runs[0][1])
+        results[f"{name}_s"] = statistics.median(r[2] for r in runs)
+        results[f"{name}_quality"] = statistics.median(correlation(r[0], reference, lit) for r in runs)
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.render_speed", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument(
+        "--sizes", default="640,1216", help="camera widths, comma-separated (default 640,1216)"
+    )
+    parser.add_argument("--objects", type=int, default=300, help="random objects (default 300)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per way (default 3)")
+    parser.add_argument(
+        "--reference-samples",
+        type=int,
+        default=128,
+        help="samples of the projector-only reference render (default 128)",
+    )
+    parser.add_argument("--no-lights", action="store_true", help="no extra point lights (world only)")
+    args = parser.parse_args(argv)
+
+    from generator.blender.render import SceneRenderer
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
+        for width in (int(w) for w in args.sizes.split(",")):
+            rig = bench_rig(width)
+            inputs = write_inputs(rig, Path(tmp))
+            r = measure(
+                renderer,
+                rig,
+                inputs,
+                args.objects,
+                args.repeats,
+                args.reference_samples,
+                lights=not args.no_lights,
+            )
+            rows.append((rig, r))
+            print(
+                f"{rig.camera.width}x{rig.camera.height}, {args.objects} objects: one render "
+                f"{r['one_s']:.2f} s/frame (quality {r['one_quality']:.4f}), three renders "
+                f"{r['three_s']:.2f} s/frame (quality {r['three_quality']:.4f}), "
+                f"speed-up {r['three_s'] / r['one_s']:.2f}x; scene build {r['setup_s']:.2f} s",
+                flush=True,
+            )
+    print(
+        "\nsummary (medians of",
+        args.repeats,
+        "runs; quality = correlation with a",
+        args.reference_samples,
+        "sample projector-only render over flood-lit pixels)",
+    )
+    print(
+        f"{'size':>10} {'one s/frame':>12} {'quality':>8} {'three s/frame':>14} {'quality':>8} "
+        f"{'speed-up':>9} {'build s':>8}"
+    )
+    for rig, r in rows:
+        print(
+            f"{rig.camera.width:>5}x{rig.camera.height:<4} {r['one_s']:>12.2f} {r['one_quality']:>8.4f} "
+            f"{r['three_s']:>14.2f} {r['three_quality']:>8.4f} {r['three_s'] / r['one_s']:>8.2f}x "
+            f"{r['setup_s']:>8.2f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
