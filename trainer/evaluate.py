@@ -51,7 +51,7 @@ def upsample_half(half: np.ndarray, height: int, width: int) -> np.ndarray:
         inner = (a[:-1] + a[1:]) / 2
         out[1::2][: len(inner)] = inner[: n // 2]
         if n % 2 == 0:  # the last (odd) index has no sample to its right
-            out[n - 1] = 2 * a[n // 2 - 1] - a[n // 2 - 2] if len(a) > 1 else a[-1]
+            out[n - 1] = 1.5 * a[n // 2 - 1] - 0.5 * a[n // 2 - 2] if len(a) > 1 else a[-1]
         return np.moveaxis(out, 0, axis)
 
     return along(along(np.asarray(half, np.float64), height, 0), width, 1)

@@ -1,0 +1,131 @@
+"""Metric and resampling against hand-computed cases; SGBM on an exact wall; bad inputs give clear errors."""
+
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from dotsim.cli import main as dotsim_main
+from dotsim.patterns import generate_dot_pattern
+from dotsim.rig import get_preset, reference_image
+from trainer.config import ConfigError, config_from_dict, load_config
+from trainer.data import DataError
+from trainer.evaluate import evaluate, outlier_counts, upsample_half
+from trainer.infer import infer
+from trainer.sgbm import num_disparities_for, sgbm_disparity
+from trainer.train import train
+
+sys.path.insert(0, str(Path(__file__).parent))
+from trainer_fixtures import make_dataset, planar_depth, synthetic_frame  # noqa: E402
+
+
+def test_outlier_counts_hand_computed():
+    gt = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
+    pred = np.array([[1.4, 2.6, 3.0], [np.nan, 10.0, 7.5]])
+    valid = np.array([[True, True, True], [True, True, False]])
+    # valid errors: 0.4, 0.6, 0.0, none (nan -> outlier), 5.0 ; the 1.5 at (1, 2) is not valid
+    pixels, over = outlier_counts(pred, gt, valid, thresholds=(0.5, 1.0, 2.0, 5.0))
+    assert pixels == 5
+    assert over == [3, 2, 2, 1]  # > 0.5: 0.6, nan, 5 | > 1: nan, 5 | > 2: nan, 5 | > 5: nan only
+
+
+def test_upsample_half_is_exact_for_linear_fields():
+    for height, width in ((6, 8), (7, 9), (6, 9)):
+        v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+        field = 0.3 * u - 1.7 * v + 2.0
+        half = field[::2, ::2]
+        np.testing.assert_allclose(upsample_half(half, height, width), field, atol=1e-12)
+
+
+def test_sgbm_on_an_exact_wall_finds_fb_over_z():
+    """A fronto-parallel wall at 2 m: disparity fx b / z everywhere SGBM matches (independent formula)."""
+    rig = get_preset("structure_core").scaled(0.2)
+    pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=1).image.astype(np.float64)
+    depth = planar_depth(rig, 2.0, 0.0, 0.0)
+    ir = synthetic_frame(depth, rig, pattern, np.random.default_rng(0), noise=0.0)["ir"]
+    disp = sgbm_disparity(ir, reference_image(pattern, rig, supersample=4), num_disparities_for(rig))
+    want = rig.camera.fx * rig.baseline / 2.0
+    inner = disp[10:-10, 40:-10]
+    assert np.isfinite(inner).mean() > 0.95
+    assert np.nanmedian(np.abs(inner - want)) < 0.25, (np.nanmedian(inner), want)
+
+
+def test_num_disparities_scales_with_width():
+    assert num_disparities_for(get_preset("structure_core")) == 128
+    assert num_disparities_for(get_preset("structure_core").scaled(0.105)) == 16
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the shared 2-core machine: two threads were 3-10x slower per step
+    data = make_dataset(tmp_path_factory.mktemp("ds"), scenes=1, frames_per_scene=2, test_scenes=1)
+    cfg = load_config("configs/train_tiny.toml").to_dict()
+    cfg["train"].update(max_steps=1, batch_size=2)
+    out = tmp_path_factory.mktemp("run")
+    train(config_from_dict(cfg, "t"), data, out, progress=False)
+    yield {"data": data, "ckpt": out / "checkpoint.pt", "cfg": cfg, "out": out}
+    torch.set_num_threads(threads)
+
+
+def test_empty_or_missing_data_folder(tmp_path, run):
+    with pytest.raises(DataError, match=r"index\.json: missing"):
+        train(load_config("configs/train_tiny.toml"), tmp_path, tmp_path / "o", progress=False)
+    with pytest.raises(DataError, match="does not exist"):
+        evaluate(run["ckpt"], tmp_path / "nope", tmp_path / "e", progress=False)
+    with pytest.raises(DataError, match=r"no scenes with split 'val'.*'train': 1"):
+        evaluate(run["ckpt"], run["data"], tmp_path / "e", split="val", progress=False)
+
+
+def test_data_of_another_rig_or_resolution(tmp_path, run):
+    other = make_dataset(tmp_path / "other", scenes=0, test_scenes=1, frames_per_scene=1, scale=0.08)
+    with pytest.raises(DataError, match=r"97x72.*differs from the checkpoint.*128x94"):
+        evaluate(run["ckpt"], other, tmp_path / "e", progress=False)
+    png = tmp_path / "small.png"
+    cv2.imwrite(str(png), np.zeros((72, 97), np.uint16))
+    with pytest.raises(DataError, match=r"small\.png: image is 97x72.*128x94"):
+        infer(run["ckpt"], [png], tmp_path / "i", progress=False)
+    assert not (tmp_path / "i" / "small.exr").exists()
+
+
+def test_resume_refuses_another_config_and_overwrite(run):
+    cfg = run["cfg"]
+    with pytest.raises(DataError, match="pass --resume"):
+        train(config_from_dict(cfg, "t"), run["data"], run["out"], progress=False)
+    changed = {**cfg, "model": {**cfg["model"], "lines": 4}}
+    with pytest.raises(DataError, match="another config"):
+        train(config_from_dict(changed, "t"), run["data"], run["out"], resume=True, progress=False)
+
+
+def test_not_a_checkpoint(tmp_path, run):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError, match=r"bad\.pt: not a readable torch checkpoint"):
+        evaluate(bad, run["data"], tmp_path / "e", progress=False)
+    torch.save({"weights": 1}, bad)
+    with pytest.raises(DataError, match="not a dotsim trainer checkpoint"):
+        infer(bad, [bad], tmp_path / "i", progress=False)
+
+
+def test_config_errors_name_file_and_field(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[model]\nclasess = [4, 4]\n")
+    with pytest.raises(ConfigError, match=r"c\.toml \[model\]: unknown key\(s\) \['clasess'\]"):
+        load_config(path)
+    path.write_text("[model]\nclasses = [4, 4]\noverlaps = [0, 5]\nclassifier_hidden = [[], []]\n"
+                    "stage_inputs = [[0, 8], [0, 8], [0, 8]]\n")
+    with pytest.raises(ConfigError, match=r"overlaps: \(0, 5\)"):
+        load_config(path)
+    path.write_text("[train]\nlr = 'fast'\n")
+    with pytest.raises(ConfigError, match=r"\[train\]\.lr: 'fast' has the wrong type"):
+        load_config(path)
+
+
+def test_cli_reports_errors_in_one_line(tmp_path, capsys, run):
+    code = dotsim_main(["eval", "--checkpoint", str(tmp_path / "none.pt"), "--data", str(run["data"]),
+                        "--out", str(tmp_path / "e")])
+    out = capsys.readouterr().out
+    assert code == 1 and out.startswith("dotsim eval: ") and "none.pt: checkpoint not found" in out
