@@ -253,12 +253,38 @@ def _previous_entries(root: Path) -> dict:
     return {e["id"]: e for e in index.get("meshes", []) + index.get("textures", [])}
 
 
+def _try_build(spec: AssetSpec) -> tuple[tuple | None, str | None]:
+    """(_build_one's result, None), or (None, why it failed)."""
+    try:
+        return _build_one(spec), None
+    except Exception as exc:  # noqa: BLE001 - one bad asset (or a library failing on it) must not stop the build
+        return None, str(exc) if isinstance(exc, MeshError | ImageError) else f"{type(exc).__name__}: {exc}"
+
+
+def _reusable(old: dict | None, key: str, root: Path) -> bool:
+    return bool(
+        old
+        and old.get("key") == key
+        and (root / old["path"]).is_file()
+        and file_sha256(root / old["path"]) == old["sha256"]
+    )
+
+
 def build_asset_cache(
-    manifest: Manifest, cache_dir: str | Path, split: str | None = None, *, progress: bool = True, log=print
+    manifest: Manifest,
+    cache_dir: str | Path,
+    split: str | None = None,
+    *,
+    workers: int = 1,
+    progress: bool = True,
+    log=print,
 ) -> BuildSummary:
-    """Build (or bring up to date) CACHE_DIR/<split>/ from `manifest`. An asset that cannot be built
-    (unreadable, empty or degenerate mesh; bad image) is skipped with a report line through `log`;
-    the build never stops half-way. Returns the summary (also logged as its last line)."""
+    """Build (or bring up to date) CACHE_DIR/<split>/ from `manifest`, with `workers` processes (each
+    asset is seeded from its own spec, so the result does not depend on it). An asset that cannot be
+    built (unreadable, empty or degenerate mesh; bad image) is skipped with a report line through
+    `log`; the build never stops half-way. Returns the summary (also logged as its last line)."""
+    from concurrent.futures import ProcessPoolExecutor
+
     from tqdm import tqdm
 
     split = split or manifest.split
@@ -273,8 +299,8 @@ def build_asset_cache(
     previous = _previous_entries(root)
     summary = BuildSummary(split)
     entries: dict[str, dict] = {}
-    since_save = 0
-    for spec in tqdm(manifest.assets, desc=f"assets {split}", unit="asset", disable=not progress):
+    todo: list[tuple[AssetSpec, dict]] = []
+    for spec in manifest.assets:
         key = asset_key(spec)
         meta = {
             "id": spec.id,
@@ -284,36 +310,50 @@ def build_asset_cache(
             "scale_hint": list(spec.scale_hint),
             "key": key,
         }
-        old = previous.get(spec.id)
-        if (
-            old
-            and old.get("key") == key
-            and (root / old["path"]).is_file()
-            and file_sha256(root / old["path"]) == old["sha256"]
-        ):
-            entries[spec.id] = {**old, **meta}
+        if _reusable(previous.get(spec.id), key, root):
+            entries[spec.id] = {**previous[spec.id], **meta}
             summary.reused.append(spec.id)
-            continue
-        try:
-            relative, data, content, extra = _build_one(spec)
-        except Exception as exc:  # noqa: BLE001 - one bad asset (or a library failing on it) must not stop the build
-            reason = str(exc) if isinstance(exc, MeshError | ImageError) else f"{type(exc).__name__}: {exc}"
-            summary.skipped.append({"id": spec.id, "source": _describe_source(spec), "reason": reason})
-            log(f"skipped {spec.id} ({_describe_source(spec)}): {reason}")
-            continue
-        _write_atomic(root / relative, data)
-        entries[spec.id] = {
-            **meta,
-            "path": relative,
-            "sha256": hashlib.sha256(data).hexdigest(),
-            "content_sha256": content,
-            **extra,
-        }
-        summary.built.append(spec.id)
-        since_save += 1
-        if since_save >= _INDEX_SAVE_EVERY:
-            _write_index(root, manifest, {**previous, **entries}, summary.skipped, complete=False)
-            since_save = 0
+        else:
+            todo.append((spec, meta))
+    bar = tqdm(
+        total=len(manifest.assets),
+        initial=len(summary.reused),
+        desc=f"assets {split}",
+        unit="asset",
+        disable=not progress,
+    )
+    pool = ProcessPoolExecutor(workers) if workers > 1 and len(todo) > 1 else None
+    try:
+        results = (
+            pool.map(_try_build, [s for s, _ in todo], chunksize=4)
+            if pool
+            else map(_try_build, [s for s, _ in todo])
+        )
+        since_save = 0
+        for (spec, meta), (result, reason) in zip(todo, results, strict=True):
+            bar.update()
+            if result is None:
+                summary.skipped.append({"id": spec.id, "source": _describe_source(spec), "reason": reason})
+                log(f"skipped {spec.id} ({_describe_source(spec)}): {reason}")
+                continue
+            relative, data, content, extra = result
+            _write_atomic(root / relative, data)
+            entries[spec.id] = {
+                **meta,
+                "path": relative,
+                "sha256": hashlib.sha256(data).hexdigest(),
+                "content_sha256": content,
+                **extra,
+            }
+            summary.built.append(spec.id)
+            since_save += 1
+            if since_save >= _INDEX_SAVE_EVERY:
+                _write_index(root, manifest, {**previous, **entries}, summary.skipped, complete=False)
+                since_save = 0
+    finally:
+        bar.close()
+        if pool:
+            pool.shutdown(cancel_futures=True)
     for asset_id, old in previous.items():
         if asset_id not in entries:
             stale = root / old["path"]

@@ -1,5 +1,6 @@
 """`dotsim assets build|check`: build a split's asset cache, or check the manifests and caches."""
 
+import os
 import sys
 from pathlib import Path
 
@@ -20,7 +21,13 @@ def _build(args) -> int:
     manifest_path = Path(args.manifest) if args.manifest else default_manifest_path(args.split)
     try:
         manifest = load_manifest(manifest_path)
-        summary = build_asset_cache(manifest, args.cache, args.split, progress=not args.no_progress)
+        summary = build_asset_cache(
+            manifest,
+            args.cache,
+            args.split,
+            workers=args.workers or os.cpu_count() or 1,
+            progress=not args.no_progress,
+        )
     except ManifestError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -113,6 +120,13 @@ def add_parser(subparsers) -> None:
         "--manifest",
         help="manifest TOML to build from (default: the manifest dotsim ships for the split, "
         "assets_manifest/manifests/<split>.toml)",
+    )
+    build.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="processes building assets in parallel (default 0: one per CPU core); the result does not "
+        "depend on it",
     )
     build.add_argument("--no-progress", action="store_true", help="no progress bar (report lines only)")
     build.set_defaults(func=_build)

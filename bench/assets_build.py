@@ -1,6 +1,7 @@
 """Benchmark: building the default asset caches, and building a 500-object scene in Blender from them.
 
-    python -m bench.assets_build [--repeats 3] [--objects 500] [--scenes 4] [--no-blender] [--cache DIR]
+    python -m bench.assets_build [--repeats 3] [--objects 500] [--scenes 4] [--workers N]
+                                 [--no-blender] [--cache DIR]
 
 1. Cold build of each shipped split (train, test) into a fresh temp cache, `--repeats` times, and a
    no-op rebuild (incremental: everything reused); medians and their ratio.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import tempfile
 import time
@@ -30,11 +32,11 @@ def _timed(fn, *args) -> float:
     return time.perf_counter() - start
 
 
-def _build_quietly(manifest, cache: Path) -> None:
-    build_asset_cache(manifest, cache, progress=False, log=lambda line: None)
+def _build_quietly(manifest, cache: Path, workers: int) -> None:
+    build_asset_cache(manifest, cache, workers=workers, progress=False, log=lambda line: None)
 
 
-def bench_builds(root: Path, repeats: int) -> Path:
+def bench_builds(root: Path, repeats: int, workers: int) -> Path:
     """Time cold and no-op builds of both shipped splits; return the last cache built."""
     cache = root / "cache_0"
     for split in ("train", "test"):
@@ -42,8 +44,8 @@ def bench_builds(root: Path, repeats: int) -> Path:
         cold = []
         for r in range(repeats):
             cache = root / f"cache_{r}"
-            cold.append(_timed(_build_quietly, manifest, cache))
-        noop = [_timed(_build_quietly, manifest, cache) for _ in range(repeats)]
+            cold.append(_timed(_build_quietly, manifest, cache, workers))
+        noop = [_timed(_build_quietly, manifest, cache, workers) for _ in range(repeats)]
         size = sum(p.stat().st_size for p in (cache / split).rglob("*") if p.is_file()) / 1e6
         cold_s, noop_s = statistics.median(cold), statistics.median(noop)
         print(
@@ -143,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="cold builds per split (default 3)")
     parser.add_argument("--objects", type=int, default=500, help="objects per Blender scene (default 500)")
     parser.add_argument("--scenes", type=int, default=4, help="scenes built per renderer (default 4)")
+    parser.add_argument(
+        "--workers", type=int, default=os.cpu_count() or 1, help="build processes (default: one per CPU core)"
+    )
     parser.add_argument("--no-blender", action="store_true", help="only time the cache builds")
     parser.add_argument(
         "--cache",
@@ -153,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="dotsim_bench_assets_") as tmp:
         root = Path(tmp)
-        cache = args.cache or bench_builds(root, args.repeats)
+        cache = args.cache or bench_builds(root, args.repeats, args.workers)
         if not args.no_blender:
             bench_blender(cache, args.objects, args.scenes, root)
     return 0

@@ -57,9 +57,9 @@ def write_manifest(folder: Path, text: str, split: str = "train", density: float
     return path
 
 
-def build(manifest_path: Path, cache: Path, lines: list | None = None):
+def build(manifest_path: Path, cache: Path, lines: list | None = None, workers: int = 1):
     log = lines.append if lines is not None else (lambda line: None)
-    return build_asset_cache(load_manifest(manifest_path), cache, progress=False, log=log)
+    return build_asset_cache(load_manifest(manifest_path), cache, workers=workers, progress=False, log=log)
 
 
 def checksums(cache: Path, split: str = "train") -> dict[str, tuple[str, str]]:
@@ -70,7 +70,7 @@ def checksums(cache: Path, split: str = "train") -> dict[str, tuple[str, str]]:
 def test_same_manifest_gives_same_checksums_and_bytes(tmp_path):
     manifest = write_manifest(tmp_path, SMALL)
     build(manifest, tmp_path / "a")
-    build(manifest, tmp_path / "b")
+    build(manifest, tmp_path / "b", workers=2)  # parallel workers must not change anything
     first, second = checksums(tmp_path / "a"), checksums(tmp_path / "b")
     assert set(first) == {"blob_0000", "blob_0001", "seat_0000", "noise_0000", "noise_0001", "photo_brick"}
     assert first == second
