@@ -127,6 +127,10 @@ def _random_solid(rng: np.random.Generator, size: float) -> trimesh.Trimesh:
 def _boolean(p, rng):
     """Union, difference or intersection of a body with 1-2 others placed to overlap it (manifold3d).
     Draws are retried until the result keeps at least 10% of the body's volume."""
+    try:
+        import manifold3d  # noqa: F401 - trimesh's CSG engine; checked here for a clear skip reason
+    except ImportError:
+        raise ValueError("the boolean family needs the manifold3d package (pip install manifold3d)") from None
     # An intersection keeps only the common part, so its operands must be big and nearly concentric.
     size_range, offset = ((0.9, 1.3), 0.15) if p["operation"] == "intersection" else ((0.4, 0.9), 0.4)
     for _ in range(10):
