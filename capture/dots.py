@@ -35,15 +35,18 @@ def projector_signal(on: np.ndarray, off: np.ndarray | None) -> np.ndarray:
 def dot_envelope(signal: np.ndarray, window: int = DEFAULT_DOT_WINDOW) -> np.ndarray:
     """The projector signal (projector_signal) spread from the dots over the gaps between them (H, W).
 
-    A 1-px Gaussian blur first averages the sensor noise down (so the maximum below does not pick
-    noise peaks), then a window x window maximum filter carries each dot's brightness over the gap
-    to its neighbours. window should be at least the largest gap between neighbouring dots in the
-    camera image (px); a larger window bleeds visibility a few pixels into projector shadows.
+    A 1-px Gaussian blur first averages the sensor noise down (so the maxima below do not pick
+    noise peaks); then a morphological closing with a window x window square: the maximum filter
+    carries each dot's brightness over the gaps to its neighbours, the minimum filter after it
+    pulls the lit region's border back to where the outermost dots are, so a projector shadow
+    keeps its width. window should be at least the largest gap between neighbouring dots in
+    the camera image (px); gaps wider than the window stay dark.
     """
     window = _check_window(window)
     smooth = cv2.GaussianBlur(np.asarray(signal, np.float32), (0, 0), sigmaX=1.0,
                               borderType=cv2.BORDER_REPLICATE)
-    return cv2.dilate(smooth, np.ones((window, window), np.uint8), borderType=cv2.BORDER_REPLICATE)
+    kernel = np.ones((window, window), np.uint8)
+    return cv2.morphologyEx(smooth, cv2.MORPH_CLOSE, kernel, borderType=cv2.BORDER_REPLICATE)
 
 
 def capture_visibility(on: np.ndarray, off: np.ndarray, window: int = DEFAULT_DOT_WINDOW,

@@ -69,7 +69,7 @@ def plan_import(on_spec: str, off_spec: str, rig: Rig, white_level: float | None
     pairs = pair_on_off(list_images(on_spec, what="--on frames"), list_images(off_spec, what="--off frames"))
     planned = []
     first = None
-    for on_path, off_path in _progress(pairs, progress, "checking frames"):
+    for on_path, off_path in _progress(pairs, progress, "checking frames", "pair"):
         on = _checked_image(on_path, rig)
         off = _checked_image(off_path, rig)
         first = first or on
@@ -98,12 +98,12 @@ def frame_channels(pair: FramePair, dot_window: int, threshold: float) -> dict[s
             "visibility": capture_visibility(images["on"], images["off"], dot_window, threshold)}
 
 
-def _progress(items, enabled: bool, description: str):
+def _progress(items, enabled: bool, description: str, unit: str):
     if not enabled:
         return items
     from tqdm import tqdm
 
-    return tqdm(items, desc=description, unit="frame")
+    return tqdm(items, desc=description, unit=unit)
 
 
 def _versions() -> dict:
@@ -208,7 +208,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
                 "settings": capture_settings or {}}
     written = skipped = 0
-    for scene_index, scene_pairs in enumerate(_progress(scenes, progress, "importing scenes")):
+    for scene_index, scene_pairs in enumerate(_progress(scenes, progress, "importing scenes", "scene")):
         if dataset.is_scene_complete(out_dir, scene_index, scenes_per_shard):
             expected = _checksums([pair.sources() for pair in scene_pairs])
             if _existing_checksums(out_dir, scene_index, scenes_per_shard) != expected:

@@ -6,7 +6,7 @@ which dots the camera sees; recovered projector centres are compared with the kn
 
 Tolerance: a median centre error below 0.2 projector px (0.1 camera px at Structure Core's 2
 projector px per camera px) keeps the pattern's own error 5x under the 0.5 px disparity threshold
-of the o(0.5) metric. With 2% noise the measured median is about 0.06-0.1 px.
+of the o(0.5) metric. Measured with 2% noise and 2 captures: median 0.08 px, p95 0.19 px.
 """
 
 import hashlib
