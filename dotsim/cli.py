@@ -13,6 +13,7 @@ SUBCOMMAND_MODULES = [
     "dotsim.show",
     "dotsim.pattern_cli",
     "trainer.cli",
+    "capture.cli",
 ]
 
 
