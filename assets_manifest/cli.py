@@ -94,6 +94,29 @@ def _check(args) -> int:
     return 1 if problems else 0
 
 
+def _preview(args) -> int:
+    import cv2
+
+    from assets_manifest.preview import contact_sheet
+
+    try:
+        cache = load_asset_cache(args.cache, args.split)
+    except AssetCacheError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.output or f"assets_{args.split}.png")
+    tmp = out.with_name(f".{out.name}.tmp.png")
+    if not cv2.imwrite(str(tmp), contact_sheet(cache, count=args.count)):
+        print(f"error: cannot write {out}", file=sys.stderr)
+        return 2
+    tmp.replace(out)
+    print(
+        f"wrote {out}: {min(args.count, len(cache.meshes))} meshes and "
+        f"{min(args.count, len(cache.textures))} textures of the {args.split} cache"
+    )
+    return 0
+
+
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
         "assets",
@@ -145,3 +168,17 @@ def add_parser(subparsers) -> None:
     check.add_argument("--train-manifest", help="train manifest (default: the shipped train.toml)")
     check.add_argument("--test-manifest", help="test manifest (default: the shipped test.toml)")
     check.set_defaults(func=_check)
+
+    preview = actions.add_parser(
+        "preview",
+        help="contact sheet PNG of a built cache (meshes with a UV checker, textures)",
+        description="Draw a grid of meshes (shaded, with a UV checkerboard, so seams and stretching "
+        "show) and textures, spread evenly over the split's cache, into a PNG.",
+    )
+    preview.add_argument("--split", required=True, choices=SPLITS, help="which split to show")
+    preview.add_argument(
+        "--cache", default=DEFAULT_CACHE_DIR, help=f"cache directory (default: {DEFAULT_CACHE_DIR})"
+    )
+    preview.add_argument("-o", "--output", help="PNG to write (default: assets_<split>.png)")
+    preview.add_argument("--count", type=int, default=24, help="meshes and textures each (default 24)")
+    preview.set_defaults(func=_preview)

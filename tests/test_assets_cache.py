@@ -251,6 +251,10 @@ def test_cli_build_and_check(tmp_path, capsys):
     )
     assert run(*check) == 0
     assert "0 problem(s)" in capsys.readouterr().out
+    sheet = tmp_path / "sheet.png"
+    assert run("assets", "preview", "--split", "train", "--cache", cache, "-o", str(sheet)) == 0
+    # 3 meshes + 3 textures of 128 px with 2 px gutters, 8 columns: one row.
+    assert cv2.imread(str(sheet), cv2.IMREAD_UNCHANGED).shape == (132, 8 * 130 + 2)
     # The shipped manifests differ from the ones this cache was built from: reported.
     assert run("assets", "check", "--cache", cache) == 1
     assert "built from another manifest" in capsys.readouterr().out

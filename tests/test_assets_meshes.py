@@ -6,6 +6,7 @@ import pytest
 
 from assets_manifest.mesh_arrays import MeshError, arrays_sha256, finalize_mesh, load_mesh_npz, npz_bytes
 from assets_manifest.params import sample_params
+from assets_manifest.preview import _view_rotation, render_mesh_thumbnail
 from assets_manifest.procedural_meshes import MESH_FAMILIES, deform, extrude_star_polygon, star_polygon
 
 # Families whose output is one closed surface (the others concatenate touching parts).
@@ -164,3 +165,17 @@ def test_npz_bytes_are_deterministic_and_loadable(tmp_path):
     loaded = load_mesh_npz(path)
     assert all(np.array_equal(loaded[k], m[k]) for k in m)
     assert arrays_sha256(loaded) == arrays_sha256(m)
+
+
+def test_thumbnail_silhouette_of_a_cube_has_the_projected_area():
+    # An orthographic view of a unit cube along unit direction d covers |dx| + |dy| + |dz|.
+    m = _family_mesh("box", 0, {"size_x": 1.0, "size_y": 1.0, "size_z": 1.0})
+    size = 200
+    image = render_mesh_thumbnail(m, size=size, checker=4)
+    view_direction = _view_rotation()[2]
+    pixels_per_unit = (size - 4) / np.sqrt(3.0)
+    expected = np.abs(view_direction).sum() * pixels_per_unit**2
+    covered = (image < 1.0).sum()
+    assert abs(covered - expected) / expected < 0.02
+    # The UV checker shows: covered pixels take two brightness levels per shade.
+    assert len(np.unique(np.round(image[image < 1.0], 3))) >= 4
