@@ -128,8 +128,10 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
 
 
 def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
-          device: str = "cpu", split: str = "train", progress: bool = True) -> dict:
-    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}."""
+          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0) -> dict:
+    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}.
+
+    max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time."""
     from torch.utils.tensorboard import SummaryWriter
 
     out_dir = Path(out_dir)
@@ -207,9 +209,11 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
                 writer.add_scalar("lr", sched.get_last_lr()[0], step)
             if step % t.image_every == 0 or step == total_steps:
                 _log_images(writer, step, model, batch)
-            if step % t.checkpoint_every == 0 or step == total_steps:
+            out_of_time = 0 < max_seconds < time.perf_counter() - start
+            if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
                 save()
-            if step >= total_steps:
+            if step >= total_steps or out_of_time:
+                total_steps = step
                 break
     bar.close()
     writer.close()
