@@ -83,4 +83,8 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"dotsim generate: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
+              file=sys.stderr)
+        return 130
     return main_summary(summary)

@@ -24,6 +24,7 @@ import multiprocessing
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -85,7 +86,8 @@ class RunSummary:
 
     def line(self) -> str:
         per_scene = f"{self.seconds / self.done:.2f} s/scene" if self.done else "no scene rendered"
-        text = (f"{self.done} scenes rendered ({self.frames} frames), {self.skipped} already complete, "
+        scenes = "scene" if self.done == 1 else "scenes"
+        text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
                 f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
         if self.failed:
             text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
@@ -236,6 +238,9 @@ _WORKER: dict = {}
 
 
 def _init_worker(job: _Job) -> None:
+    # Ctrl-C reaches the whole process group; the parent decides (it terminates the workers), so a
+    # render is never interrupted half-way inside Blender, which swallows the exception and goes on.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER["job"] = job
     if job.blender is None:
         try:
@@ -359,6 +364,41 @@ def _render_batch(indices: list[int]) -> list[SceneResult]:
 # ----------------------------------------------------------------------------- the run
 
 
+def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunSummary, bar: tqdm) -> None:
+    """Render the batches in `workers` spawned processes, counting results into `summary`.
+
+    Ctrl-C cancels the scenes not yet started and terminates the workers at once (the default
+    executor shutdown would render every queued scene first); the next run removes the scenes
+    they left half-written.
+    """
+    pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                  initializer=_init_worker, initargs=(job,))
+    try:
+        futures = {pool.submit(_render_batch, b): b for b in batches}
+        for future in concurrent.futures.as_completed(futures):
+            try:
+                results = future.result()
+            except Exception as exc:  # a worker died (crash in Blender): its scenes failed
+                text = "".join(traceback.format_exception(exc))
+                results = [SceneResult(i, False, error=text) for i in futures[future]]
+                for result in results:
+                    _log_failure(job, result.index, f"worker process failed:\n{text}")
+            for result in results:
+                if result.ok:
+                    summary.done += 1
+                    summary.frames += result.frames
+                else:
+                    summary.failed.append(result.index)
+                    bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
+            bar.update(len(results))
+    except KeyboardInterrupt:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for worker in multiprocessing.active_children():
+            worker.terminate()
+        raise
+    pool.shutdown()
+
+
 def check_blender(blender: str | None) -> str | None:
     """Absolute path of the Blender executable, or ConfigError naming it."""
     if blender is None:
@@ -426,29 +466,12 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
                dynamic_ncols=True)
     if todo:
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(min(workers, len(batches)), mp_context=context,
-                                                    initializer=_init_worker, initargs=(job,)) as pool:
-            futures = {pool.submit(_render_batch, b): b for b in batches}
-            for future in concurrent.futures.as_completed(futures):
-                try:
-                    results = future.result()
-                except Exception as exc:  # a worker died (crash in Blender): its scenes failed
-                    text = "".join(traceback.format_exception(exc))
-                    results = [SceneResult(i, False, error=text) for i in futures[future]]
-                    for result in results:
-                        _log_failure(job, result.index, f"worker process failed:\n{text}")
-                for result in results:
-                    if result.ok:
-                        summary.done += 1
-                        summary.frames += result.frames
-                    else:
-                        summary.failed.append(result.index)
-                        bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
-                bar.update(len(results))
+        _render_all(job, batches, min(workers, len(batches)), summary, bar)
     bar.close()
     summary.failed.sort()
-    if (out / dataset.LAYOUT_FILE).exists():  # written with the first scene; none if all failed
+    # finalize re-hashes every file: skip it when nothing changed since the last sealed run.
+    changed = summary.done or not (out / dataset.INDEX_FILE).exists()
+    if changed and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
         dataset.finalize_dataset(out)
     summary.seconds = time.perf_counter() - began
     return summary
