@@ -65,7 +65,7 @@ _SPLIT_CODE = {"train": 0, "test": 1}
 
 @dataclass
 class SceneResult:
-    """Outcome of one scene in a worker."""
+    """Outcome of one scene in a worker; seconds: the worker's time on it (render to write)."""
     index: int
     ok: bool
     frames: int = 0
@@ -77,15 +77,16 @@ class SceneResult:
 class RunSummary:
     """What a run did; `line()` is the summary printed at the end."""
     out: Path
-    requested: int
     done: int = 0
     skipped: int = 0
     frames: int = 0
     seconds: float = 0.0
+    worker_seconds: float = 0.0
     failed: list[int] = field(default_factory=list)
 
     def line(self) -> str:
-        per_scene = f"{self.seconds / self.done:.2f} s/scene" if self.done else "no scene rendered"
+        per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
+                     "one worker's time each" if self.done else "no scene rendered")
         scenes = "scene" if self.done == 1 else "scenes"
         text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
                 f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
@@ -333,9 +334,10 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
         command = [job.blender, "--background", "--factory-startup", "--python", str(RUN_IN_BLENDER),
                    "--", *map(str, spec_paths), "--out", str(tmp)]
         proc = subprocess.run(command, capture_output=True, text=True)
-        elapsed = (time.perf_counter() - start) / len(indices)
+        blender_share = (time.perf_counter() - start) / len(indices)
         for index, spec in specs.items():
             raw_path = tmp / f"{dataset.scene_name(index)}_raw.npz"
+            scene_start = time.perf_counter()
             try:
                 if not raw_path.exists():
                     raise RuntimeError(f"blender wrote no {raw_path.name} (exit code {proc.returncode}); "
@@ -343,7 +345,8 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
                                        f"\n--- stderr ---\n{proc.stderr[-4000:]}")
                 frames = _finish_scene(job, spec, read_raw_npz(raw_path, len(spec["poses"])))
                 _clear_failure_log(job, index)
-                results.append(SceneResult(index, True, frames, elapsed))
+                results.append(SceneResult(index, True, frames,
+                                           blender_share + time.perf_counter() - scene_start))
             except Exception:
                 _log_failure(job, index, traceback.format_exc())
                 results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
@@ -387,6 +390,7 @@ def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunS
                 if result.ok:
                     summary.done += 1
                     summary.frames += result.frames
+                    summary.worker_seconds += result.seconds
                 else:
                     summary.failed.append(result.index)
                     bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
@@ -460,7 +464,7 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard
     todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
-    summary = RunSummary(out=out, requested=scenes, skipped=scenes - len(todo))
+    summary = RunSummary(out=out, skipped=scenes - len(todo))
     batch = 1 if blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
     batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
