@@ -2,10 +2,11 @@
 
 import math
 
+import pytest
 import torch
 
 from trainer.config import ModelConfig, load_config
-from trainer.model import GigaDepthNet, IndexedLinear, IndexedMLP
+from trainer.model import GigaDepthNet, IndexedLinear, IndexedMLP, plan_groups
 
 
 def _naive_linear(weight, bias, x, idx):
@@ -13,14 +14,15 @@ def _naive_linear(weight, bias, x, idx):
     return torch.stack([weight[i] @ x[p] + bias[i] for p, i in enumerate(idx.tolist())])
 
 
-def test_indexed_linear_matches_naive_loop_values_and_gradients():
+@pytest.mark.parametrize("grouped", [True, False])
+def test_indexed_linear_matches_naive_loop_values_and_gradients(grouped):
     torch.manual_seed(0)
     layer = IndexedLinear(tables=7, in_features=5, out_features=3, chunk=4)  # chunk < pixels: several
     x = torch.randn(11, 5, requires_grad=True)
     idx = torch.tensor([0, 6, 6, 2, 3, 0, 1, 5, 6, 4, 2])
     grad_out = torch.randn(11, 3)
 
-    y = layer(x, idx)
+    y = layer(x, idx, plan_groups(idx, force=True) if grouped else False)
     (y * grad_out).sum().backward()
     fast = (y.detach(), x.grad.clone(), layer.weight.grad.clone(), layer.bias.grad.clone())
 
