@@ -81,6 +81,14 @@ def test_same_seed_same_losses_and_resume_continues_identically(data, tmp_path):
     assert straight[0] != straight[1]
 
 
+def test_loader_workers_do_not_change_the_run(data, tmp_path):
+    """Augmentations are keyed by (seed, epoch, frame), so 2 worker processes give the same losses."""
+    cfg = tiny_config(2).to_dict()
+    cfg["data"]["workers"] = 2
+    with_workers = train(config_from_dict(cfg, "workers"), data, tmp_path / "w", progress=False)["losses"]
+    assert with_workers == train(tiny_config(2), data, tmp_path / "n", progress=False)["losses"]
+
+
 def test_samples_keep_line_identity_and_target_alignment(data):
     """A crop's targets are the full frame's at (y0 + 2i, x0 + 2j), and row0 = y0 / 2."""
     cfg = tiny_config(1)

@@ -110,13 +110,12 @@ class FrameDataset(Dataset):
             ir = ir * rng.uniform(*self.cfg.intensity_scale)
             if self.cfg.noise_std > 0:
                 ir = ir + rng.normal(0.0, self.cfg.noise_std, ir.shape).astype(np.float32)
-        half = (rows.start, cols.start)
         sample = {
             "ir": torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None],
             "row0": torch.tensor(y0 // 2),
         }
         for key in ("column", "valid", "edge"):
-            sub = t[key][half[0] : rows.stop : 2, half[1] : cols.stop : 2]
+            sub = t[key][rows.start : rows.stop : 2, cols.start : cols.stop : 2]  # output pixel centres
             sample[key] = torch.from_numpy(np.ascontiguousarray(sub))
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
