@@ -6,7 +6,8 @@ Scene: a wall 6 m away and N random textured primitives between 0.8 and 5 m (dem
 Structure Core rig scaled to each width, default procedural pattern, projector 100 W, flood 100 W,
 world strength 0.05 and two extra point lights (50 W each) unless --no-lights.
 
-Ways compared on the same built scene and pose, each timed `repeats` times (median reported):
+Ways compared on the same scene with four poses (2 cm apart), each timed `repeats` times over a
+whole scene (build + 4 frames, divided by 4; median reported):
 - one render (SceneRenderer): projector = R, flood = G, ambient = B of one Cycles render.
 - three renders (GigaDepth's Unity way): projector on, projector off, rectangle on, all lights
   white; projector = on - off and flood = rectangle - off, off = ambient. Emulated with the same
@@ -20,6 +21,9 @@ pixels (flood above 5% of its 99th percentile).
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import re
 import statistics
 import tempfile
 import time
@@ -114,27 +118,44 @@ def timed(function):
     return result, time.perf_counter() - start
 
 
-def one_render(renderer, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    frame, seconds = timed(lambda: renderer.render_frame(pose))
-    return frame["projector"], frame["flood"], seconds
-
-
-def three_renders(renderer, pose: np.ndarray, spec: dict) -> tuple[np.ndarray, np.ndarray, float]:
+def three_renders(renderer, pose: np.ndarray, spec: dict) -> tuple[np.ndarray, np.ndarray]:
     """GigaDepth's way: on / off / rectangle renders with white light, differences give the passes."""
     projector_power, flood_power = spec["projector"]["power"], spec["flood"]["power"]
-    totals, seconds = [], 0.0
+    totals = []
     for powers in ((projector_power, 0.0), (0.0, 0.0), (0.0, flood_power)):
         renderer.projector.set_powers(*powers)
-        frame, elapsed = timed(lambda: renderer.render_frame(pose))
-        seconds += elapsed
+        frame = renderer.render_frame(pose)
         totals.append(frame["projector"] + frame["flood"] + frame["ambient"])
     renderer.projector.set_powers(projector_power, flood_power)
     on, off, rectangle = totals
-    return on - off, rectangle - off, seconds
+    return on - off, rectangle - off
 
 
-def reference_projector(renderer, spec: dict, samples: int) -> np.ndarray:
-    """Projector-only render (flood, world and extra lights off) at `samples` samples."""
+def one_render_scene(renderer, spec: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Build the scene and render all its frames the one-render way; frame 0's projector and flood."""
+    frames = renderer.render(spec)
+    return frames[0]["projector"], frames[0]["flood"]
+
+
+def three_renders_scene(renderer, spec: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Build the scene and render all its frames the three-renders way; frame 0's passes."""
+    passes = [three_renders(renderer, pose, spec) for pose in renderer.setup(spec)]
+    return passes[0]
+
+
+def scene_poses(count: int = 4) -> list:
+    """`count` rig poses 2 cm apart along x (a scene's small sensor motion)."""
+    poses = []
+    for k in range(count):
+        pose = np.eye(4)
+        pose[0, 3] = 0.02 * k
+        poses.append(pose.tolist())
+    return poses
+
+
+def reference_projector(renderer, spec: dict, samples: int, cache: Path | None = None) -> np.ndarray:
+    """Projector-only render (flood, world and extra lights off) at `samples` samples; kept in
+    `cache` (a folder) under a hash of the spec when given, since it takes minutes."""
     reference = dict(
         spec,
         render=dict(spec["render"], samples=samples),
@@ -142,26 +163,45 @@ def reference_projector(renderer, spec: dict, samples: int) -> np.ndarray:
         world={"strength": 0.0},
         lights=[],
     )
-    return renderer.render(reference)[0]["projector"]
+    if cache is not None:
+        # File names only: the inputs live in a fresh temp folder on every run.
+        text = re.sub(r'"/[^"]*/([^"/]+)"', r'"\1"', json.dumps(reference, sort_keys=True))
+        key = hashlib.sha256(text.encode()).hexdigest()[:16]
+        path = cache / f"reference_{key}.npy"
+        if path.exists():
+            return np.load(path)
+    projector = renderer.render(reference)[0]["projector"]
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.save(path, projector)
+    return projector
 
 
 def measure(
-    renderer, rig: Rig, inputs, n_objects: int, repeats: int, reference_samples: int, lights: bool
+    renderer,
+    rig: Rig,
+    inputs,
+    n_objects: int,
+    repeats: int,
+    reference_samples: int,
+    lights: bool,
+    cache: Path | None = None,
 ) -> dict:
+    """Seconds per frame (a whole 4-frame scene, build included, divided by 4; median of `repeats`)
+    and projector-pass quality of frame 0, for both ways."""
     spec = bench_spec(rig, inputs, n_objects, lights=lights)
-    reference = reference_projector(renderer, spec, reference_samples)
-    (poses,), setup_seconds = timed(lambda: [renderer.setup(spec)])
-    pose = poses[0]
-    renderer.render_frame(pose)  # first frame after a build also syncs the scene into Cycles
-    results = {"setup_s": setup_seconds}
-    for name, way in (
-        ("one", lambda: one_render(renderer, pose)),
-        ("three", lambda: three_renders(renderer, pose, spec)),
-    ):
-        runs = [way() for _ in range(repeats)]
-        lit = flood_lit(runs[0][1])
-        results[f"{name}_s"] = statistics.median(r[2] for r in runs)
-        results[f"{name}_quality"] = statistics.median(correlation(r[0], reference, lit) for r in runs)
+    reference = reference_projector(renderer, spec, reference_samples, cache)
+    spec["poses"] = scene_poses()
+    results = {}
+    for name, way in (("one", one_render_scene), ("three", three_renders_scene)):
+        runs = [timed(lambda way=way: way(renderer, spec)) for _ in range(repeats)]
+        lit = flood_lit(runs[0][0][1])
+        results[f"{name}_s"] = statistics.median(seconds for _, seconds in runs) / len(spec["poses"])
+        results[f"{name}_quality"] = statistics.median(
+            correlation(projector, reference, lit) for (projector, _), _ in runs
+        )
+    (_, build) = timed(lambda: renderer.setup(spec))
+    results["setup_s"] = build
     return results
 
 
@@ -181,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         help="samples of the projector-only reference render (default 128)",
     )
     parser.add_argument("--no-lights", action="store_true", help="no extra point lights (world only)")
+    parser.add_argument("--reference-cache", type=Path, help="folder keeping reference renders between runs")
     args = parser.parse_args(argv)
 
     from generator.blender.render import SceneRenderer
@@ -198,6 +239,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.repeats,
                 args.reference_samples,
                 lights=not args.no_lights,
+                cache=args.reference_cache,
             )
             rows.append((rig, r))
             print(

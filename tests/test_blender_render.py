@@ -186,15 +186,30 @@ def test_channels_separate_exactly(renderer, pattern, tmp_path, only):
             assert np.count_nonzero(frame[name]) == 0, name
 
 
-def test_four_poses_render_four_frames_from_moved_camera(renderer, pattern):
-    """Camera moved 0.1 m towards the wall: the second frame's depth is 0.1 m smaller."""
+def test_later_poses_move_camera_and_projector_together(renderer, pattern):
+    """Rig moved 0.5 m towards a wall at 2 m: frame 1 must equal a fresh render of a wall at 1.5 m
+    from the origin (depth and dots), so the projector rides along with the camera."""
     moved = np.eye(4)
-    moved[2, 3] = 0.1
-    spec = _spec(pattern, poses=[np.eye(4).tolist(), moved.tolist()])
+    moved[2, 3] = 0.5
+    spec = _spec(pattern, samples=4, poses=[np.eye(4).tolist(), moved.tolist()])
     spec["objects"] = [ds.wall(2.0)]
     frames = renderer.render(spec)
     assert len(frames) == 2
-    np.testing.assert_allclose(frames[1]["depth"], 1.9, rtol=1e-6)
+    near = _spec(pattern, samples=4)
+    near["objects"] = [ds.wall(1.5)]
+    expected = renderer.render(near)[0]
+    np.testing.assert_allclose(frames[1]["depth"], 1.5, rtol=1e-6)
+    assert ncc(frames[1]["projector"], expected["projector"]) > 0.999
+    assert ncc(frames[0]["projector"], expected["projector"]) < 0.5  # the dots moved by 1.5 px
+
+
+def test_seed_change_alone_changes_the_render(renderer, pattern):
+    """Cycles must not reuse stale settings between scenes (it did with persistent data)."""
+    first, second = (_clutter_spec(pattern, samples=1, seed=7) for _ in range(2))
+    second["render"]["seed"] = 8
+    a, b, a_again = (renderer.render(spec)[0]["projector"] for spec in (first, second, first))
+    assert not np.array_equal(a, b)
+    np.testing.assert_array_equal(a, a_again)
 
 
 @pytest.mark.parametrize(
