@@ -9,12 +9,6 @@ from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
 
-def _device(value: str) -> str:
-    if value not in ("cpu", "cuda"):
-        raise argparse.ArgumentTypeError(f"device {value!r}: choose cpu or cuda")
-    return value
-
-
 def _guarded(run):
     """Report the trainer's expected errors as one line and exit status 1 instead of a traceback."""
     def wrapper(args: argparse.Namespace) -> int:
@@ -62,7 +56,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--resume", action="store_true",
                    help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "
                    "checkpoint is an error")
-    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda (mixed precision)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="cpu (default) or cuda (mixed precision when [train].amp)")
     p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
     p.set_defaults(func=_guarded(_train))
 
@@ -79,7 +74,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
     p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
-    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
     p.set_defaults(func=_guarded(_eval))
 
     p = subparsers.add_parser(
@@ -91,5 +86,5 @@ def add_parser(subparsers) -> None:
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--device", type=_device, default="cpu", help="cpu (default) or cuda")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
     p.set_defaults(func=_guarded(_infer))
