@@ -19,6 +19,7 @@ from generator.blender.geometry import (
     projector_uv_coefficients,
     spot_cone_angle,
 )
+from generator.blender.pattern_filter import box_prefilter, footprint_width, png16_bytes
 
 
 def test_camera_shift_reproduces_principal_point():
@@ -143,3 +144,31 @@ def test_exr_reader_matches_openexr(tmp_path):
         out.write(str(compressed))
     with pytest.raises(ValueError, match="compression must be NONE"):
         read_exr(compressed)
+
+
+def test_box_prefilter_matches_explicit_convolution():
+    from scipy.ndimage import convolve
+
+    image = np.random.default_rng(2).random((20, 30))
+    # width 2 around a pixel centre covers half a pixel, one pixel, half a pixel on each axis
+    kernel_1d = np.array([0.5, 1.0, 0.5]) / 2.0
+    expected = convolve(image, np.outer(kernel_1d, kernel_1d), mode="constant", cval=0.0)
+    np.testing.assert_allclose(box_prefilter(image, 2.0), expected, atol=1e-12)
+    three = convolve(image, np.full((3, 3), 1 / 9), mode="constant", cval=0.0)
+    np.testing.assert_allclose(box_prefilter(image, 3.0), three, atol=1e-12)
+    np.testing.assert_array_equal(box_prefilter(image, 1.0), image)
+    with pytest.raises(ValueError, match="prefilter width"):
+        box_prefilter(image, 0.0)
+    assert footprint_width(2230.88, 1115.44, 1) == pytest.approx(2.0)
+    assert footprint_width(2230.88, 1115.44, 4) == pytest.approx(1.0)
+
+
+def test_png16_round_trip(tmp_path):
+    import cv2
+
+    image = np.random.default_rng(3).random((7, 11))
+    path = tmp_path / "p.png"
+    path.write_bytes(png16_bytes(image[::-1]))  # a non-contiguous view, as the projector passes
+    read = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert read.dtype == np.uint16
+    np.testing.assert_array_equal(read, np.round(image[::-1] * 65535).astype(np.uint16))

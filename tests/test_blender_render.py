@@ -236,3 +236,20 @@ def test_bad_spec_errors_name_the_field(renderer, pattern, change, message):
     change(spec)
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
         renderer.render(spec)
+
+
+def test_gpu_request_uses_a_gpu_or_falls_back_to_cpu_with_a_warning(renderer):
+    import warnings
+
+    from generator.blender.render import GPU_BACKENDS, select_device
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        backend = select_device(renderer.scene, "GPU")
+    if backend == "CPU":
+        assert renderer.scene.cycles.device == "CPU"
+        assert any("no GPU" in str(w.message) for w in caught)
+    else:
+        assert backend in GPU_BACKENDS and renderer.scene.cycles.device == "GPU"
+    select_device(renderer.scene, "CPU")
+    assert renderer.scene.cycles.device == "CPU"

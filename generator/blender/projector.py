@@ -11,12 +11,24 @@ light groups). Blue is left for ambient light (world and extra lights are pure b
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import bpy
 import numpy as np
 from mathutils import Matrix
 
 from .geometry import projector_uv_coefficients, spot_cone_angle
+from .pattern_filter import box_prefilter, png16_bytes
+
+
+def _load_data_image(path: str, what: str) -> bpy.types.Image:
+    """Load an image file as raw data (Non-Color); ValueError naming the file when Blender cannot."""
+    try:
+        image = bpy.data.images.load(path, check_existing=False)
+    except RuntimeError as error:
+        raise ValueError(f"{what} {path} cannot be read: {error}") from None
+    image.colorspace_settings.name = "Non-Color"
+    return image
 
 
 def _math(tree, operation: str, a, b):
@@ -41,7 +53,7 @@ class ProjectorLight:
         self.object = bpy.data.objects.new("dotsim_projector", self.light)
         collection.objects.link(self.object)
         self._build_tree()
-        self._pattern_key: str | None = None
+        self._pattern_key: tuple[str, float] | None = None
 
     def _build_tree(self) -> None:
         tree = self.light.node_tree
@@ -81,22 +93,33 @@ class ProjectorLight:
         output = tree.nodes.new("ShaderNodeOutputLight")
         tree.links.new(emission.outputs[0], output.inputs["Surface"])
 
-    def set_pattern(self, path: str, key: str) -> None:
-        """Use the pattern PNG at `path` (row 0 = top; Blender stores it bottom-up, which
-        projector_uv_coefficients accounts for). `key` (the pattern's sha256) avoids reloading the
-        same pattern; the previous image is removed so memory stays flat over many scenes."""
-        if key == self._pattern_key:
+    def set_pattern(self, path: str, key: str, prefilter_width: float, scratch: Path) -> None:
+        """Project the pattern PNG at `path` (row 0 = top; Blender stores rows bottom-up, which
+        projector_uv_coefficients accounts for), averaged over `prefilter_width` pattern pixels
+        (pattern_filter.py; <= 1 means as is). The filtered copy is written as a 16-bit PNG into
+        the private folder `scratch`. `key` (the pattern's sha256) with the width avoids redoing
+        this for every scene; the previous image is removed so memory stays flat."""
+        width = prefilter_width if prefilter_width > 1.0 else 0.0
+        if (key, width) == self._pattern_key:
             return
-        try:
-            image = bpy.data.images.load(path, check_existing=False)
-        except RuntimeError as error:
-            raise ValueError(f"pattern {path} cannot be read: {error}") from None
-        image.colorspace_settings.name = "Non-Color"
+        image = _load_data_image(path, "pattern")
+        if width:
+            columns, rows = image.size
+            pixels = np.empty(columns * rows * 4, np.float32)
+            image.pixels.foreach_get(pixels)
+            bpy.data.images.remove(image)
+            top_down = pixels.reshape(rows, columns, 4)[::-1, :, 0]
+            filtered_path = scratch / f"pattern_{key[:16]}_{width:.4f}.png"
+            filtered_path.write_bytes(png16_bytes(box_prefilter(top_down, width)))
+            image = _load_data_image(str(filtered_path), "pattern")
         old = self.texture.image
         self.texture.image = image
         if old is not None:
+            old_path = Path(bpy.path.abspath(old.filepath))
             bpy.data.images.remove(old)
-        self._pattern_key = key
+            if old_path.parent == scratch:
+                old_path.unlink(missing_ok=True)
+        self._pattern_key = (key, width)
 
     def set_intrinsics(self, intrinsics: tuple[int, int, float, float, float, float]) -> None:
         """Pinhole intrinsics (width, height, fx, fy, cx, cy) of the projector, in pattern pixels."""

@@ -29,6 +29,7 @@ import numpy as np
 
 from .exr import read_exr
 from .geometry import blender_matrix_from_opencv_pose, intrinsics_tuple, projector_pose
+from .pattern_filter import footprint_width
 from .projector import ProjectorLight
 from .scene_builder import SceneContent, _field, _number
 
@@ -188,15 +189,18 @@ class SceneRenderer:
         world_from_camera poses to render."""
         self._apply_render_settings(_field(spec, "render", "spec"))
         rig = _field(spec, "rig", "spec")
-        self.content.set_camera(intrinsics_tuple(_field(rig, "camera", "rig"), "rig.camera"))
-        self.projector.set_intrinsics(intrinsics_tuple(_field(rig, "projector", "rig"), "rig.projector"))
+        camera = intrinsics_tuple(_field(rig, "camera", "rig"), "rig.camera")
+        projector = intrinsics_tuple(_field(rig, "projector", "rig"), "rig.projector")
+        self.content.set_camera(camera)
+        self.projector.set_intrinsics(projector)
         self._projector_rotation = np.asarray(rig.get("projector_rotation", np.eye(3)), np.float64)
         self._projector_translation = np.asarray(_field(rig, "projector_translation", "rig"), np.float64)
         pattern = _field(spec, "pattern", "spec")
         path = _field(pattern, "path", "pattern")
         if not Path(path).is_file():
             raise ValueError(f"scene spec: pattern.path {path} does not exist")
-        self.projector.set_pattern(path, str(pattern.get("sha256") or path))
+        width = footprint_width(projector[2], camera[2], self.scene.cycles.samples)  # (W, H, fx, ...)
+        self.projector.set_pattern(path, str(pattern.get("sha256") or path), width, self._tmp)
         self.projector.set_powers(
             _number(_field(spec, "projector", "spec"), "power", "projector"),
             _number(_field(spec, "flood", "spec"), "power", "flood"),
