@@ -31,11 +31,10 @@ from .exr import read_exr
 from .geometry import blender_matrix_from_opencv_pose, intrinsics_tuple, projector_pose
 from .pattern_filter import footprint_width
 from .projector import ProjectorLight
-from .scene_builder import SceneContent, _field, _number
+from .scene_builder import SceneContent, spec_field, spec_number
 
 # Z is 1e10 where a camera ray hits nothing; anything this far is "no hit".
 NO_HIT_DEPTH = 1.0e9
-PASSES = ("projector", "flood", "ambient", "depth")
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
 
 
@@ -170,43 +169,25 @@ class SceneRenderer:
 
     def _apply_render_settings(self, render: dict) -> None:
         cycles = self.scene.cycles
-        cycles.samples = int(_number(render, "samples", "render", minimum=1))
-        cycles.seed = int(_number(render, "seed", "render", minimum=0))
-        bounces = int(_number(render, "max_bounces", "render", minimum=0))
+        cycles.samples = int(spec_number(render, "samples", "render", minimum=1))
+        cycles.seed = int(spec_number(render, "seed", "render", minimum=0))
+        bounces = int(spec_number(render, "max_bounces", "render", minimum=0))
         cycles.max_bounces = bounces
         cycles.diffuse_bounces = bounces
         cycles.glossy_bounces = bounces
         cycles.transmission_bounces = bounces
         cycles.volume_bounces = 0
-        threads = int(_number(render, "threads", "render", minimum=0))
+        threads = int(spec_number(render, "threads", "render", minimum=0))
         self.scene.render.threads_mode = "FIXED" if threads else "AUTO"
         if threads:
             self.scene.render.threads = threads
-        self.device = select_device(self.scene, _field(render, "device", "render"))
+        self.device = select_device(self.scene, spec_field(render, "device", "render"))
 
     def setup(self, spec: dict) -> list[np.ndarray]:
         """Build `spec` in the bpy scene (everything except the frame poses); returns the 4x4
         world_from_camera poses to render."""
-        self._apply_render_settings(_field(spec, "render", "spec"))
-        rig = _field(spec, "rig", "spec")
-        camera = intrinsics_tuple(_field(rig, "camera", "rig"), "rig.camera")
-        projector = intrinsics_tuple(_field(rig, "projector", "rig"), "rig.projector")
-        self.content.set_camera(camera)
-        self.projector.set_intrinsics(projector)
-        self._projector_rotation = np.asarray(rig.get("projector_rotation", np.eye(3)), np.float64)
-        self._projector_translation = np.asarray(_field(rig, "projector_translation", "rig"), np.float64)
-        pattern = _field(spec, "pattern", "spec")
-        path = _field(pattern, "path", "pattern")
-        if not Path(path).is_file():
-            raise ValueError(f"scene spec: pattern.path {path} does not exist")
-        width = footprint_width(projector[2], camera[2], self.scene.cycles.samples)  # (W, H, fx, ...)
-        self.projector.set_pattern(path, str(pattern.get("sha256") or path), width, self._tmp)
-        self.projector.set_powers(
-            _number(_field(spec, "projector", "spec"), "power", "projector"),
-            _number(_field(spec, "flood", "spec"), "power", "flood"),
-        )
-        self.content.build(spec)
-        poses = _field(spec, "poses", "spec")
+        # Checked first: a bad spec should fail before anything is built.
+        poses = spec_field(spec, "poses", "spec")
         if not isinstance(poses, list) or not poses:
             raise ValueError("scene spec: poses must be a non-empty list of 4x4 matrices")
         matrices = []
@@ -215,6 +196,25 @@ class SceneRenderer:
             if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
                 raise ValueError(f"scene spec: poses[{k}] must be a finite 4x4 matrix, got {pose!r}")
             matrices.append(matrix)
+        self._apply_render_settings(spec_field(spec, "render", "spec"))
+        rig = spec_field(spec, "rig", "spec")
+        camera = intrinsics_tuple(spec_field(rig, "camera", "rig"), "rig.camera")
+        projector = intrinsics_tuple(spec_field(rig, "projector", "rig"), "rig.projector")
+        self.content.set_camera(camera)
+        self.projector.set_intrinsics(projector)
+        self._projector_rotation = np.asarray(rig.get("projector_rotation", np.eye(3)), np.float64)
+        self._projector_translation = np.asarray(spec_field(rig, "projector_translation", "rig"), np.float64)
+        pattern = spec_field(spec, "pattern", "spec")
+        path = spec_field(pattern, "path", "pattern")
+        if not Path(path).is_file():
+            raise ValueError(f"scene spec: pattern.path {path} does not exist")
+        width = footprint_width(projector[2], camera[2], self.scene.cycles.samples)  # (W, H, fx, ...)
+        self.projector.set_pattern(path, str(pattern.get("sha256") or path), width, self._tmp)
+        self.projector.set_powers(
+            spec_number(spec_field(spec, "projector", "spec"), "power", "projector"),
+            spec_number(spec_field(spec, "flood", "spec"), "power", "flood"),
+        )
+        self.content.build(spec)
         return matrices
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
@@ -226,9 +226,13 @@ class SceneRenderer:
                 projector_pose(world_from_camera, self._projector_rotation, self._projector_translation)
             )
         )
+        output = Path(self.scene.render.filepath)
+        output.unlink(missing_ok=True)  # never read a previous frame if Blender fails to write
         with _quiet_stdout():
             bpy.ops.render.render(write_still=True)
-        channels = read_exr(self.scene.render.filepath)
+        if not output.is_file():
+            raise RuntimeError(f"Cycles wrote no image to {output}")
+        channels = read_exr(output)
         depth = channels["A"].copy()
         depth[depth >= NO_HIT_DEPTH] = np.inf
         return {

@@ -83,14 +83,16 @@ class MeshCache:
         self._assets.clear()
 
 
-def _field(d: dict, key: str, where: str):
+def spec_field(d: dict, key: str, where: str):
+    """d[key]; ValueError naming `where`.key when d is not a dict or lacks the key."""
     if not isinstance(d, dict) or key not in d:
         raise ValueError(f"scene spec: {where}.{key} is missing")
     return d[key]
 
 
-def _number(d: dict, key: str, where: str, minimum: float | None = None) -> float:
-    value = _field(d, key, where)
+def spec_number(d: dict, key: str, where: str, minimum: float | None = None) -> float:
+    """d[key] as a float; ValueError naming `where`.key unless it is a finite number >= minimum."""
+    value = spec_field(d, key, where)
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ValueError(f"scene spec: {where}.{key} must be a finite number, got {value!r}")
     if minimum is not None and value < minimum:
@@ -98,11 +100,12 @@ def _number(d: dict, key: str, where: str, minimum: float | None = None) -> floa
     return float(value)
 
 
-def _vector(d: dict, key: str, where: str) -> tuple[float, float, float]:
-    value = _field(d, key, where)
+def spec_vector(d: dict, key: str, where: str) -> tuple[float, float, float]:
+    """d[key] as 3 floats; ValueError naming `where`.key otherwise."""
+    value = spec_field(d, key, where)
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise ValueError(f"scene spec: {where}.{key} must be 3 numbers, got {value!r}")
-    return tuple(_number({key: v}, key, f"{where}[{k}]") for k, v in enumerate(value))  # type: ignore[return-value]
+    return tuple(spec_number({key: v}, key, f"{where}[{k}]") for k, v in enumerate(value))  # type: ignore[return-value]
 
 
 class SceneContent:
@@ -146,37 +149,37 @@ class SceneContent:
     def build(self, spec: dict) -> None:
         """World, extra lights and objects of `spec` (see plan.md's SceneSpec)."""
         self.clear()
-        strength = _number(_field(spec, "world", "spec"), "strength", "world", minimum=0.0)
+        strength = spec_number(spec_field(spec, "world", "spec"), "strength", "world", minimum=0.0)
         self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], strength, 1.0)
         self.background.inputs["Strength"].default_value = 1.0
-        for k, light_spec in enumerate(_field(spec, "lights", "spec")):
+        for k, light_spec in enumerate(spec_field(spec, "lights", "spec")):
             self._add_light(light_spec, f"lights[{k}]")
-        objects = _field(spec, "objects", "spec")
+        objects = spec_field(spec, "objects", "spec")
         meshes = [o.get("mesh") for o in objects if isinstance(o, dict)]
         in_use = {m.get("path") for m in meshes if isinstance(m, dict) and m.get("kind") == "asset"}
         for k, object_spec in enumerate(objects):
             self._add_object(object_spec, f"objects[{k}]", in_use)
 
     def _add_light(self, light_spec: dict, where: str) -> None:
-        kind = _field(light_spec, "type", where)
+        kind = spec_field(light_spec, "type", where)
         if kind != "POINT":
             raise ValueError(f"scene spec: {where}.type must be 'POINT', got {kind!r}")
         light = bpy.data.lights.new(f"dotsim_{where}", "POINT")
         light.color = AMBIENT_COLOUR
-        light.energy = _number(light_spec, "power", where, minimum=0.0)
-        light.shadow_soft_size = _number(light_spec, "radius", where, minimum=0.0)
+        light.energy = spec_number(light_spec, "power", where, minimum=0.0)
+        light.shadow_soft_size = spec_number(light_spec, "radius", where, minimum=0.0)
         obj = bpy.data.objects.new(f"dotsim_{where}", light)
-        obj.location = _vector(light_spec, "location", where)
+        obj.location = spec_vector(light_spec, "location", where)
         self.collection.objects.link(obj)
 
     def _add_object(self, object_spec: dict, where: str, in_use: set[str]) -> None:
-        mesh_spec = _field(object_spec, "mesh", where)
-        kind = _field(mesh_spec, "kind", f"{where}.mesh")
+        mesh_spec = spec_field(object_spec, "mesh", where)
+        kind = spec_field(mesh_spec, "kind", f"{where}.mesh")
         if kind == "primitive":
-            mesh = self.meshes.primitive(_field(mesh_spec, "shape", f"{where}.mesh"))
-            size = np.array(_vector(mesh_spec, "size", f"{where}.mesh"))
+            mesh = self.meshes.primitive(spec_field(mesh_spec, "shape", f"{where}.mesh"))
+            size = np.array(spec_vector(mesh_spec, "size", f"{where}.mesh"))
         elif kind == "asset":
-            path = _field(mesh_spec, "path", f"{where}.mesh")
+            path = spec_field(mesh_spec, "path", f"{where}.mesh")
             try:
                 mesh = self.meshes.asset(path, in_use)
             except ValueError as error:
@@ -185,20 +188,20 @@ class SceneContent:
         else:
             raise ValueError(f"scene spec: {where}.mesh.kind must be 'primitive' or 'asset', got {kind!r}")
         obj = bpy.data.objects.new(str(object_spec.get("name", where)), mesh)
-        obj.location = _vector(object_spec, "location", where)
-        obj.rotation_euler = _vector(object_spec, "rotation_euler", where)
+        obj.location = spec_vector(object_spec, "location", where)
+        obj.rotation_euler = spec_vector(object_spec, "rotation_euler", where)
         # The unit primitive times its size, then the object's own scale (both along object axes).
-        obj.scale = (size * np.array(_vector(object_spec, "scale", where))).tolist()
-        material_spec = _field(object_spec, "material", where)
+        obj.scale = (size * np.array(spec_vector(object_spec, "scale", where))).tolist()
+        material_spec = spec_field(object_spec, "material", where)
         texture = material_spec.get("texture") if isinstance(material_spec, dict) else None
         mwhere = f"{where}.material"
-        obj["dotsim_albedo"] = _number(material_spec, "albedo", mwhere, minimum=0.0)
-        obj["dotsim_roughness"] = _number(material_spec, "roughness", mwhere, minimum=0.0)
-        obj["dotsim_specular"] = _number(material_spec, "specular", mwhere, minimum=0.0)
+        obj["dotsim_albedo"] = spec_number(material_spec, "albedo", mwhere, minimum=0.0)
+        obj["dotsim_roughness"] = spec_number(material_spec, "roughness", mwhere, minimum=0.0)
+        obj["dotsim_specular"] = spec_number(material_spec, "specular", mwhere, minimum=0.0)
         if texture is not None:
-            obj["dotsim_tex_scale"] = _number(texture, "scale", f"{mwhere}.texture")
-            obj["dotsim_contrast"] = _number(texture, "contrast", f"{mwhere}.texture", minimum=0.0)
-            texture_path = _field(texture, "path", f"{mwhere}.texture")
+            obj["dotsim_tex_scale"] = spec_number(texture, "scale", f"{mwhere}.texture")
+            obj["dotsim_contrast"] = spec_number(texture, "contrast", f"{mwhere}.texture", minimum=0.0)
+            texture_path = spec_field(texture, "path", f"{mwhere}.texture")
         else:
             texture_path = None
         try:
