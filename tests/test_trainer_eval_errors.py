@@ -129,3 +129,20 @@ def test_cli_reports_errors_in_one_line(tmp_path, capsys, run):
                         "--out", str(tmp_path / "e")])
     out = capsys.readouterr().out
     assert code == 1 and out.startswith("dotsim eval: ") and "none.pt: checkpoint not found" in out
+
+
+def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
+    cfg = Path("configs/train_tiny.toml").read_text().replace("max_steps = 200", "max_steps = 1")
+    (tmp_path / "c.toml").write_text(cfg.replace("batch_size = 4", "batch_size = 2"))
+    out = tmp_path / "run"
+    assert dotsim_main(["train", "--config", str(tmp_path / "c.toml"), "--data", str(run["data"]),
+                        "--out", str(out)]) == 0
+    assert dotsim_main(["eval", "--checkpoint", str(out / "checkpoint.pt"), "--data", str(run["data"]),
+                        "--out", str(tmp_path / "eval"), "--images", "1"]) == 0
+    frame = next(Path(run["data"]).glob("shard_*/scene_0000001/frame_0.exr"))
+    assert dotsim_main(["infer", "--checkpoint", str(out / "checkpoint.pt"), str(frame),
+                        "--out", str(tmp_path / "inf")]) == 0
+    assert (tmp_path / "eval" / "eval.csv").is_file()
+    assert len(list((tmp_path / "eval" / "errors").iterdir())) == 1
+    assert sorted(p.name for p in (tmp_path / "inf").iterdir()) == [
+        "scene_0000001_frame_0.exr", "scene_0000001_frame_0.ply", "scene_0000001_frame_0.png"]
