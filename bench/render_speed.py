@@ -124,9 +124,11 @@ def three_renders(renderer, pose: np.ndarray, spec: dict) -> tuple[np.ndarray, n
     totals = []
     for powers in ((projector_power, 0.0), (0.0, 0.0), (0.0, flood_power)):
         renderer.projector.set_powers(*powers)
+        renderer.refresh()
         frame = renderer.render_frame(pose)
         totals.append(frame["projector"] + frame["flood"] + frame["ambient"])
     renderer.projector.set_powers(projector_power, flood_power)
+    renderer.refresh()
     on, off, rectangle = totals
     return on - off, rectangle - off
 
