@@ -20,6 +20,14 @@ from mathutils import Matrix
 from .geometry import projector_uv_coefficients, spot_cone_angle
 from .pattern_filter import box_prefilter, png16_bytes
 
+# Cycles samples one light per shading point, chosen by each light's energy; it cannot see that the
+# spot's node tree carries the projector, the pass that must be clean at one sample. Declaring the
+# spot 3x brighter (and dividing its node gains by 3: same output, unbiased) gives it more of the
+# samples when extra point lights are present. Measured at 640 x 472, 300 objects, two 50 W lights,
+# 1 sample: projector-pass quality 0.977 -> 0.981 (10x: 0.982), while the ambient pass, which
+# gets fewer samples, correlates 0.49 -> 0.37 (10x: 0.24) with a 128-sample ambient render.
+SAMPLING_BOOST = 3.0
+
 
 def _load_data_image(path: str, what: str) -> bpy.types.Image:
     """Load an image file as raw data (Non-Color); ValueError naming the file when Blender cannot."""
@@ -132,12 +140,12 @@ class ProjectorLight:
 
     def set_powers(self, projector_power: float, flood_power: float) -> None:
         """Spot power (W) for a fully white pattern pixel in red, and for the flood rectangle in green.
-        The light's energy is the larger of the two and the node gains scale each channel, so
-        either power can be zero without touching the other channel."""
+        The node gains scale each channel, so either power can be zero without touching the other
+        channel; the light's energy is SAMPLING_BOOST times the larger power (see there)."""
         for name, value in (("projector.power", projector_power), ("flood.power", flood_power)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        energy = max(projector_power, flood_power)
+        energy = SAMPLING_BOOST * max(projector_power, flood_power)
         self.light.energy = energy
         self.object.hide_render = energy == 0
         self.pattern_gain.inputs[1].default_value = projector_power / energy if energy else 0.0
