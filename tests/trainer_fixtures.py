@@ -12,10 +12,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from dotsim.dataset import finalize_dataset, write_dataset_file, write_scene
+from dotsim.dataset import finalize_dataset, pattern_path, write_scene
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
@@ -67,8 +66,8 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
     root = Path(root)
     rig = get_preset("structure_core").scaled(scale)
     dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=seed)
-    png = cv2.imencode(".png", np.round(dots.image * 65535).astype(np.uint16))[1].tobytes()
-    write_dataset_file(root, "pattern.png", png)
+    root.mkdir(parents=True, exist_ok=True)
+    dots.save_png(pattern_path(root))
     pattern = np.asarray(dots.image, np.float64)
     for k in range(scenes + test_scenes):
         rng = np.random.default_rng([seed, k])
