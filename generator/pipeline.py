@@ -244,6 +244,10 @@ def _init_worker(job: _Job) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER["job"] = job
     if job.blender is None:
+        # spawn copies the parent's sys.path; a parent that already imported bpy (a test session, the
+        # Blender addon) has Blender's script folders on it, where `import bpy` would find Blender's
+        # inner bpy package instead of the module and fail with "No module named '_bpy'".
+        sys.path[:] = [p for p in sys.path if f"{os.sep}bpy{os.sep}" not in p]
         try:
             # The only place the pipeline touches bpy: one renderer per worker process, reused.
             from generator.blender.render import SceneRenderer
