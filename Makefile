@@ -11,8 +11,9 @@ OUT ?= out
 SCENES ?= 4
 WORKERS ?= 1
 DATA ?= $(OUT)/dataset
+TEST_DATA ?= $(OUT)/testset
 
-.PHONY: setup test lint bench dataset assets train clean
+.PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval clean
 
 $(BIN)/dotsim: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,19 +29,35 @@ test: setup
 lint: setup
 	$(BIN)/ruff check .
 
+# Every benchmark at full settings (over an hour on two cores); bench-quick is a smoke run.
 bench: setup
 	$(BIN)/python -m bench.run_all
 
-assets: setup
-	$(BIN)/dotsim assets build --split train
+bench-quick: setup
+	$(BIN)/python -m bench.run_all --quick
+
+# Incremental: a rebuild with nothing changed takes well under a second.
+assets: assets-train
 	$(BIN)/dotsim assets build --split test
 
-dataset: setup
+assets-train: setup
+	$(BIN)/dotsim assets build --split train
+
+dataset: assets-train
 	$(BIN)/dotsim generate --config $(CONFIG) --out $(DATA) --split train --scenes $(SCENES) --workers $(WORKERS)
 	$(BIN)/dotsim show $(DATA) -o $(OUT)/contact_sheet.png
 
+# The test split: disjoint assets (test cache), its own clutter density, another seed.
+testset: assets
+	$(BIN)/dotsim generate --config $(CONFIG) --out $(TEST_DATA) --split test --scenes $(SCENES) --workers $(WORKERS) --seed 1
+
+RUN ?= $(OUT)/runs/tiny
+
 train: setup
-	$(BIN)/dotsim train --config configs/train_tiny.toml --data $(DATA) --out $(OUT)/train
+	$(BIN)/dotsim train --config configs/train_tiny.toml --data $(DATA) --out $(RUN)
+
+eval: testset
+	$(BIN)/dotsim eval --checkpoint $(RUN)/checkpoint.pt --data $(TEST_DATA) --out $(RUN)/eval
 
 clean:
 	rm -rf $(OUT) $(VENV) *.egg-info

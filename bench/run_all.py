@@ -1,0 +1,50 @@
+"""Run every benchmark, one after another, each in its own process (they measure memory and time).
+    python -m bench.run_all [--only NAME,NAME] [--quick]
+--quick passes each benchmark its smallest settings (a smoke run, not figures to report).
+Long: the full set takes well over an hour on two cores; figures to report come from full runs.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+
+# Module name -> arguments for a quick smoke run.
+BENCHMARKS = {
+    "pattern_uniqueness": ["--repeats", "1"],
+    "read_shards": ["--repeats", "1", "--shards", "1", "--scenes", "1"],
+    "generate_stages": ["--repeats", "1"],
+    "assets_build": ["--repeats", "1", "--no-blender"],
+    "render_speed": ["--sizes", "640", "--repeats", "1"],
+    "render_objects": ["--repeats", "1"],
+    "render_memory": ["--minutes", "1"],
+    "trainer_speed": ["--repeats", "1", "--no-published"],
+    "trainer_accuracy": ["--minutes", "1"],
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.run_all", description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="", help="comma-separated benchmark names (default: all): "
+                        + ", ".join(BENCHMARKS))
+    parser.add_argument("--quick", action="store_true", help="smallest settings (smoke run)")
+    args = parser.parse_args(argv)
+    names = [n for n in args.only.split(",") if n] or list(BENCHMARKS)
+    unknown = sorted(set(names) - set(BENCHMARKS))
+    if unknown:
+        parser.error(f"unknown benchmark(s) {unknown}; allowed: {', '.join(BENCHMARKS)}")
+    failed = []
+    for name in names:
+        command = [sys.executable, "-m", f"bench.{name}"] + (BENCHMARKS[name] if args.quick else [])
+        print(f"\n=== bench.{name} ===", flush=True)
+        start = time.perf_counter()
+        if subprocess.run(command).returncode != 0:
+            failed.append(name)
+        print(f"=== bench.{name}: {time.perf_counter() - start:.0f} s", flush=True)
+    print(f"\n{len(names) - len(failed)} benchmarks ran, {len(failed)} failed" + (f": {failed}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
