@@ -200,7 +200,7 @@ class DOTSIM_OT_preview_frame(_DotsimOperator):
         SESSION.build(context, spec)
         with context.temp_override(scene=SESSION.renderer.scene):
             raw = SESSION.renderer.render_frame(np.asarray(spec["poses"][frame], np.float64))
-        ir, depth_display, depth_scale = preview_images(raw, config, spec, settings.base_seed)
+        ir, depth_display, depth_scale = preview_images(raw, config, spec, settings.base_seed, frame)
         ir_image = _grey_image(IR_IMAGE, ir)
         depth_image = _grey_image(DEPTH_IMAGE, depth_display)
         depth_image["depth_scale_m"] = depth_scale  # metres = pixel value * depth_scale_m

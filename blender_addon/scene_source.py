@@ -76,18 +76,29 @@ def check_frame(frame: int) -> int:
     return frame
 
 
-def preview_images(raw: dict[str, np.ndarray], config: Config, spec: dict,
-                   base_seed: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """(ir, depth_display, depth_scale) of one rendered frame, each (H, W) float32.
+def sensor_rng(base_seed: int, scene_index: int, frame: int, shape: tuple[int, int]) -> np.random.Generator:
+    """The sensor-noise generator as the pipeline holds it when it reaches `frame`: the pipeline
+    draws the frames of a scene in order from one stream, one standard normal per pixel each
+    (generator.sensor_model.add_noise), so frames before `frame` are drawn and dropped here.
+    tests/test_blender_addon.py checks the result against a dataset's stored IR."""
+    rng = scene_rng(base_seed, scene_index, STREAM_SENSOR)
+    for _ in range(check_frame(frame)):
+        rng.standard_normal(shape)
+    return rng
 
-    ir: the stored IR channel (generator.post_render: sensor model of ambient + projector, levels
-    in [0, 1]); its noise is drawn as for the scene's first frame (the pipeline draws frames in
-    order from one stream, so later frames' noise differs from the dataset's, nothing else does).
+
+def preview_images(raw: dict[str, np.ndarray], config: Config, spec: dict, base_seed: int,
+                   frame_index: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(ir, depth_display, depth_scale) of rendered frame `frame_index`, each (H, W) float32.
+
+    ir: the IR channel `dotsim generate` stores for this frame (generator.post_render: sensor model
+    of ambient + projector, levels in [0, 1], the same noise).
     depth_display: planar depth / depth_scale in [0, 1], 0 where nothing is hit; depth_scale is
     the largest finite depth in metres (1 when nothing is hit), so metres = value * depth_scale.
     """
-    rng = scene_rng(base_seed, spec["scene_index"], STREAM_SENSOR)
-    frame = make_frame(raw, build_rig(config), config, rng, where=f"scene {spec['scene_index']}")
+    rig = build_rig(config)
+    rng = sensor_rng(base_seed, spec["scene_index"], frame_index, (rig.camera.height, rig.camera.width))
+    frame = make_frame(raw, rig, config, rng, where=f"scene {spec['scene_index']} frame {frame_index}")
     depth = frame["depth"]
     finite = np.isfinite(depth)
     depth_scale = float(depth[finite].max()) if finite.any() else 1.0
