@@ -42,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
         if subprocess.run(command).returncode != 0:
             failed.append(name)
         print(f"=== bench.{name}: {time.perf_counter() - start:.0f} s", flush=True)
-    print(f"\n{len(names) - len(failed)} benchmarks ran, {len(failed)} failed" + (f": {failed}" if failed else ""))
+    print(f"\n{len(names) - len(failed)} benchmarks ran, {len(failed)} failed"
+          + (f": {failed}" if failed else ""))
     return 1 if failed else 0
 
 
