@@ -10,6 +10,7 @@ it removes what it made when it is done.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -109,8 +110,9 @@ def test_build_scene_places_objects_camera_and_projector(settings):
     spec = _spec_from_text()
     scene = bpy.context.window.scene
     assert scene.name.startswith("dotsim preview")
-    content = bpy.data.collections["dotsim_scene"].objects
-    meshes = sorted(o.name for o in content if o.type == "MESH")
+    # Other bpy tests in this process may own objects of the same names: Blender then appends ".001".
+    (content,) = [c.objects for c in scene.collection.children]
+    meshes = sorted(re.sub(r"\.\d{3}$", "", o.name) for o in content if o.type == "MESH")
     assert meshes == sorted(o["name"] for o in spec["objects"])
     assert sum(o.type == "LIGHT" for o in content) == len(spec["lights"])
     assert f"{len(spec['objects'])} objects" in settings.status
@@ -135,7 +137,7 @@ def test_build_scene_places_objects_camera_and_projector(settings):
         assert (1.0 - y) * height - 0.5 == pytest.approx(v, abs=1e-3)
     # The projector rides on the camera: its centre is the camera's plus the rig translation
     # (camera axes), and it looks the same way (identity rig rotation).
-    projector = bpy.data.objects["dotsim_projector"]
+    (projector,) = [o for o in scene.collection.objects if o.type == "LIGHT"]
     offset = np.array(spec["rig"]["projector_translation"])
     np.testing.assert_allclose(np.array(projector.matrix_world.translation),
                                pose[:3, :3] @ offset + pose[:3, 3], atol=1e-5)
