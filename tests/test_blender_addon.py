@@ -198,6 +198,14 @@ def test_preview_frame_is_the_dataset_frame(settings, dataset_scene, frame):
     assert f"frame {frame} of scene 1" in settings.status
 
 
+def test_build_after_the_preview_scene_was_deleted(settings):
+    bpy.data.scenes.remove(bpy.context.window.scene)
+    assert bpy.ops.dotsim.build_scene() == {"FINISHED"}
+    scene, spec = bpy.context.window.scene, _spec_from_text()
+    assert scene.name.startswith("dotsim preview")
+    assert len(scene.collection.children[0].objects) == len(spec["objects"]) + len(spec["lights"])
+
+
 @pytest.mark.parametrize("operator", ["build_scene", "preview_frame", "show_spec"])
 def test_missing_config_is_an_error_report_naming_the_file(settings, tmp_path, operator):
     missing = tmp_path / "no_such_config.toml"
@@ -222,6 +230,7 @@ def test_invalid_config_value_is_named(settings, tmp_path):
 
 
 def test_unregister_removes_operators_and_settings(settings):
+    assert hasattr(bpy.types, "DOTSIM_PT_preview") and bpy.types.DOTSIM_PT_preview.bl_category == "dotsim"
     blender_addon.unregister()
     try:
         assert not hasattr(bpy.types.WindowManager, "dotsim")
