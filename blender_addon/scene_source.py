@@ -19,7 +19,7 @@ import numpy as np
 from generator.config import Config, ConfigError, load_config
 from generator.pipeline import builtin_textures, cached_assets, make_pattern
 from generator.post_render import make_frame
-from generator.scene_spec import STREAM_SENSOR, SceneResources, build_rig, sample_scene_spec, scene_rng
+from generator.scene_spec import SceneResources, build_rig, frame_sensor_rng, sample_scene_spec
 
 FRAMES_PER_SCENE = 4
 
@@ -76,17 +76,6 @@ def check_frame(frame: int) -> int:
     return frame
 
 
-def sensor_rng(base_seed: int, scene_index: int, frame: int, shape: tuple[int, int]) -> np.random.Generator:
-    """The sensor-noise generator as the pipeline holds it when it reaches `frame`: the pipeline
-    draws the frames of a scene in order from one stream, one standard normal per pixel each
-    (generator.sensor_model.add_noise), so frames before `frame` are drawn and dropped here.
-    tests/test_blender_addon.py checks the result against a dataset's stored IR."""
-    rng = scene_rng(base_seed, scene_index, STREAM_SENSOR)
-    for _ in range(check_frame(frame)):
-        rng.standard_normal(shape)
-    return rng
-
-
 def preview_images(raw: dict[str, np.ndarray], config: Config, spec: dict, base_seed: int,
                    frame_index: int) -> tuple[np.ndarray, np.ndarray, float]:
     """(ir, depth_display, depth_scale) of rendered frame `frame_index`, each (H, W) float32.
@@ -97,7 +86,7 @@ def preview_images(raw: dict[str, np.ndarray], config: Config, spec: dict, base_
     the largest finite depth in metres (1 when nothing is hit), so metres = value * depth_scale.
     """
     rig = build_rig(config)
-    rng = sensor_rng(base_seed, spec["scene_index"], frame_index, (rig.camera.height, rig.camera.width))
+    rng = frame_sensor_rng(base_seed, spec["scene_index"], check_frame(frame_index))
     frame = make_frame(raw, rig, config, rng, where=f"scene {spec['scene_index']} frame {frame_index}")
     depth = frame["depth"]
     finite = np.isfinite(depth)

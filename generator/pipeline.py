@@ -43,13 +43,12 @@ from dotsim.patterns import DotPattern, PatternError, generate_dot_pattern, load
 from generator.config import Config, ConfigError, check_output_dir
 from generator.post_render import RAW_PASSES, make_frame
 from generator.scene_spec import (
-    STREAM_SENSOR,
     MeshAsset,
     SceneResources,
     TextureAsset,
     build_rig,
+    frame_sensor_rng,
     sample_scene_spec,
-    scene_rng,
 )
 
 RUN_FILE = "generate.json"
@@ -280,8 +279,8 @@ def _finish_scene(job: _Job, spec_dict: dict, raw_frames: list[dict]) -> int:
         raise ValueError(f"scene {index}: renderer returned {len(raw_frames)} frames for "
                          f"{len(spec_dict['poses'])} poses")
     rig = build_rig(job.config)
-    rng = scene_rng(job.seed, index, STREAM_SENSOR)
-    frames = [make_frame(raw, rig, job.config, rng, where=f"scene {index} frame {k}")
+    frames = [make_frame(raw, rig, job.config, frame_sensor_rng(job.seed, index, k),
+                         where=f"scene {index} frame {k}")
               for k, raw in enumerate(raw_frames)]
     dataset.write_scene(job.out, index, scene_meta(job, spec_dict), frames,
                         scenes_per_shard=job.config.output.scenes_per_shard)

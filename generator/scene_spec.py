@@ -40,6 +40,13 @@ def scene_rng(base_seed: int, scene_index: int, stream: int) -> np.random.Genera
     return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=(stream,)))
 
 
+def frame_sensor_rng(base_seed: int, scene_index: int, frame: int) -> np.random.Generator:
+    """The sensor-noise generator of one frame: a stream of its own, so any frame can be
+    post-rendered alone (the Blender add-on's preview) and give what `dotsim generate` stores."""
+    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index),
+                                                        spawn_key=(STREAM_SENSOR, frame)))
+
+
 def scene_seed(base_seed: int, scene_index: int) -> int:
     """A 31-bit integer identifying the scene's random state (recorded; also seeds Cycles)."""
     return int(np.random.SeedSequence((base_seed, scene_index)).generate_state(1)[0] >> 1)
