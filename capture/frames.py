@@ -9,12 +9,12 @@ raw value / white level, so a saturated pixel of an integer image reads 1.0, as 
 from __future__ import annotations
 
 import glob
-import hashlib
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from dotsim.images import GreyImage, ImageError, read_grey_image
 
 IMAGE_SUFFIXES = (".png", ".exr")
 
@@ -61,89 +61,24 @@ def list_images(spec: str | Path, *, what: str = "images") -> list[Path]:
     return sorted(files, key=natural_key)
 
 
-@dataclass(frozen=True)
-class RawImage:
-    """One decoded frame: pixels as stored, the white level that maps to 1.0, and the file's sha256."""
+def read_image(path: Path) -> GreyImage:
+    """Decode one greyscale frame (8/16-bit PNG or EXR, dotsim.images.read_grey_image) with the
+    sha256 of its file bytes.
 
-    path: Path
-    pixels: np.ndarray  # (H, W) as stored: uint8, uint16 or float32
-    white_level: float  # 255, 65535 or 1.0 unless overridden
-    sha256: str
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.pixels.shape
-
-    def relative(self, white_level: float | None = None) -> np.ndarray:
-        """Pixels / white level as float64 (white_level None: the format's full scale). float64 so the
-        dataset's float16 is one rounding of the exact value, not a rounding of a float32 rounding."""
-        level = self.white_level if white_level is None else white_level
-        return self.pixels.astype(np.float64) / level
-
-
-def _decode_png(path: Path, data: bytes) -> np.ndarray:
-    import cv2
-
-    pixels = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if pixels is None:
-        raise CaptureError(f"{path}: not a readable PNG image")
-    if pixels.dtype not in (np.uint8, np.uint16):
-        raise CaptureError(f"{path}: PNG sample type {pixels.dtype} unsupported (8- or 16-bit only)")
-    return pixels
-
-
-def _decode_exr(path: Path) -> np.ndarray:
-    import OpenEXR
-
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            channels = {name: ch.pixels for name, ch in exr.parts[0].channels.items()}
-    except Exception as error:  # OpenEXR raises bare RuntimeError for every kind of bad file
-        raise CaptureError(f"{path}: not a readable EXR image ({error})") from error
-    for name in ("Y", "ir", "IR", "R"):
-        if name in channels:
-            return np.asarray(channels[name], dtype=np.float32)
-    if len(channels) == 1:
-        return np.asarray(next(iter(channels.values())), dtype=np.float32)
-    raise CaptureError(
-        f"{path}: EXR has channels {sorted(channels)}; expected one channel or one named Y, ir or R"
-    )
-
-
-def read_image(path: Path) -> RawImage:
-    """Decode one greyscale frame (8/16-bit PNG or EXR) and checksum its file bytes.
-
-    A colour PNG is accepted only when its channels are identical (some tools save grey as RGB).
-    Raises CaptureError naming the file for a missing, unreadable, colour, empty or non-finite image.
+    Raises CaptureError naming the file for what read_grey_image refuses (missing, unreadable,
+    colour, empty, NaN/inf) and for EXR values beyond what the dataset's half floats hold.
     """
-    path = Path(path)
     try:
-        data = path.read_bytes()
-    except OSError as error:
-        raise CaptureError(f"{path}: cannot read ({error.strerror})") from error
-    digest = hashlib.sha256(data).hexdigest()
-    if path.suffix.lower() == ".exr":
-        pixels, white = _decode_exr(path), 1.0
-    else:
-        pixels = _decode_png(path, data)
-        white = float(np.iinfo(pixels.dtype).max)
-    if pixels.ndim == 3:
-        colour = pixels[..., :3]  # ignore an alpha channel
-        if not all(np.array_equal(colour[..., 0], colour[..., c]) for c in range(1, colour.shape[-1])):
-            raise CaptureError(f"{path}: colour image; IR frames must be greyscale (one channel)")
-        pixels = colour[..., 0]
-    if pixels.ndim != 2 or pixels.size == 0:
-        raise CaptureError(f"{path}: expected a 2-D greyscale image, got shape {pixels.shape}")
-    if pixels.dtype == np.float32:
-        if not np.all(np.isfinite(pixels)):
-            raise CaptureError(f"{path}: image holds NaN or infinite values")
-        if np.abs(pixels).max() > FLOAT16_MAX:
-            raise CaptureError(f"{path}: values exceed {FLOAT16_MAX:g}, the largest half float "
-                               f"the dataset format stores")
-    return RawImage(path=path, pixels=np.ascontiguousarray(pixels), white_level=white, sha256=digest)
+        image = read_grey_image(path)
+    except ImageError as error:
+        raise CaptureError(str(error)) from None
+    if image.pixels.dtype == np.float32 and np.abs(image.pixels).max() > FLOAT16_MAX:
+        raise CaptureError(f"{path}: values exceed {FLOAT16_MAX:g}, the largest half float "
+                           f"the dataset format stores")
+    return image
 
 
-def check_size(image: RawImage, width: int, height: int, rig_name: str) -> None:
+def check_size(image: GreyImage, width: int, height: int, rig_name: str) -> None:
     """Raise CaptureError naming the file unless the image is height x width (the rig camera's size)."""
     if image.shape != (height, width):
         raise CaptureError(

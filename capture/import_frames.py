@@ -28,9 +28,10 @@ import cv2
 import numpy as np
 
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
-from capture.frames import CaptureError, RawImage, check_size, list_images, pair_on_off, read_image
+from capture.frames import CaptureError, check_size, list_images, pair_on_off, read_image
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset
+from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern, load_pattern
 from dotsim.rig import Rig
 
@@ -52,7 +53,7 @@ class FramePair:
                 "off": {"path": str(self.off.resolve()), "sha256": self.off_sha256}}
 
 
-def _checked_image(path: Path, rig: Rig) -> RawImage:
+def _checked_image(path: Path, rig: Rig) -> GreyImage:
     image = read_image(path)
     check_size(image, rig.camera.width, rig.camera.height, rig.name)
     return image

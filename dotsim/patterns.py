@@ -23,6 +23,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from dotsim import __version__
+from dotsim.images import ImageError, read_grey_image
 
 _LEVELS = 65535
 
@@ -232,59 +233,20 @@ def detect_dots(image: np.ndarray, threshold: float = 0.25) -> np.ndarray:
     return np.stack([cols + dx, rows + dy], axis=1)
 
 
-def _read_exr(path: Path) -> np.ndarray:
-    """The grey channel of an EXR: Y, else R, else the only channel."""
-    import OpenEXR  # the post-render stage's dependency; imported here so numpy-only users skip it
-
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            channels = {name: channel.pixels for name, channel in exr.channels().items()}
-    except Exception as error:  # OpenEXR raises RuntimeError/ValueError variants for bad files
-        raise PatternError(f"{path}: not a readable EXR image ({error})") from None
-    for name in ("Y", "R"):
-        if name in channels:
-            return np.asarray(channels[name], np.float64)
-    if len(channels) == 1:
-        return np.asarray(next(iter(channels.values())), np.float64)
-    raise PatternError(f"{path}: EXR has channels {sorted(channels)}; expected Y, R or a single channel")
-
-
-def _read_raster(path: Path) -> np.ndarray:
-    """An 8/16-bit image (PNG and anything OpenCV reads) as grey float64 in [0, 1]; colour channels
-    are averaged and alpha is dropped."""
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise PatternError(f"{path}: not a readable image (OpenCV could not decode it)")
-    if raw.dtype == np.uint8:
-        scale = 255.0
-    elif raw.dtype == np.uint16:
-        scale = float(_LEVELS)
-    else:
-        raise PatternError(f"{path}: unsupported pixel type {raw.dtype}; use 8/16-bit PNG or EXR")
-    image = raw.astype(np.float64) / scale
-    if image.ndim == 3:
-        image = image[..., :3].mean(axis=2)
-    return image
-
-
 def load_pattern(path: str | os.PathLike, expected_shape: tuple[int, int] | None = None) -> DotPattern:
-    """Load a pattern image: 8/16-bit PNG (scaled by its bit depth) or EXR (float; scaled so its
-    maximum is 1). expected_shape: (height, width) the pattern must have, e.g. the projector's.
+    """Load a pattern image with dotsim.images.read_grey_image: 8/16-bit PNG (scaled by its bit depth)
+    or EXR (float; scaled so its maximum is 1). expected_shape: (height, width) the pattern must
+    have, e.g. the projector's.
 
-    PatternError naming the file for: a missing file, a file that is not an image, an empty or
-    constant image, NaN/inf or negative values, or the wrong dimensions.
+    PatternError naming the file for what read_grey_image refuses (missing, empty or undecodable
+    file, colour, NaN/inf, ...) and for: negative values, a constant image, the wrong dimensions.
     """
     path = Path(path)
-    if not path.is_file():
-        raise PatternError(f"{path}: no such pattern file")
-    if path.stat().st_size == 0:
-        raise PatternError(f"{path}: file is empty")
-    is_exr = path.suffix.lower() == ".exr"
-    image = _read_exr(path) if is_exr else _read_raster(path)
-    if image.size == 0:
-        raise PatternError(f"{path}: image has no pixels")
-    if not np.isfinite(image).all():
-        raise PatternError(f"{path}: image contains {int((~np.isfinite(image)).sum())} NaN/inf pixels")
+    try:
+        grey = read_grey_image(path)
+    except ImageError as error:
+        raise PatternError(str(error)) from None
+    image = grey.relative()
     if image.min() < 0:
         raise PatternError(f"{path}: image has negative values (min {image.min():g}); a pattern is light")
     if image.max() == image.min():
@@ -292,6 +254,7 @@ def load_pattern(path: str | os.PathLike, expected_shape: tuple[int, int] | None
     if expected_shape is not None and image.shape != tuple(expected_shape):
         raise PatternError(f"{path}: pattern is {image.shape[1]}x{image.shape[0]} (width x height), "
                            f"expected {expected_shape[1]}x{expected_shape[0]}")
+    is_exr = path.suffix.lower() == ".exr"
     if is_exr:
         image = image / image.max()
     return DotPattern(image, None, str(path), {"file": path.name, "format": "exr" if is_exr else "raster"})

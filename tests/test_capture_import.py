@@ -171,7 +171,7 @@ def test_bad_inputs_name_the_file_and_write_nothing(tmp_path, rig):
     write_frames(nan_exr, images, ".exr")
     refused(nan_exr, nan_exr, "is listed both")
     write_frames(tmp_path / "exr", random_frames(rig, 4, np.float32, 7), ".exr")
-    refused(nan_exr, tmp_path / "exr", f"{nan_exr / 'frame_1.exr'}: image holds NaN")
+    refused(nan_exr, tmp_path / "exr", f"{nan_exr / 'frame_1.exr'}: image contains 1 NaN/inf")
 
 
 def test_rerun_resumes_and_refuses_other_files(tmp_path, rig):

@@ -167,13 +167,13 @@ def test_load_exr_channels_scaled_to_max_one(tmp_path):
 
 
 def test_bad_pattern_files_are_named_with_the_problem(tmp_path):
-    with pytest.raises(PatternError, match="missing.png: no such pattern file"):
+    with pytest.raises(PatternError, match="missing.png: no such file"):
         load_pattern(tmp_path / "missing.png")
     (tmp_path / "empty.png").write_bytes(b"")
     with pytest.raises(PatternError, match="empty.png: file is empty"):
         load_pattern(tmp_path / "empty.png")
     (tmp_path / "text.png").write_text("not a picture")
-    with pytest.raises(PatternError, match="text.png: not a readable image"):
+    with pytest.raises(PatternError, match="text.png: not a readable PNG image"):
         load_pattern(tmp_path / "text.png")
     (tmp_path / "text.exr").write_text("not a picture")
     with pytest.raises(PatternError, match="text.exr: not a readable EXR"):
@@ -225,4 +225,4 @@ def test_cli_make_and_stats(tmp_path, capsys):
 
 def test_cli_reports_bad_files_without_a_traceback(tmp_path, capsys):
     assert _cli(["pattern", "stats", str(tmp_path / "nope.png")]) == 2
-    assert "nope.png: no such pattern file" in capsys.readouterr().err
+    assert "nope.png: no such file" in capsys.readouterr().err

@@ -12,11 +12,11 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from dotsim.dataset import FormatError, atomic_write_bytes, read_frame
+from dotsim.images import ImageError, read_grey_image
 from dotsim.rig import Rig, backproject
 from dotsim.show import colourise, write_image
 from trainer.data import DataError
@@ -25,42 +25,28 @@ from trainer.train import build_model, load_checkpoint
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
-    """IR image (H, W) float32 from a dotsim frame EXR, a plain EXR or a PNG; errors name the file."""
+    """IR image (H, W) float32 in [0, 1] units from a dotsim frame EXR (its `ir` channel, checked
+    against scene.json when beside one) or a plain greyscale image (dotsim.images.read_grey_image:
+    PNG scaled by its bit depth, EXR as stored); errors name the file."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: input not found")
+    if path.suffix.lower() not in (".exr", ".png"):
+        raise DataError(f"{path}: unsupported input {path.suffix!r}; give a frame .exr, an IR .exr or a .png")
+    ir = None
     if path.suffix.lower() == ".exr":
         try:
             ir = read_frame(path, channels=("ir",))["ir"]
         except FormatError:
-            ir = _plain_exr(path)
-    elif path.suffix.lower() == ".png":
-        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise DataError(f"{path}: not a readable PNG")
-        if raw.ndim == 3:
-            raise DataError(f"{path}: {raw.shape[2]}-channel PNG; an IR image has one channel")
-        ir = raw.astype(np.float32) / np.iinfo(raw.dtype).max
-    else:
-        raise DataError(f"{path}: unsupported input {path.suffix!r}; give a frame .exr, an IR .exr or a .png")
+            pass  # not a dotsim frame: read it as a plain IR image below
+    if ir is None:
+        try:
+            ir = read_grey_image(path).relative()
+        except ImageError as error:
+            raise DataError(str(error)) from None
     expected = (rig.camera.height, rig.camera.width)
     if ir.shape != expected:
         raise DataError(f"{path}: image is {ir.shape[1]}x{ir.shape[0]}, the checkpoint's camera "
                         f"({rig.name}) is {expected[1]}x{expected[0]}")
     return np.asarray(ir, np.float32)
-
-
-def _plain_exr(path: Path) -> np.ndarray:
-    import OpenEXR
-
-    try:
-        channels = OpenEXR.File(str(path), separate_channels=True).channels()
-    except Exception as e:  # OpenEXR raises plain RuntimeError for non-EXR files
-        raise DataError(f"{path}: not a readable OpenEXR file ({e})") from e
-    names = [n for n in channels if n in ("ir", "Y", "R", "V")] or list(channels)
-    if len(channels) != 1 and names == list(channels):
-        raise DataError(f"{path}: EXR has channels {sorted(channels)}; expected 'ir' or one channel")
-    return channels[names[0]].pixels.astype(np.float32)
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
