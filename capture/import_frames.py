@@ -32,7 +32,7 @@ from capture.frames import CaptureError, check_size, list_images, pair_on_off, r
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset
 from dotsim.images import GreyImage
-from dotsim.patterns import DotPattern, load_pattern
+from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
@@ -112,24 +112,10 @@ def _versions() -> dict:
             "python": platform.python_version()}
 
 
-def write_pattern(dataset_dir: Path, pattern: DotPattern) -> dict:
-    """Store the sensor's pattern as DATASET/pattern.png (kept when a rerun finds the same one) and
-    return the scene.json `pattern` entry referring to it, as the generator writes it."""
-    path = dataset.pattern_path(dataset_dir)
-    if path.exists():
-        if load_pattern(path).sha256 != pattern.sha256:
-            raise CaptureError(f"{path}: differs from --pattern {pattern.source}; choose an empty --out")
-    else:
-        dataset_dir.mkdir(parents=True, exist_ok=True)
-        pattern.save_png(path)
-    return {"source": pattern.source, "sha256": pattern.sha256, "file": path.name,
-            "width": pattern.width, "height": pattern.height, "params": pattern.params}
-
-
 def scene_meta(pairs: list[FramePair], rig: Rig, split: str, settings: dict,
                pattern: dict | None) -> dict:
     """scene.json content for one captured scene (the writer adds format and frame fields).
-    pattern: the write_pattern entry, or None when the sensor's pattern is not known."""
+    pattern: dataset.pattern_entry of the stored pattern, or None when the sensor's pattern is not known."""
     return {
         "split": split,
         "source": "capture",
@@ -204,7 +190,13 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
     if pattern is not None and pattern.image.shape != (rig.projector.height, rig.projector.width):
         raise CaptureError(f"pattern {pattern.source} is {pattern.width} x {pattern.height} px but rig "
                            f"{rig.name!r} projector is {rig.projector.width} x {rig.projector.height} px")
-    pattern_entry = None if pattern is None else write_pattern(out_dir, pattern)
+    pattern_entry = None
+    if pattern is not None:
+        try:
+            dataset.store_pattern(out_dir, pattern)
+        except dataset.FormatError as error:
+            raise CaptureError(f"{error}; choose an empty --out") from None
+        pattern_entry = dataset.pattern_entry(pattern)
     settings = {"white_level": pairs[0].white_level, "frames_per_scene": frames_per_scene,
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
                 "settings": capture_settings or {}}

@@ -26,10 +26,14 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dotsim import __version__ as DOTSIM_VERSION
+
+if TYPE_CHECKING:
+    from dotsim.patterns import DotPattern
 
 FORMAT_VERSION = "1.0"
 DEFAULT_SCENES_PER_SHARD = 100
@@ -90,8 +94,38 @@ def scene_dir(dataset_dir: str | os.PathLike, scene_index: int, scenes_per_shard
 
 
 def pattern_path(dataset_dir: str | os.PathLike) -> Path:
-    """Where the dataset's projector pattern image lives (written by the generator)."""
+    """Where the dataset's projector pattern image lives (written by store_pattern)."""
     return Path(dataset_dir) / PATTERN_FILE
+
+
+def store_pattern(dataset_dir: str | os.PathLike, pattern: DotPattern) -> Path:
+    """Write DATASET/pattern.png (16-bit PNG, atomically) unless it is there; returns its path.
+
+    A rerun that finds the file keeps it when it holds the same pattern (same DotPattern.sha256)
+    and raises FormatError naming the file when it holds another one: one dataset, one pattern.
+    """
+    from dotsim.patterns import PatternError, load_pattern  # OpenCV/SciPy: dataset readers need neither
+
+    path = pattern_path(dataset_dir)
+    if path.exists():
+        try:
+            stored = load_pattern(path)
+        except PatternError as error:
+            raise FormatError(str(error)) from None
+        if stored.sha256 != pattern.sha256:
+            raise FormatError(
+                f"{path}: holds another pattern ({stored.width}x{stored.height}, "
+                f"sha256 {stored.sha256[:12]}) than {pattern.source} ({pattern.width}x{pattern.height}, "
+                f"sha256 {pattern.sha256[:12]}); a dataset has one pattern")
+    else:
+        pattern.save_png(path)
+    return path
+
+
+def pattern_entry(pattern: DotPattern) -> dict:
+    """scene.json's `pattern` entry for the pattern stored by store_pattern."""
+    return {"source": pattern.source, "sha256": pattern.sha256, "file": PATTERN_FILE,
+            "width": pattern.width, "height": pattern.height, "params": pattern.params}
 
 
 # ----------------------------------------------------------------------------- atomic files

@@ -170,18 +170,6 @@ def cached_assets(config: Config, split: str) -> SceneResources:
     return SceneResources("", "", textures, tuple(meshes), cache.clutter_density)
 
 
-def _write_pattern(out: Path, pattern: DotPattern) -> Path:
-    """Write DATASET/pattern.png once; on resume the existing file must hold the same pattern."""
-    path = dataset.pattern_path(out)
-    if path.exists():
-        if load_pattern(path).sha256 != pattern.sha256:
-            raise ConfigError(f"{path}: the dataset's pattern differs from the one this config makes; "
-                              "use a new --out directory for a different pattern")
-    else:
-        pattern.save_png(path)
-    return path
-
-
 def _run_record(config: Config, split: str, seed: int) -> dict:
     """What must stay the same for scenes to belong to one dataset (the config's file name may vary)."""
     settings = config.to_dict()
@@ -453,16 +441,17 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     began = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     dataset.remove_partial_scenes(out)
-    pattern_file = _write_pattern(out, pattern)
+    try:
+        pattern_file = dataset.store_pattern(out, pattern)
+    except dataset.FormatError as exc:
+        raise ConfigError(f"{exc}; use a new --out directory for a different pattern") from None
     if not (out / RUN_FILE).exists():
         record_bytes = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
         dataset.write_dataset_file(out, RUN_FILE, record_bytes)
     if assets is None:
         assets = SceneResources("", "", textures=builtin_textures(out, split))
     resources = replace(assets, pattern_path=str(pattern_file), pattern_sha256=pattern.sha256)
-    pattern_meta = {"source": pattern.source, "sha256": pattern.sha256, "file": pattern_file.name,
-                    "width": rig.projector.width, "height": rig.projector.height, "params": pattern.params}
-    job = _Job(config, out, split, seed, resources, pattern_meta, software, blender)
+    job = _Job(config, out, split, seed, resources, dataset.pattern_entry(pattern), software, blender)
 
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard
