@@ -21,13 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from assets_manifest.images import ImageError, png_bytes, texture_from_image
-from assets_manifest.manifest import AssetSpec, Manifest, ManifestError, file_sha256
+from assets_manifest.manifest import AssetSpec, Manifest, ManifestError
 from assets_manifest.mesh_arrays import MeshError, arrays_sha256, finalize_mesh, npz_bytes
 from assets_manifest.package_images import skimage_image_path
 from assets_manifest.params import canonical_json, sample_params, spec_seed
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 from assets_manifest.user_folders import load_image_file, load_mesh_file
+from dotsim.dataset import sha256_file
 
 CACHE_FORMAT = "dotsim-assets/1"
 # Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
@@ -132,7 +133,7 @@ def load_asset_cache(cache_dir: str | Path, split: str, verify: bool = False) ->
             path = root / e["path"]
             if not path.is_file():
                 raise AssetCacheError(f"asset file {path} listed in {root / 'index.json'} is missing: {hint}")
-            if verify and file_sha256(path) != e["sha256"]:
+            if verify and sha256_file(path) != e["sha256"]:
                 raise AssetCacheError(f"asset file {path} does not match its sha256 in the index: {hint}")
             entries.append(
                 AssetEntry(
@@ -266,7 +267,7 @@ def _reusable(old: dict | None, key: str, root: Path) -> bool:
         old
         and old.get("key") == key
         and (root / old["path"]).is_file()
-        and file_sha256(root / old["path"]) == old["sha256"]
+        and sha256_file(root / old["path"]) == old["sha256"]
     )
 
 

@@ -42,6 +42,7 @@ from assets_manifest.package_images import SKIMAGE_PHOTOS
 from assets_manifest.params import canonical_json, check_params
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
+from dotsim.dataset import sha256_file
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -95,14 +96,6 @@ class Manifest:
     @property
     def assets(self) -> list[AssetSpec]:
         return self.meshes + self.textures
-
-
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _scale_hint(entry: dict, where: str) -> tuple[float, float]:
@@ -209,7 +202,7 @@ def _expand_entry(entry: dict, kind: str, base: Path, where: str) -> list[AssetS
         folder, files = path.parent, [path]
     out = []
     for path in files:
-        digest = file_sha256(path)
+        digest = sha256_file(path)
         if "sha256" in entry and digest != entry["sha256"]:
             raise ManifestError(f"{where}: {path} has sha256 {digest}, the manifest pins {entry['sha256']}")
         stem = _sanitize(str(path.relative_to(folder).with_suffix("")))

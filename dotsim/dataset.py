@@ -486,22 +486,22 @@ def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = F
     return removed
 
 
-def _scene_dirs(shard: Path) -> list[tuple[int, Path]]:
-    out = []
-    for p in shard.iterdir():
-        m = _SCENE_DIR_RE.match(p.name)
+def _numbered_dirs(folder: Path, name_re: re.Pattern) -> list[tuple[int, Path]]:
+    """(number, path) of the sub-folders whose names match name_re (group 1 = the number), by number."""
+    found = []
+    for p in folder.iterdir():
+        m = name_re.match(p.name)
         if m and p.is_dir():
-            out.append((int(m.group(1)), p))
-    return sorted(out)
+            found.append((int(m.group(1)), p))
+    return sorted(found)
+
+
+def _scene_dirs(shard: Path) -> list[tuple[int, Path]]:
+    return _numbered_dirs(shard, _SCENE_DIR_RE)
 
 
 def _shard_dirs(root: Path) -> list[tuple[int, Path]]:
-    out = []
-    for p in root.iterdir():
-        m = _SHARD_DIR_RE.match(p.name)
-        if m and p.is_dir():
-            out.append((int(m.group(1)), p))
-    return sorted(out)
+    return _numbered_dirs(root, _SHARD_DIR_RE)
 
 
 def complete_scenes(dataset_dir: str | os.PathLike) -> list[tuple[int, Path]]:

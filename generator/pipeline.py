@@ -118,19 +118,13 @@ def make_pattern(config: Config, width: int, height: int) -> DotPattern:
                       params={**pattern.params, "resampled_from": list(pattern.image.shape[::-1])})
 
 
-def _png16_bytes(image: np.ndarray) -> bytes:
-    ok, data = cv2.imencode(".png", np.round(np.clip(image, 0, 1) * 65535).astype(np.uint16))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return data.tobytes()
-
-
 def builtin_textures(out: Path, split: str) -> tuple[TextureAsset, ...]:
     """Procedural reflectance textures (assets_manifest families) under DATASET/textures, made once.
 
     Each split draws its own seeds, so train and test never share a texture; files that exist are
     reused (same name = same family, index and split = same image).
     """
+    from assets_manifest.images import png_bytes, texture_from_image
     from assets_manifest.params import sample_params
     from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 
@@ -143,7 +137,7 @@ def builtin_textures(out: Path, split: str) -> tuple[TextureAsset, ...]:
             if not path.exists():
                 rng = np.random.default_rng((_SPLIT_CODE[split], family_index, k))
                 image = family.make(sample_params({}, family.defaults, rng), rng)
-                dataset.atomic_write_bytes(path, _png16_bytes(image))
+                dataset.atomic_write_bytes(path, png_bytes(texture_from_image(image)))
             textures.append(TextureAsset(str(path)))
     return tuple(textures)
 
