@@ -2,12 +2,15 @@
 evaluate o(0.5..5) of both on a test split of disjoint scenes. Goal (issue 5): network o(0.5) at most
 half of SGBM's.
 
-    python -m bench.trainer_accuracy [--data DIR] [--minutes 10] [--config configs/train_tiny.toml]
+    python -m bench.trainer_accuracy [--data DIR] [--test-data DIR] [--minutes 10] \
+        [--config configs/train_tiny.toml]
 
-Data: --data, else the first finalized dataset under out/ holding both a train and a test split (the
-Blender generator's output), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted
-walls and boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder.
-The output says which. The step count is fitted to the time budget from a short calibration run, and
+Data: --data (its train split) and --test-data (its test split; default --data), else the Blender
+generator's output under out/: a folder holding a train and a test split, or sibling folders (e.g.
+out/bench_accuracy/train and out/bench_accuracy/test from configs/bench_accuracy.toml, whose header
+has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
+boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder. The output
+says which. The step count is fitted to the time budget from a short calibration run, and
 the step decay halves the learning rate at 25, 50 and 75 % of it.
 """
 
@@ -31,19 +34,31 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from trainer_fixtures import make_dataset  # noqa: E402
 
 
-def generated_dataset(root: Path = Path("out")) -> Path | None:
-    """The first finalized dataset under root with train and test scenes, or None."""
+def generated_datasets(root: Path = Path("out")) -> tuple[Path, Path] | None:
+    """(train dataset, test dataset) among the finalized datasets under root, or None: the first folder
+    holding both splits, else the first train-only and test-only datasets that share a parent folder
+    (`dotsim generate` writes one split per folder)."""
+    by_split: dict[str, list[Path]] = {"train": [], "test": []}
     for index in sorted(root.glob("**/index.json")) if root.is_dir() else []:
         counts = json.loads(index.read_text()).get("split_counts", {})
         if counts.get("train") and counts.get("test"):
-            return index.parent
+            return index.parent, index.parent
+        for split in by_split:
+            if counts.get(split):
+                by_split[split].append(index.parent)
+    for train_dir in by_split["train"]:
+        for test_dir in by_split["test"]:
+            if train_dir.parent == test_dir.parent:
+                return train_dir, test_dir
     return None
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, default=None, help="dataset with train and test splits")
+    parser.add_argument("--data", type=Path, default=None, help="dataset whose train split is trained on")
+    parser.add_argument("--test-data", type=Path, default=None,
+                        help="dataset whose test split is evaluated (default: --data)")
     parser.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     parser.add_argument("--config", default="configs/train_tiny.toml")
     parser.add_argument("--train-scenes", type=int, default=100, help="oracle dataset only")
@@ -55,15 +70,19 @@ def main(argv=None) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         work = args.out or Path(tmp)
-        data = args.data or generated_dataset()
-        if data is None:
-            data = make_dataset(work / "oracle_dataset", scenes=args.train_scenes, frames_per_scene=2,
-                                test_scenes=args.test_scenes, seed=7)
+        if args.data is not None:
+            data, test_data = args.data, args.test_data or args.data
+            source = f"train split of {data}, test split of {test_data}"
+        elif (found := generated_datasets()) is not None:
+            data, test_data = found
+            source = f"generator output: train split of {data}, test split of {test_data}"
+        else:
+            data = test_data = make_dataset(work / "oracle_dataset", scenes=args.train_scenes,
+                                            frames_per_scene=2, test_scenes=args.test_scenes, seed=7)
             source = (f"oracle-rendered synthetic data (tests/trainer_fixtures.py), {args.train_scenes} "
                       f"train / {args.test_scenes} test scenes x 2 frames; no generator output under out/")
-        else:
-            source = f"generated dataset {data}"
         frames, rig, _ = list_frames(data, "train")
+        test_frames, _, _ = list_frames(test_data, "test")
         base = load_config(args.config).to_dict()
 
         def config(steps: int, epochs: int):
@@ -78,14 +97,15 @@ def main(argv=None) -> int:
         steps_per_epoch = len(frames) // base["train"]["batch_size"]
         steps = max(10, int(args.minutes * 60 / per_step))
         epochs = max(1, round(steps / steps_per_epoch))
-        print(f"data: {source}\n{len(frames)} train frames at {rig.camera.width}x{rig.camera.height}; "
+        print(f"data: {source}\n{len(frames)} train / {len(test_frames)} test frames at "
+              f"{rig.camera.width}x{rig.camera.height}; "
               f"{per_step:.2f} s/step -> {steps} steps ({epochs} epochs) for {args.minutes:g} min",
               flush=True)
         cfg = config(steps, epochs)
         start = time.perf_counter()
         result = train(cfg, data, work / "run", max_seconds=args.minutes * 60 * 1.1)
         trained_s = time.perf_counter() - start
-        rows = evaluate(work / "run" / "checkpoint.pt", data, work / "eval", progress=False)
+        rows = evaluate(work / "run" / "checkpoint.pt", test_data, work / "eval", progress=False)
     print(f"\ntrained {result['step']} steps in {trained_s / 60:.1f} min ({args.threads} thread(s)); "
           f"test split:\n")
     print(format_table(rows))
