@@ -159,8 +159,8 @@ def test_box_prefilter_matches_explicit_convolution():
     np.testing.assert_array_equal(box_prefilter(image, 1.0), image)
     with pytest.raises(ValueError, match="prefilter width"):
         box_prefilter(image, 0.0)
-    assert footprint_width(2230.88, 1115.44, 1) == pytest.approx(2.0)
-    assert footprint_width(2230.88, 1115.44, 4) == pytest.approx(1.0)
+    assert footprint_width(2230.88, 1115.44, 1) == pytest.approx(2.0 * 0.85)  # 85% of 2 texels
+    assert footprint_width(2230.88, 1115.44, 4) == pytest.approx(0.85)
 
 
 def test_png16_round_trip(tmp_path):
