@@ -164,6 +164,17 @@ class _DotsimOperator(bpy.types.Operator):
         return {"CANCELLED"}
 
 
+def _build_sampled_scene(context, settings):
+    """Check the panel's frame, sample the scene as `dotsim generate` would and build it in the
+    preview scene: (frame, config, spec)."""
+    from .scene_source import check_frame
+
+    frame = check_frame(settings.frame)
+    config, spec = sample(settings)
+    SESSION.build(context, spec)
+    return frame, config, spec
+
+
 class DOTSIM_OT_build_scene(_DotsimOperator):
     """Sample the scene as `dotsim generate` would and build it in the "dotsim preview" scene"""
 
@@ -171,12 +182,8 @@ class DOTSIM_OT_build_scene(_DotsimOperator):
     bl_label = "Build scene"
 
     def run(self, context, settings) -> str:
-        from .scene_source import check_frame
-
-        frame = check_frame(settings.frame)
         start = time.perf_counter()
-        _, spec = sample(settings)
-        SESSION.build(context, spec)
+        frame, _, spec = _build_sampled_scene(context, settings)
         SESSION.place_rig(frame)
         _look_through_camera(context)
         return (f"scene {spec['scene_index']} ({spec['split']}): {len(spec['objects'])} objects, "
@@ -192,12 +199,10 @@ class DOTSIM_OT_preview_frame(_DotsimOperator):
     bl_label = "Preview frame"
 
     def run(self, context, settings) -> str:
-        from .scene_source import check_frame, preview_images
+        from .scene_source import preview_images
 
-        frame = check_frame(settings.frame)
         start = time.perf_counter()
-        config, spec = sample(settings)
-        SESSION.build(context, spec)
+        frame, config, spec = _build_sampled_scene(context, settings)
         with context.temp_override(scene=SESSION.renderer.scene):
             raw = SESSION.renderer.render_frame(np.asarray(spec["poses"][frame], np.float64))
         ir, depth_display, depth_scale = preview_images(raw, config, spec, settings.base_seed, frame)

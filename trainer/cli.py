@@ -80,7 +80,7 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "infer", help="disparity/depth EXR, colour PNG and PLY point cloud from IR frames",
         description="Run a trained checkpoint on IR frames: dotsim frame EXRs (rendered or captured; their "
-        "'ir' channel is used) or plain IR images (1-channel PNG, 8/16 bit, or EXR) of the checkpoint's "
+        "'ir' channel is used) or plain greyscale IR images (8/16-bit PNG, grey or RGB with equal channels, or EXR) of the checkpoint's "
         "camera size. Writes per input NAME.exr (channels disparity [camera px], depth [m]), NAME.png "
         "(colour-mapped disparity) and NAME.ply (points in metres, camera frame).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
