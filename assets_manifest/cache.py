@@ -13,7 +13,6 @@ under a temporary name and renamed; the index is rewritten (atomically) every fe
 
 import hashlib
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ from assets_manifest.params import canonical_json, sample_params, spec_seed
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 from assets_manifest.user_folders import load_image_file, load_mesh_file
-from dotsim.dataset import sha256_file
+from dotsim.dataset import TMP_PREFIX, atomic_write_bytes, sha256_file
 
 CACHE_FORMAT = "dotsim-assets/1"
 # Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
@@ -182,12 +181,6 @@ def _build_texture(spec: AssetSpec) -> np.ndarray:
     return texture_from_image(load_image_file(source["file"]))
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _build_one(spec: AssetSpec) -> tuple[str, bytes, str, dict]:
     """(relative path, file bytes, content sha256, extra index fields) of one asset."""
     if spec.kind == "mesh":
@@ -240,7 +233,7 @@ def _write_index(root: Path, manifest: Manifest, entries: dict, skipped: list, c
         "textures": [e for e in ordered if e["kind"] == "texture"],
         "skipped": skipped,
     }
-    _write_atomic(root / "index.json", (json.dumps(index, indent=1) + "\n").encode())
+    atomic_write_bytes(root / "index.json", (json.dumps(index, indent=1) + "\n").encode())
 
 
 def _previous_entries(root: Path) -> dict:
@@ -295,7 +288,7 @@ def build_asset_cache(
     root = Path(cache_dir) / split
     (root / "meshes").mkdir(parents=True, exist_ok=True)
     (root / "textures").mkdir(parents=True, exist_ok=True)
-    for leftover in [*root.glob("meshes/.*.tmp*"), *root.glob("textures/.*.tmp*"), *root.glob(".*.tmp*")]:
+    for leftover in [*root.glob(TMP_PREFIX + "*"), *root.glob("*/" + TMP_PREFIX + "*")]:
         leftover.unlink()  # temporaries of a build that was killed mid-write
     previous = _previous_entries(root)
     summary = BuildSummary(split)
@@ -338,7 +331,7 @@ def build_asset_cache(
                 log(f"skipped {spec.id} ({_describe_source(spec)}): {reason}")
                 continue
             relative, data, content, extra = result
-            _write_atomic(root / relative, data)
+            atomic_write_bytes(root / relative, data)
             entries[spec.id] = {
                 **meta,
                 "path": relative,

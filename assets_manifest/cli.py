@@ -95,9 +95,8 @@ def _check(args) -> int:
 
 
 def _preview(args) -> int:
-    import cv2
-
     from assets_manifest.preview import contact_sheet
+    from dotsim.images import ImageError, write_image
 
     try:
         cache = load_asset_cache(args.cache, args.split)
@@ -105,11 +104,11 @@ def _preview(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.output or f"assets_{args.split}.png")
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    if not cv2.imwrite(str(tmp), contact_sheet(cache, count=args.count)):
-        print(f"error: cannot write {out}", file=sys.stderr)
+    try:
+        write_image(out, contact_sheet(cache, count=args.count))
+    except ImageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
-    tmp.replace(out)
     print(
         f"wrote {out}: {min(args.count, len(cache.meshes))} meshes and "
         f"{min(args.count, len(cache.textures))} textures of the {args.split} cache"

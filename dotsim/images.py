@@ -1,4 +1,5 @@
-"""Reading one greyscale image from disk: 8/16-bit PNG (or another raster OpenCV decodes) or EXR.
+"""Image files: reading one greyscale image (8/16-bit PNG, another raster OpenCV decodes, or EXR) and
+writing PNG/JPEG images atomically.
 
 Patterns (dotsim.patterns.load_pattern), recorded sensor frames (capture.frames.read_image) and
 inference inputs (trainer.infer.read_ir) all go through read_grey_image, so they accept the same
@@ -18,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from dotsim.dataset import atomic_write_bytes
 
 # Channel names an EXR's grey image may have, most specific first: dotsim frames and IR tools name
 # it ir/IR, OpenEXR's luminance images Y, RGB images repeat grey in R.
@@ -114,3 +117,22 @@ def _decode_exr(path: Path) -> np.ndarray:
         return np.asarray(next(iter(channels.values())), np.float32)
     raise ImageError(f"{path}: EXR has channels {sorted(channels)}; expected one channel or one named "
                      f"{', '.join(EXR_GREY_CHANNELS)}")
+
+
+WRITE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Encode an 8/16-bit grey or BGR image by the file suffix (.png, .jpg) and write it atomically
+    (dotsim.dataset.atomic_write_bytes), so a reader never sees half an image."""
+    import cv2
+
+    path = Path(path)
+    if path.suffix.lower() not in WRITE_SUFFIXES:
+        raise ImageError(f"{path}: suffix {path.suffix!r} is not one of {list(WRITE_SUFFIXES)}")
+    if not path.parent.is_dir():
+        raise ImageError(f"{path}: folder {path.parent} does not exist")
+    ok, data = cv2.imencode(path.suffix, image)
+    if not ok:
+        raise ImageError(f"{path}: OpenCV could not encode a {image.dtype} image of shape {image.shape}")
+    return atomic_write_bytes(path, data.tobytes())

@@ -12,18 +12,16 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from dotsim import __version__
-from dotsim.images import ImageError, read_grey_image
+from dotsim.images import ImageError, read_grey_image, write_image
 
 _LEVELS = 65535
 
@@ -82,16 +80,7 @@ class DotPattern:
         if path.suffix.lower() != ".png":
             raise PatternError(f"{path}: pattern files are written as .png, got suffix {path.suffix!r}")
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-        os.close(handle)
-        try:
-            if not cv2.imwrite(temporary, _quantise(self.image)):
-                raise PatternError(f"{path}: OpenCV could not write the PNG")
-            os.replace(temporary, path)
-        finally:
-            if os.path.exists(temporary):
-                os.remove(temporary)
-        return path
+        return write_image(path, _quantise(self.image))
 
 
 def poisson_disc_centres(width: int, height: int, n_dots: int, min_spacing: float,

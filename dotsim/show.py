@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.images import write_image
 
 COLUMNS = ("ir", "ambient", "flood", "depth", "visibility", "edge", "projector_column", "disparity")
 TITLES = {"ir": "IR", "ambient": "ambient", "flood": "flood", "depth": "depth",
@@ -179,22 +180,6 @@ def load_for_sheet(path: str | Path, scene_index: int | None = None,
     title = (f"{scene_path}  scene {meta['scene_index']} ({meta['split']}), rig "
              f"{meta['rig'].get('name', '?')}, {w} x {h}, format {meta['format_version']}")
     return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))]
-
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-def write_image(path: str | Path, image: np.ndarray) -> Path:
-    """Encode by the file suffix (.png, .jpg) and write atomically."""
-    path = Path(path)
-    if path.suffix.lower() not in IMAGE_SUFFIXES:
-        raise ValueError(f"{path}: suffix {path.suffix!r} is not one of {list(IMAGE_SUFFIXES)}")
-    if not path.parent.is_dir():
-        raise ValueError(f"{path}: folder {path.parent} does not exist")
-    ok, data = cv2.imencode(path.suffix, image)
-    if not ok:
-        raise ValueError(f"{path}: OpenCV could not encode the sheet")
-    return ds.atomic_write_bytes(path, data.tobytes())
 
 
 def run(args: argparse.Namespace) -> int:

@@ -114,7 +114,7 @@ def test_interrupted_build_is_refused_then_resumed(tmp_path):
     index["complete"] = False
     index_path.write_text(json.dumps(index))
     (cache / "train" / "meshes" / "seat_0000.npz").unlink()
-    leftover = cache / "train" / "meshes" / ".seat_0000.npz.tmp123"
+    leftover = cache / "train" / "meshes" / ".tmp-seat_0000.npz-123"  # atomic_write_bytes naming
     leftover.write_bytes(b"half-written")
     with pytest.raises(AssetCacheError, match=r"interrupted build.*dotsim assets build --split train"):
         load_asset_cache(cache, "train")

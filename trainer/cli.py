@@ -80,9 +80,10 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "infer", help="disparity/depth EXR, colour PNG and PLY point cloud from IR frames",
         description="Run a trained checkpoint on IR frames: dotsim frame EXRs (rendered or captured; their "
-        "'ir' channel is used) or plain greyscale IR images (8/16-bit PNG, grey or RGB with equal channels, or EXR) of the checkpoint's "
-        "camera size. Writes per input NAME.exr (channels disparity [camera px], depth [m]), NAME.png "
-        "(colour-mapped disparity) and NAME.ply (points in metres, camera frame).")
+        "'ir' channel is used) or plain greyscale IR images (8/16-bit PNG, grey or RGB with equal "
+        "channels, or EXR) of the checkpoint's camera size. Writes per input NAME.exr (channels "
+        "disparity [camera px], depth [m]), NAME.png (colour-mapped disparity) and NAME.ply (points in "
+        "metres, camera frame).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")

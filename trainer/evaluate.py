@@ -20,9 +20,9 @@ import torch
 from tqdm import tqdm
 
 from dotsim.dataset import atomic_write_bytes, pattern_path, read_frame
+from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth, reference_image
-from dotsim.show import write_image
 from trainer.data import DataError, list_frames
 from trainer.model import GigaDepthNet
 from trainer.sgbm import num_disparities_for, sgbm_disparity

@@ -16,9 +16,9 @@ import numpy as np
 from tqdm import tqdm
 
 from dotsim.dataset import FormatError, atomic_write_bytes, read_frame
-from dotsim.images import ImageError, read_grey_image
+from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.rig import Rig, backproject
-from dotsim.show import colourise, write_image
+from dotsim.show import colourise
 from trainer.data import DataError
 from trainer.evaluate import predict_disparity
 from trainer.train import build_model, load_checkpoint
