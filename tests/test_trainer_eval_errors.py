@@ -40,6 +40,27 @@ def test_upsample_half_is_exact_for_linear_fields():
         np.testing.assert_allclose(upsample_half(half, height, width), field, atol=1e-12)
 
 
+def test_upsample_half_takes_the_farther_sample_across_a_depth_jump():
+    """Two sloped surfaces (disparity 8 + 0.1 u left of column 5, 3 + 0.1 u from it): pixels between
+    samples of one surface are linear (exact), the one between the surfaces gets the farther (smaller)
+    disparity, never a value floating between them; without `jump` it is the mean."""
+    height, width = 6, 10
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    field = np.where(u < 5, 8.0, 3.0) + 0.1 * u
+    half = field[::2, ::2]  # samples at u = 0, 2, 4 (near) and 6, 8 (far)
+    up = upsample_half(half, height, width, jump=1.0)
+    for col in (0, 1, 2, 3, 4, 6, 7, 8, 9):
+        np.testing.assert_allclose(up[:, col], field[:, col], atol=1e-12)
+    np.testing.assert_allclose(up[:, 5], 3.6)  # the far sample at u = 6, not (8.4 + 3.6) / 2
+    np.testing.assert_allclose(upsample_half(half, height, width)[:, 5], 6.0)
+    with_hole = half.copy()
+    with_hole[:, 3] = np.nan  # no estimate at u = 6: u = 5 and 7 take their other neighbour
+    up = upsample_half(with_hole, height, width, jump=1.0)
+    np.testing.assert_allclose(up[:, 5], 8.4)
+    np.testing.assert_allclose(up[:, 7], 3.8)
+    assert np.isnan(up[:, 6]).all()
+
+
 def test_sgbm_on_an_exact_wall_finds_fb_over_z():
     """A fronto-parallel wall at 2 m: disparity fx b / z everywhere SGBM matches (independent formula)."""
     rig = get_preset("structure_core").scaled(0.2)
