@@ -10,8 +10,9 @@ generator's output under out/: a folder holding a train and a test split, or sib
 out/bench_accuracy/train and out/bench_accuracy/test from configs/bench_accuracy.toml, whose header
 has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
 boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder. The output
-says which. The step count is fitted to the time budget from a short calibration run, and
-the step decay halves the learning rate at 25, 50 and 75 % of it.
+says which. The step count is fitted to the time budget from the time per step of two short
+calibration runs (5 and 25 steps; their difference leaves out start-up), and the step decay
+halves the learning rate at 25, 50 and 75 % of it.
 """
 
 from __future__ import annotations
@@ -92,8 +93,11 @@ def main(argv=None) -> int:
                               checkpoint_every=max(steps, 1), image_every=max(steps // 10, 1))
             return config_from_dict(d, args.config)
 
-        calibration = train(config(10, 1000), data, work / "calibration", progress=False)
-        per_step = calibration["seconds"] / 10
+        # A step's time is the difference of two short runs: one run's time also holds start-up
+        # (model, loader, TensorBoard, first-step allocations), which made a 60 min budget train 41 min.
+        short, long = (train(config(n, 1000), data, work / f"calibration_{n}", progress=False)["seconds"]
+                       for n in (5, 25))
+        per_step = max(long - short, 1e-3) / 20
         steps_per_epoch = len(frames) // base["train"]["batch_size"]
         steps = max(10, int(args.minutes * 60 / per_step))
         epochs = max(1, round(steps / steps_per_epoch))
