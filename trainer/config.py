@@ -47,7 +47,7 @@ class DataConfig:
     crop_width: int = 0  # 0 = full width
     crop_height: int = 0  # 0 = full height; crops start on even rows to keep half-res line identity
     vertical_jitter: int = 0  # image content shifted by up to this many rows against its line index
-    noise_std: float = 0.0  # additive Gaussian noise, relative to the frame's 99th percentile
+    noise_std: float = 0.0  # std of additive Gaussian noise, in the units of the frames' ir channel
     intensity_scale: tuple[float, float] = (1.0, 1.0)  # uniform random gain range
     workers: int = 0  # DataLoader worker processes
 
