@@ -117,7 +117,7 @@ def main(argv=None) -> int:
     sgbm = next(r for r in rows if r["method"] == "sgbm" and r["range"] == "all")
     ratio = net["o(0.5)"] / sgbm["o(0.5)"] if sgbm["o(0.5)"] else float("inf")
     print(f"summary: o(0.5) network {net['o(0.5)']:.4f} vs SGBM {sgbm['o(0.5)']:.4f} "
-          f"(ratio {ratio:.2f}; goal <= 0.5: {'met' if ratio <= 0.5 else 'not met'}); "
+          f"(ratio {ratio:.3f}; goal <= 0.5: {'met' if ratio <= 0.5 else 'not met'}); "
           f"o(1) {net['o(1)']:.4f} vs {sgbm['o(1)']:.4f}; trained {trained_s / 60:.1f} min")
     return 0
 

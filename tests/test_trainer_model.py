@@ -141,3 +141,36 @@ def test_loss_terms_teacher_forcing_targets():
         out = net.regressor(x[None, 0:8], torch.tensor([leaf // 2]), torch.tensor([leaf]))[:, 0]
         want = want + (out - target).abs()
     torch.testing.assert_close(terms["l1"], want)
+
+
+def test_loss_terms_of_many_pixels_equal_each_pixel_alone():
+    """All pixels (every line, leaves at both ends of the tree, some masked) in one call give the terms
+    each pixel gets alone, gradients included: the batched neighbour pairs keep pixels apart."""
+    torch.manual_seed(4)
+    net = GigaDepthNet(TINY, half_height=6)
+    feat = torch.randn(2, 8, 6, 5, requires_grad=True)
+    column = torch.rand(2, 6, 5)
+    column[0, 0, :2] = torch.tensor([0.0, 1.0])  # leaves 2 and 21 of 24 after padding: tree ends near
+    valid = torch.rand(2, 6, 5) > 0.2
+    row0 = torch.tensor([0, 0])
+    terms = net.loss_terms(feat, row0, column, valid)
+    total = sum(ce.sum() for ce in terms["ce"]) + terms["l1"].sum()
+    grads = torch.autograd.grad(total, [feat, *net.parameters()], allow_unused=True)
+    want_ce, want_l1, want_total = [[] for _ in TINY.classes], [], 0
+    for b, i, j in valid.nonzero().tolist():
+        one = torch.zeros_like(valid)
+        one[b, i, j] = True
+        alone = net.loss_terms(feat, row0, column, one)
+        for level, ce in enumerate(alone["ce"]):
+            want_ce[level].append(ce)
+        want_l1.append(alone["l1"])
+        want_total = want_total + sum(ce.sum() for ce in alone["ce"]) + alone["l1"].sum()
+    for level, ce in enumerate(terms["ce"]):
+        torch.testing.assert_close(ce, torch.cat(want_ce[level]))
+    torch.testing.assert_close(terms["l1"], torch.cat(want_l1))
+    want_grads = torch.autograd.grad(want_total, [feat, *net.parameters()], allow_unused=True)
+    for got, want in zip(grads, want_grads, strict=True):
+        if want is None:
+            assert got is None or not got.any()
+        else:
+            torch.testing.assert_close(got, want)

@@ -284,30 +284,28 @@ class GigaDepthNet(nn.Module):
         pos = self.pad_column(column.reshape(-1)[sel]) * self.leaves
         leaf = pos.floor().long().clamp(0, self.leaves - 1)
         cls = self.cfg.classes
+        # Each classifier and the regressor run once over all (pixel, neighbour) pairs: one call per
+        # level, so autograd builds one dense gradient per weight table instead of one per neighbour.
         ce = []
         for level, (c, o) in enumerate(zip(cls, self.cfg.overlaps, strict=True)):
-            x = self._stage_input(feat, level)[sel]
             parents = math.prod(cls[:level])
             child = leaf // math.prod(cls[level + 1 :])  # global GT class at this level
             span = -(-o // c)
-            total = torch.zeros_like(pos)
-            for d in range(-span, span + 1):
-                parent = child // c + d
-                target = child - parent * c + o
-                ok = (parent >= 0) & (parent < parents) & (target >= 0) & (target < c + 2 * o)
-                k = ok.nonzero()[:, 0]
-                idx = line[k] * parents + parent[k]
-                logits = self.classifiers[level](x[k], idx, idx)
-                total = total.index_add(0, k, F.cross_entropy(logits.float(), target[k], reduction="none"))
-            ce.append(total)
-        x = self._stage_input(feat, len(cls))[sel]
-        l1 = torch.zeros_like(pos)
+            parent = child // c + torch.arange(-span, span + 1, device=leaf.device)[:, None]  # (2span+1, N)
+            target = child - parent * c + o
+            ok = (parent >= 0) & (parent < parents) & (target >= 0) & (target < c + 2 * o)
+            k = ok.nonzero()[:, 1]
+            idx = line[k] * parents + parent[ok]
+            logits = self.classifiers[level](self._stage_input(feat, level)[sel][k], idx, idx)
+            loss = F.cross_entropy(logits.float(), target[ok], reduction="none")
+            ce.append(torch.zeros_like(pos).index_add(0, k, loss))
         r = self.cfg.regress_neighbours
-        for d in range(-r, r + 1):
-            cand = leaf + d
-            k = ((cand >= 0) & (cand < self.leaves)).nonzero()[:, 0]
-            hidden_idx = line[k] * (self.leaves // cls[-1]) + cand[k] // cls[-1]
-            offset = self.regressor(x[k], hidden_idx, line[k] * self.leaves + cand[k])[:, 0]
-            l1 = l1.index_add(0, k, (offset.float() - (pos[k] - cand[k])).abs())
+        cand = leaf + torch.arange(-r, r + 1, device=leaf.device)[:, None]  # (2r+1, N) leaves
+        ok = (cand >= 0) & (cand < self.leaves)
+        k, cand = ok.nonzero()[:, 1], cand[ok]
+        hidden_idx = line[k] * (self.leaves // cls[-1]) + cand // cls[-1]
+        x = self._stage_input(feat, len(cls))[sel][k]
+        offset = self.regressor(x, hidden_idx, line[k] * self.leaves + cand)[:, 0]
+        l1 = torch.zeros_like(pos).index_add(0, k, (offset.float() - (pos[k] - cand)).abs())
         return {"ce": ce, "l1": l1}
 
