@@ -120,12 +120,14 @@ def _did_you_mean(value: str, valid: typing.Iterable[str], cutoff: float = 0.6) 
     return f' (did you mean "{close[0]}"?)' if close else ""
 
 
+_SCALARS = {bool: lambda v: isinstance(v, bool), int: lambda v: _is_number(v) and isinstance(v, int),
+            float: _is_number, str: lambda v: isinstance(v, str)}
+
+
 def _convert(hint: Any, value: Any, rule: dict, top: bool = True) -> Any:
     """`value` as the type `hint` describes (lists become tuples), or raise _Invalid saying why."""
-    if hint in (bool, int, float, str):
-        ok = {bool: lambda v: isinstance(v, bool), int: lambda v: _is_number(v) and isinstance(v, int),
-              float: _is_number, str: lambda v: isinstance(v, str)}[hint]
-        if not ok(value):
+    if hint in _SCALARS:
+        if not _SCALARS[hint](value):
             raise _Invalid(f"wrong type ({type(value).__name__})")
         if hint in (int, float) and not _in_bounds(value, rule):
             raise _Invalid("out of range")
@@ -142,7 +144,8 @@ def _convert(hint: Any, value: Any, rule: dict, top: bool = True) -> Any:
         if not isinstance(value, list | tuple):
             raise _Invalid(f"wrong type ({type(value).__name__}; expected an array)")
         if top and len(value) < rule["min_items"]:
-            raise _Invalid(f"needs at least {rule['min_items']} entries")
+            n = rule["min_items"]
+            raise _Invalid(f"needs at least {n} {'entry' if n == 1 else 'entries'}")
         items = []
         for item in value:
             try:
@@ -186,18 +189,20 @@ def _bounds(rule: dict) -> str:
 def _noun(hint: Any, plural: bool, float_word: str = "number") -> str:
     """What a value of type `hint` is called: "integer", "lists of numbers", "[integer, integer] pairs"."""
     s = "s" if plural else ""
-    if hint in (bool, int, float, str):
+    if hint in _SCALARS:
         return {bool: "boolean", int: "integer", float: float_word, str: "string"}[hint] + s
     if _is_list(hint):
         return f"list{s} of {_noun(typing.get_args(hint)[0], True, float_word)}"
-    inner = ", ".join(_noun(a, False, float_word) for a in typing.get_args(hint))
-    return f"[{inner}] {'pairs' if plural else 'pair'}"
+    args = typing.get_args(hint)
+    inner = ", ".join(_noun(a, False, float_word) for a in args)
+    return f"[{inner}] {'pair' if len(args) == 2 else 'array'}{s}"
 
 
 def _allowed(hint: Any, rule: dict) -> str:
     """What a setting allows, in words (used by errors and docs)."""
     choices = ", ".join(f'"{c}"' for c in rule["choices"] or ())
     bounds = _bounds(rule)
+    each = f", each {bounds}" if bounds else ""
     if hint is bool:
         return "true or false"
     if hint is str:
@@ -208,14 +213,14 @@ def _allowed(hint: Any, rule: dict) -> str:
         text = "an integer" if hint is int else "a number"
         return f"{text}, {bounds}" if bounds else text
     if _is_range(hint):
-        each = f", each {bounds}" if bounds else ""
         return f"[low, high], two {_range_items(hint)} with low <= high{each}"
-    size = {0: "a list", 1: "a non-empty list"}.get(rule["min_items"], f"a list of at least "
-                                                                         f"{rule['min_items']}")
+    if not _is_list(hint):
+        return f"a {_noun(hint, False)}{each}"
+    n = rule["min_items"]
+    size = "a list of" if n == 0 else "a non-empty list of" if n == 1 else f"a list of at least {n}"
     if choices:
-        return f"{size} of {choices}"
-    noun = _noun(hint, False).removeprefix("list ")
-    return f"{size} {noun}" + (f", each {bounds}" if bounds else "")
+        return f"{size} {choices}"
+    return f"{size} {_noun(typing.get_args(hint)[0], True)}{each}"
 
 
 def _type_name(hint: Any) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,7 @@ import pytest
 import generator.config as generator_config
 import trainer.config as trainer_config
 from dotsim import config_schema
+from dotsim.config_schema import FloatRange, setting
 from generator.config import ConfigError, check_output_dir, load_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -34,10 +36,6 @@ def error_of(tmp_path: Path, text: str, load=load_config) -> str:
     message = str(info.value)
     assert str(path) in message  # every error names the file
     return message
-
-
-def trainer_error(tmp_path: Path, text: str) -> str:
-    return error_of(tmp_path, text, trainer_config.load_config)
 
 
 def as_toml(data: dict) -> str:
@@ -107,82 +105,64 @@ def test_missing_keys_take_defaults_and_to_dict_round_trips(module, load, tmp_pa
     assert changed == ([("scene", "object_count")] if module is generator_config else [("model", "lines")])
 
 
-def test_unknown_key_suggests_closest(tmp_path):
-    message = error_of(tmp_path, "[scene]\nobject_cont = [1, 2]\n")
-    assert 'unknown key "object_cont"' in message and 'did you mean "object_count"' in message
-    message = error_of(tmp_path, "[sensr]\ngain = 1.0\n")
-    assert "[sensr]" in message and 'did you mean "[sensor]"' in message
-    message = trainer_error(tmp_path, "[model]\nclasess = [4, 4]\n")
-    assert '[model] unknown key "clasess" (did you mean "classes"?)' in message
-    message = trainer_error(tmp_path, "sed = 3\n")
-    assert 'unknown key "sed" (did you mean "seed"?); valid keys: seed, [model], [data], [train]' in message
-    message = trainer_error(tmp_path, "[modle]\nlines = 2\n")
-    assert 'did you mean "[model]"' in message
-    message = trainer_error(tmp_path, "[scene]\nobject_count = [1, 2]\n")  # a generator config
-    assert 'unknown key "[scene]"; valid keys: seed, [model], [data], [train]' in message
-    message = trainer_error(tmp_path, "model = 3\n")
-    assert "model = 3: expected a [model] table" in message
+# (config, file text, fragments the error must contain): the file is named by error_of.
+GEN, TRAIN = "generator", "trainer"
+ERROR_CASES = [
+    # unknown keys and tables, with the closest valid one
+    (GEN, "[scene]\nobject_cont = [1, 2]\n", ['unknown key "object_cont"', 'did you mean "object_count"']),
+    (GEN, "[sensr]\ngain = 1.0\n", ["[sensr]", 'did you mean "[sensor]"']),
+    (TRAIN, "[model]\nclasess = [4, 4]\n", ['[model] unknown key "clasess" (did you mean "classes"?)']),
+    (TRAIN, "sed = 3\n", ['unknown key "sed" (did you mean "seed"?); valid keys: seed, [model], [data], '
+                          "[train]"]),
+    (TRAIN, "[modle]\nlines = 2\n", ['did you mean "[model]"']),
+    (TRAIN, "[scene]\nobject_count = [1, 2]\n", ['unknown key "[scene]"; valid keys: seed, [model]']),
+    (TRAIN, "model = 3\n", ["model = 3: expected a [model] table"]),
+    # wrong types
+    (GEN, "[render]\nsamples = 1.5\n", ["[render] samples = 1.5", "wrong type", "integer"]),
+    (GEN, "[render]\nsamples = true\n", ["wrong type (bool)"]),
+    (GEN, '[scene]\ndistance = "far"\n', ["[scene] distance", "two-element array"]),
+    (TRAIN, "[train]\nlr = 'fast'\n", ["[train] lr = 'fast': wrong type (str); allowed: a number, 0 < x"]),
+    (TRAIN, "[train]\namp = 1\n", ["[train] amp = 1: wrong type (int); allowed: true or false"]),
+    (TRAIN, "[model]\nclasses = [4, 'a']\n", ["[model] classes = [4, 'a']: entry 'a': wrong type (str)"]),
+    (TRAIN, "[model]\nstage_inputs = [[0, 8], [0, 8, 1]]\n",
+     ["entry [0, 8, 1]: wrong type (expected a two-element array)"]),
+    (TRAIN, "[model]\nclassifier_hidden = [[8], 8]\n", ["entry 8: wrong type (int; expected an array)"]),
+    # out of range, not a choice
+    (GEN, "[rig]\nscale = 0\n", ["[rig] scale = 0", "out of range", "0.02 <= x <= 1"]),
+    (GEN, "[scene]\nobject_count = [500, 100]\n", ["low > high"]),
+    (GEN, '[sensor]\nexposure = "autom"\n', ['did you mean "auto"', '"fixed", "auto"']),
+    (GEN, '[scene]\nshapes = ["box", "cube"]\n', ["'cube'"]),
+    (GEN, "[scene]\nshapes = []\n", ["needs at least 1 entry", "a non-empty list of"]),
+    (TRAIN, "seed = -1\n", ["seed = -1: out of range; allowed: an integer, 0 <= x <= 4294967295"]),
+    (TRAIN, "[model]\ncolumn_padding = 0.5\n",
+     ["[model] column_padding = 0.5: out of range; allowed: a number, 0 <= x < 0.5"]),
+    (TRAIN, '[train]\noptimizer = "adamm"\n',
+     ['not a valid choice (did you mean "adam"?); allowed: one of "sgd", "adam"']),
+    (TRAIN, "[model]\nclasses = [4, 1]\n",
+     ["classes = [4, 1]: entry 1: out of range; allowed: a non-empty list of integers, each 2 <= x"]),
+    (TRAIN, "[data]\nintensity_scale = [1.2, 0.8]\n", ["intensity_scale = [1.2, 0.8]: low > high"]),
+    # the trainer's rules spanning keys
+    (TRAIN, "[model]\nclasses = [4, 4]\noverlaps = [0, 5]\nclassifier_hidden = [[], []]\n"
+            "stage_inputs = [[0, 8], [0, 8], [0, 8]]\n",
+     ["[model] overlaps = [0, 5]: does not fit classes = [4, 4]"]),
+    (TRAIN, "[model]\nbackbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]\n",
+     ["[model] backbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]: an even kernel size"]),
+    (TRAIN, "[model]\nbackbone_kernels = [5]\n",
+     ["not one per backbone channel entry; allowed: 8 odd kernel sizes"]),
+    (TRAIN, "[model]\nstage_inputs = [[0, 64], [32, 64], [64, 64], [100, 64]]\n",
+     ["slice [100, 64] is empty or exceeds the 160 backbone output channels"]),
+    (TRAIN, "[data]\ncrop_height = 63\n", ["[data] crop_height = 63: odd"]),
+    (TRAIN, "[train]\nce_weights = [1.0]\n",
+     ["[train] ce_weights = [1.0]: not one weight per tree level; allowed: 3 weights"]),
+    (TRAIN, "[model]\nlcn_window = 10\n", ["[model] lcn_window = 10: even"]),
+]
 
 
-def test_wrong_type(tmp_path):
-    message = error_of(tmp_path, "[render]\nsamples = 1.5\n")
-    assert "[render] samples = 1.5" in message and "wrong type" in message and "integer" in message
-    message = error_of(tmp_path, "[render]\nsamples = true\n")
-    assert "wrong type (bool)" in message
-    message = error_of(tmp_path, '[scene]\ndistance = "far"\n')
-    assert "[scene] distance" in message and "two-element array" in message
-    message = trainer_error(tmp_path, "[train]\nlr = 'fast'\n")
-    assert "[train] lr = 'fast': wrong type (str); allowed: a number, 0 < x" in message
-    message = trainer_error(tmp_path, "[train]\namp = 1\n")
-    assert "[train] amp = 1: wrong type (int); allowed: true or false" in message
-    message = trainer_error(tmp_path, "[model]\nclasses = [4, 'a']\n")
-    assert "[model] classes = [4, 'a']: entry 'a': wrong type (str)" in message
-    message = trainer_error(tmp_path, "[model]\nstage_inputs = [[0, 8], [0, 8, 1]]\n")
-    assert "entry [0, 8, 1]: wrong type (expected a two-element array)" in message
-    message = trainer_error(tmp_path, "[model]\nclassifier_hidden = [[8], 8]\n")
-    assert "entry 8: wrong type (int; expected an array)" in message
-    message = trainer_error(tmp_path, "seed = -1\n")
-    assert "seed = -1: out of range; allowed: an integer, 0 <= x <= 4294967295" in message
-
-
-def test_out_of_range(tmp_path):
-    message = error_of(tmp_path, "[rig]\nscale = 0\n")
-    assert "[rig] scale = 0" in message and "out of range" in message and "0.02 <= x <= 1" in message
-    message = error_of(tmp_path, "[scene]\nobject_count = [500, 100]\n")
-    assert "low > high" in message
-    message = error_of(tmp_path, '[sensor]\nexposure = "autom"\n')
-    assert 'did you mean "auto"' in message and '"fixed", "auto"' in message
-    message = error_of(tmp_path, '[scene]\nshapes = ["box", "cube"]\n')
-    assert "'cube'" in message
-    message = error_of(tmp_path, "[scene]\nshapes = []\n")
-    assert "needs at least 1 entries" in message and "a non-empty list of" in message
-    message = trainer_error(tmp_path, "[model]\ncolumn_padding = 0.5\n")
-    assert "[model] column_padding = 0.5: out of range; allowed: a number, 0 <= x < 0.5" in message
-    message = trainer_error(tmp_path, '[train]\noptimizer = "adamm"\n')
-    assert 'not a valid choice (did you mean "adam"?); allowed: one of "sgd", "adam"' in message
-    message = trainer_error(tmp_path, "[model]\nclasses = [4, 1]\n")
-    assert "classes = [4, 1]: entry 1: out of range; allowed: a non-empty list of integers, each 2 <= x" \
-        in message
-    message = trainer_error(tmp_path, "[data]\nintensity_scale = [1.2, 0.8]\n")
-    assert "intensity_scale = [1.2, 0.8]: low > high" in message
-
-
-def test_trainer_cross_field_rules(tmp_path):
-    message = trainer_error(tmp_path, "[model]\nclasses = [4, 4]\noverlaps = [0, 5]\n"
-                            "classifier_hidden = [[], []]\nstage_inputs = [[0, 8], [0, 8], [0, 8]]\n")
-    assert "[model] overlaps = [0, 5]: does not fit classes = [4, 4]" in message
-    message = trainer_error(tmp_path, "[model]\nbackbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]\n")
-    assert "[model] backbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]: an even kernel size" in message
-    message = trainer_error(tmp_path, "[model]\nbackbone_kernels = [5]\n")
-    assert "not one per backbone channel entry; allowed: 8 odd kernel sizes" in message
-    message = trainer_error(tmp_path, "[model]\nstage_inputs = [[0, 64], [32, 64], [64, 64], [100, 64]]\n")
-    assert "slice [100, 64] is empty or exceeds the 160 backbone output channels" in message
-    message = trainer_error(tmp_path, "[data]\ncrop_height = 63\n")
-    assert "[data] crop_height = 63: odd" in message
-    message = trainer_error(tmp_path, "[train]\nce_weights = [1.0]\n")
-    assert "[train] ce_weights = [1.0]: not one weight per tree level; allowed: 3 weights" in message
-    message = trainer_error(tmp_path, "[model]\nlcn_window = 10\n")
-    assert "[model] lcn_window = 10: even" in message
+@pytest.mark.parametrize(("which", "text", "fragments"), ERROR_CASES)
+def test_errors_name_key_value_and_what_is_allowed(which, text, fragments, tmp_path):
+    message = error_of(tmp_path, text, load_config if which == GEN else trainer_config.load_config)
+    for fragment in fragments:
+        assert fragment in message
 
 
 def test_checkpoint_configs_with_tuples_load():
@@ -248,3 +228,32 @@ def test_defaults_are_valid(module, page):
                    {k: v for k, v in value.items() if v != ""})  # empty paths stay unset
             for name, value in config_schema.to_dict(defaults).items()}
     assert module.config_from_dict(data, "<dict>") == module.config_from_dict({}, "<dict>")
+
+
+@dataclass(frozen=True)
+class PointTable:
+    centre: tuple[float, float] = setting((1.0, 0.5), "a pair such as a principal point", low=0.0)
+    span: FloatRange = setting((0.0, 1.0), "a range", low=0.0)
+    file: str = setting("", "a file", path=True)
+
+
+@dataclass(frozen=True)
+class PointConfig:
+    point: PointTable = field(default_factory=PointTable)
+
+
+def test_a_new_key_is_one_declaration(tmp_path):
+    # A pair is not a range (its entries need no order); paths resolve against the file's folder.
+    config = config_schema.from_dict(PointConfig, {"point": {"centre": [3, 2.5], "file": "a.png"}}, "p.toml",
+                                     base_dir=tmp_path)
+    assert config.point == PointTable(centre=(3.0, 2.5), file=str(tmp_path / "a.png"))
+    with pytest.raises(ConfigError, match=r"p\.toml: \[point\] span = \[2, 1\]: low > high"):
+        config_schema.from_dict(PointConfig, {"point": {"span": [2, 1]}}, "p.toml")
+    with pytest.raises(ConfigError, match=r"centre = \[1\]: wrong type \(expected a two-element array\); "
+                                          r"allowed: a \[number, number\] pair, each 0 <= x"):
+        config_schema.from_dict(PointConfig, {"point": {"centre": [1]}}, "p.toml")
+    doc = config_schema.reference_markdown(PointConfig, "Points", "Intro.")
+    assert "| `centre` | [float, float] pair | a [number, number] pair, each 0 <= x | `[1, 0.5]` |" in doc
+    assert "| `span` | range of floats | [low, high], two numbers with low <= high, each 0 <= x |" in doc
+    assert config_schema.to_dict(config) == {"point": {"centre": [3.0, 2.5], "span": [0.0, 1.0],
+                                                       "file": str(tmp_path / "a.png")}}
