@@ -6,7 +6,7 @@ Stages timed (medians of --repeats runs): sampling a SceneSpec (the default conf
 post-rendering four frames (sensor model, masks, ground truth) and writing the scene (four EXR
 frames + scene.json, atomically). The raw passes are a plausible synthetic frame (a slanted wall
 with boxes, dots with 1/z^2 falloff): the cost of these stages does not depend on what was rendered.
-Compare the total with the render itself (bench.render_speed; ARCHITECTURE.md: about 7 s per frame
+Compare the total with the render itself (bench.render_speed; docs/RENDERING.md: 2.5-3 s per frame
 at 1216 x 896 on two cores) to see what share of a scene's time is not Cycles.
 """
 

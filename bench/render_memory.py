@@ -31,7 +31,7 @@ def rss_mb() -> float:
 
 
 def write_asset_meshes(folder: Path, count: int) -> list[str]:
-    """`count` asset .npz files (plan.md format) from primitives with random vertex jitter."""
+    """`count` asset .npz files (docs/ASSETS.md format) from primitives with random vertex jitter."""
     rng = np.random.default_rng(1)
     shapes = ("sphere", "torus", "cylinder", "cone")
     paths = []

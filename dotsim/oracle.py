@@ -1,7 +1,7 @@
 """The oracle: an independent numpy prediction of what the dot projector alone adds to an image.
 
-Render tests correlate Cycles' projector-only pass against it (ARCHITECTURE.md measured NCC 0.993 on
-a wall, 0.994 on a box, 0.976 on clutter with this recipe). It knows nothing of Blender: only the
+Render tests correlate Cycles' projector-only pass against it (docs/GEOMETRY.md: NCC 0.993 on a
+wall, 0.994 on a box, 0.976 on clutter with this recipe). It knows nothing of Blender: only the
 planar depth map, the rig and the pattern.
 
 Per camera pixel, an s x s grid of sub-pixel rays (Cycles anti-aliases; the depth pass does not):

@@ -217,12 +217,12 @@ class Rig:
 
 
 # Presets. Principal points are at the image centre because the simulated camera is what Blender
-# renders (ARCHITECTURE.md: getting this half pixel wrong drops oracle-vs-render NCC 0.99 -> 0.66).
+# renders (docs/GEOMETRY.md: getting this half pixel wrong drops oracle-vs-render NCC 0.99 -> 0.66).
 # For the non-Structure-Core presets, the projector is chosen like Structure Core's: 2 projector px
 # per camera px (2230.88 / 1115.44) and a field about 25% wider than the camera's (1536 / 1216
 # camera-px equivalents), so near surfaces at the image edges still receive dots.
 PRESETS: dict[str, Rig] = {
-    # Occipital Structure Core as simulated for GigaDepth (ARCHITECTURE.md "The sensor"): rectified
+    # Occipital Structure Core as simulated for GigaDepth (docs/GEOMETRY.md "Presets"): rectified
     # IR 1216x896, f 1115.44 px; its published principal point is (604, 457), replaced by the centre
     # (607.5, 447.5) that Blender renders. Projector +0.0634 m along x, 3072x3072, f 2230.88 px;
     # second IR camera +0.07501 m; training depth up to 20 m.

@@ -1,7 +1,7 @@
 """Pure, seeded sampling of one scene: (config, scene index, base seed, split) -> SceneSpec.
 
 A SceneSpec is everything the Blender stage needs, and `SceneSpec.to_dict()` is exactly the JSON
-contract of /work/plan.md "Generator contract" (also sent to `blender --background --python`).
+the Blender stage reads (also sent to `blender --background --python`).
 Sampling is cheap (milliseconds) and depends on nothing but its arguments: the random stream is
 numpy's SeedSequence((base_seed, scene_index)), so a scene does not depend on which worker renders it.
 

@@ -1,23 +1,26 @@
-"""Generator config: every key validated before anything runs; errors name file, key, value, allowed."""
+"""Generator and trainer configs (one engine, dotsim.config_schema): every key validated before anything
+runs; errors name file, key, value and what is allowed; the reference docs match the schemas."""
 
 from __future__ import annotations
 
 import dataclasses
+import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
-from generator.config import (
-    SECTIONS,
-    ConfigError,
-    check_output_dir,
-    config_from_dict,
-    config_reference_markdown,
-    load_config,
-)
+import generator.config as generator_config
+import trainer.config as trainer_config
+from dotsim import config_schema
+from dotsim.config_schema import FloatRange, setting
+from generator.config import ConfigError, check_output_dir, load_config
 
 REPO = Path(__file__).resolve().parents[1]
-GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml"]
+GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml"]
+TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml"]
+# (config module, its reference page)
+CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]
 
 
 def write(tmp_path: Path, text: str) -> Path:
@@ -26,17 +29,41 @@ def write(tmp_path: Path, text: str) -> Path:
     return path
 
 
-def error_of(tmp_path: Path, text: str) -> str:
+def error_of(tmp_path: Path, text: str, load=load_config) -> str:
     path = write(tmp_path, text)
     with pytest.raises(ConfigError) as info:
-        load_config(path)
+        load(path)
     message = str(info.value)
     assert str(path) in message  # every error names the file
     return message
 
 
+def as_toml(data: dict) -> str:
+    """A dict of top-level keys and tables written as TOML, independently of the engine's writer."""
+    def value(v):
+        if isinstance(v, bool):
+            return str(v).lower()
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return f'"{v}"' if isinstance(v, str) else repr(v)
+    top = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    tables = [f"[{k}]\n" + "".join(f"{key} = {value(x)}\n" for key, x in v.items())
+              for k, v in data.items() if isinstance(v, dict)]
+    return "\n".join(top) + "\n" + "\n".join(tables)
+
+
+def values_in_file(path: Path) -> dict:
+    """(table, key) -> value as written in a TOML file, lists and all; table None for top-level keys."""
+    data = tomllib.loads(path.read_text())
+    flat = {}
+    for name, table in data.items():
+        for key, value in (table.items() if isinstance(table, dict) else [(name, table)]):
+            flat[(name if isinstance(table, dict) else None, key)] = value
+    return flat
+
+
 @pytest.mark.parametrize("name", GENERATOR_CONFIGS)
-def test_shipped_configs_load(name, tmp_path):
+def test_shipped_generator_configs_load_as_written(name, tmp_path):
     # Shipped configs read the asset cache beside configs/ (../assets_cache, built by `make assets`),
     # which a fresh checkout lacks: load a copy that has an (empty) cache folder in that place.
     copy = tmp_path / "configs" / name
@@ -45,49 +72,105 @@ def test_shipped_configs_load(name, tmp_path):
     (tmp_path / "assets_cache").mkdir()
     config = load_config(copy)
     assert config.source.endswith(name)
+    resolved = config.to_dict()
+    for (table, key), value in values_in_file(copy).items():
+        if key == "cache_dir":
+            assert resolved[table][key] == str((copy.parent / value).resolve())
+        else:
+            assert resolved[table][key] == value, (table, key)
+            assert type(resolved[table][key]) is type(value) or isinstance(value, int), (table, key)
 
 
-def test_missing_keys_take_defaults_and_to_dict_round_trips(tmp_path):
-    config = load_config(write(tmp_path, "[scene]\nobject_count = [3, 7]\n"))
-    assert config.scene.object_count == (3, 7)
-    assert config.render.samples == 1  # default
+@pytest.mark.parametrize("name", TRAINER_CONFIGS)
+def test_shipped_trainer_configs_load_as_written(name):
+    path = REPO / "configs" / name
+    resolved = trainer_config.load_config(path).to_dict()
+    for (table, key), value in values_in_file(path).items():
+        assert (resolved[key] if table is None else resolved[table][key]) == value, (table, key)
+
+
+@pytest.mark.parametrize(("module", "load"), [(generator_config, load_config),
+                                              (trainer_config, trainer_config.load_config)])
+def test_missing_keys_take_defaults_and_to_dict_round_trips(module, load, tmp_path):
+    key = {generator_config: "[scene]\nobject_count = [3, 7]\n", trainer_config: "[model]\nlines = 7\n"}
+    config = load(write(tmp_path, key[module]))
+    resolved = config.to_dict()
+    resolved.pop("source", None)
     # A file that spells out every resolved value loads to the same config.
-    lines = []
-    for section, values in config.to_dict().items():
-        if section == "source":
-            continue
-        lines.append(f"[{section}]")
-        for key, value in values.items():
-            lines.append(f"{key} = {value!r}".replace("'", '"'))
-    again = load_config(write(tmp_path, "\n".join(lines) + "\n"))
+    again = load(write(tmp_path, as_toml(resolved)))
     assert again.to_dict() == config.to_dict()
+    defaults = module.config_from_dict({}).to_dict()
+    changed = [(t, k) for t, v in resolved.items() if isinstance(v, dict) for k in v
+               if v[k] != defaults[t][k]]
+    assert changed == ([("scene", "object_count")] if module is generator_config else [("model", "lines")])
 
 
-def test_unknown_key_suggests_closest(tmp_path):
-    message = error_of(tmp_path, "[scene]\nobject_cont = [1, 2]\n")
-    assert 'unknown key "object_cont"' in message and 'did you mean "object_count"' in message
-    message = error_of(tmp_path, "[sensr]\ngain = 1.0\n")
-    assert "[sensr]" in message and 'did you mean "[sensor]"' in message
+# (config, file text, fragments the error must contain): the file is named by error_of.
+GEN, TRAIN = "generator", "trainer"
+ERROR_CASES = [
+    # unknown keys and tables, with the closest valid one
+    (GEN, "[scene]\nobject_cont = [1, 2]\n", ['unknown key "object_cont"', 'did you mean "object_count"']),
+    (GEN, "[sensr]\ngain = 1.0\n", ["[sensr]", 'did you mean "[sensor]"']),
+    (TRAIN, "[model]\nclasess = [4, 4]\n", ['[model] unknown key "clasess" (did you mean "classes"?)']),
+    (TRAIN, "sed = 3\n", ['unknown key "sed" (did you mean "seed"?); valid keys: seed, [model], [data], '
+                          "[train]"]),
+    (TRAIN, "[modle]\nlines = 2\n", ['did you mean "[model]"']),
+    (TRAIN, "[scene]\nobject_count = [1, 2]\n", ['unknown key "[scene]"; valid keys: seed, [model]']),
+    (TRAIN, "model = 3\n", ["model = 3: expected a [model] table"]),
+    # wrong types
+    (GEN, "[render]\nsamples = 1.5\n", ["[render] samples = 1.5", "wrong type", "integer"]),
+    (GEN, "[render]\nsamples = true\n", ["wrong type (bool)"]),
+    (GEN, '[scene]\ndistance = "far"\n', ["[scene] distance", "two-element array"]),
+    (TRAIN, "[train]\nlr = 'fast'\n", ["[train] lr = 'fast': wrong type (str); allowed: a number, 0 < x"]),
+    (TRAIN, "[train]\namp = 1\n", ["[train] amp = 1: wrong type (int); allowed: true or false"]),
+    (TRAIN, "[model]\nclasses = [4, 'a']\n", ["[model] classes = [4, 'a']: entry 'a': wrong type (str)"]),
+    (TRAIN, "[model]\nstage_inputs = [[0, 8], [0, 8, 1]]\n",
+     ["entry [0, 8, 1]: wrong type (expected a two-element array)"]),
+    (TRAIN, "[model]\nclassifier_hidden = [[8], 8]\n", ["entry 8: wrong type (int; expected an array)"]),
+    # out of range, not a choice
+    (GEN, "[rig]\nscale = 0\n", ["[rig] scale = 0", "out of range", "0.02 <= x <= 1"]),
+    (GEN, "[scene]\nobject_count = [500, 100]\n", ["low > high"]),
+    (GEN, '[sensor]\nexposure = "autom"\n', ['did you mean "auto"', '"fixed", "auto"']),
+    (GEN, '[scene]\nshapes = ["box", "cube"]\n', ["'cube'"]),
+    (GEN, "[scene]\nshapes = []\n", ["needs at least 1 entry", "a non-empty list of"]),
+    (TRAIN, "seed = -1\n", ["seed = -1: out of range; allowed: an integer, 0 <= x <= 4294967295"]),
+    (TRAIN, "[model]\ncolumn_padding = 0.5\n",
+     ["[model] column_padding = 0.5: out of range; allowed: a number, 0 <= x < 0.5"]),
+    (TRAIN, '[train]\noptimizer = "adamm"\n',
+     ['not a valid choice (did you mean "adam"?); allowed: one of "sgd", "adam"']),
+    (TRAIN, "[model]\nclasses = [4, 1]\n",
+     ["classes = [4, 1]: entry 1: out of range; allowed: a non-empty list of integers, each 2 <= x"]),
+    (TRAIN, "[data]\nintensity_scale = [1.2, 0.8]\n", ["intensity_scale = [1.2, 0.8]: low > high"]),
+    # the trainer's rules spanning keys
+    (TRAIN, "[model]\nclasses = [4, 4]\noverlaps = [0, 5]\nclassifier_hidden = [[], []]\n"
+            "stage_inputs = [[0, 8], [0, 8], [0, 8]]\n",
+     ["[model] overlaps = [0, 5]: does not fit classes = [4, 4]"]),
+    (TRAIN, "[model]\nbackbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]\n",
+     ["[model] backbone_kernels = [5, 3, 3, 3, 3, 5, 3, 4]: an even kernel size"]),
+    (TRAIN, "[model]\nbackbone_kernels = [5]\n",
+     ["not one per backbone channel entry; allowed: 8 odd kernel sizes"]),
+    (TRAIN, "[model]\nstage_inputs = [[0, 64], [32, 64], [64, 64], [100, 64]]\n",
+     ["slice [100, 64] is empty or exceeds the 160 backbone output channels"]),
+    (TRAIN, "[data]\ncrop_height = 63\n", ["[data] crop_height = 63: odd"]),
+    (TRAIN, "[train]\nce_weights = [1.0]\n",
+     ["[train] ce_weights = [1.0]: not one weight per tree level; allowed: 3 weights"]),
+    (TRAIN, "[model]\nlcn_window = 10\n", ["[model] lcn_window = 10: even"]),
+]
 
 
-def test_wrong_type(tmp_path):
-    message = error_of(tmp_path, "[render]\nsamples = 1.5\n")
-    assert "[render] samples = 1.5" in message and "wrong type" in message and "integer" in message
-    message = error_of(tmp_path, "[render]\nsamples = true\n")
-    assert "wrong type (bool)" in message
-    message = error_of(tmp_path, '[scene]\ndistance = "far"\n')
-    assert "[scene] distance" in message and "two-element array" in message
+@pytest.mark.parametrize(("which", "text", "fragments"), ERROR_CASES)
+def test_errors_name_key_value_and_what_is_allowed(which, text, fragments, tmp_path):
+    message = error_of(tmp_path, text, load_config if which == GEN else trainer_config.load_config)
+    for fragment in fragments:
+        assert fragment in message
 
 
-def test_out_of_range(tmp_path):
-    message = error_of(tmp_path, "[rig]\nscale = 0\n")
-    assert "[rig] scale = 0" in message and "out of range" in message and "0.02 <= x <= 1" in message
-    message = error_of(tmp_path, "[scene]\nobject_count = [500, 100]\n")
-    assert "low > high" in message
-    message = error_of(tmp_path, '[sensor]\nexposure = "autom"\n')
-    assert 'did you mean "auto"' in message and '"fixed", "auto"' in message
-    message = error_of(tmp_path, '[scene]\nshapes = ["box", "cube"]\n')
-    assert "'cube'" in message
+def test_checkpoint_configs_with_tuples_load():
+    # Checkpoints of earlier versions stored the config with tuples (dataclasses.asdict).
+    config = trainer_config.load_config(REPO / "configs" / "train_cpu.toml")
+    as_tuples = dataclasses.asdict(config)
+    assert isinstance(as_tuples["model"]["stage_inputs"][0], tuple)
+    assert trainer_config.config_from_dict(as_tuples, "checkpoint") == config
 
 
 def test_missing_pattern_file(tmp_path):
@@ -103,10 +186,15 @@ def test_missing_asset_dir(tmp_path):
     assert "[assets] cache_dir" in message and "no_cache" in message and "dotsim assets build" in message
 
 
-def test_unreadable_and_invalid_files(tmp_path):
-    with pytest.raises(ConfigError, match="config file not found"):
-        load_config(tmp_path / "absent.toml")
-    assert "not valid TOML" in error_of(tmp_path, "[scene\n")
+@pytest.mark.parametrize("load", [load_config, trainer_config.load_config])
+def test_unreadable_and_invalid_files(load, tmp_path):
+    with pytest.raises(ConfigError, match="absent.toml: config file not found"):
+        load(tmp_path / "absent.toml")
+    assert "not valid TOML" in error_of(tmp_path, "[scene\n", load)
+
+
+def test_one_config_error():
+    assert generator_config.ConfigError is trainer_config.ConfigError is config_schema.ConfigError
 
 
 def test_unwritable_output(tmp_path):
@@ -121,19 +209,51 @@ def test_unwritable_output(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]  # the probe left nothing
 
 
-def test_every_key_documented():
-    doc = (REPO / "docs" / "CONFIG.md").read_text()
-    assert doc.strip() == config_reference_markdown().strip(), \
-        "docs/CONFIG.md is stale: python -m generator.config > docs/CONFIG.md"
-    for name, cls in SECTIONS.items():
+@pytest.mark.parametrize(("module", "page"), CONFIGS)
+def test_every_key_documented(module, page):
+    doc = (REPO / "docs" / page).read_text()
+    assert doc.strip() == module.config_reference_markdown().strip(), \
+        f"docs/{page} is stale: python -m {module.__name__} > docs/{page}"
+    for name, cls in config_schema.tables(module.Config).items():
         assert f"## [{name}]" in doc
         for f in dataclasses.fields(cls):
             assert f"| `{f.name}` |" in doc
 
 
-def test_defaults_are_valid():
+@pytest.mark.parametrize(("module", "page"), CONFIGS)
+def test_defaults_are_valid(module, page):
     # Every default passes its own rule (a default outside its range would be a silent bug).
-    data = {name: {f.name: (list(f.default) if isinstance(f.default, tuple) else f.default)
-                   for f in dataclasses.fields(cls) if f.default != ""}
-            for name, cls in SECTIONS.items()}
-    assert config_from_dict(data).to_dict() == config_from_dict({}).to_dict() | {"source": "<dict>"}
+    defaults = module.Config()
+    data = {name: (value if not isinstance(value, dict) else
+                   {k: v for k, v in value.items() if v != ""})  # empty paths stay unset
+            for name, value in config_schema.to_dict(defaults).items()}
+    assert module.config_from_dict(data, "<dict>") == module.config_from_dict({}, "<dict>")
+
+
+@dataclass(frozen=True)
+class PointTable:
+    centre: tuple[float, float] = setting((1.0, 0.5), "a pair such as a principal point", low=0.0)
+    span: FloatRange = setting((0.0, 1.0), "a range", low=0.0)
+    file: str = setting("", "a file", path=True)
+
+
+@dataclass(frozen=True)
+class PointConfig:
+    point: PointTable = field(default_factory=PointTable)
+
+
+def test_a_new_key_is_one_declaration(tmp_path):
+    # A pair is not a range (its entries need no order); paths resolve against the file's folder.
+    config = config_schema.from_dict(PointConfig, {"point": {"centre": [3, 2.5], "file": "a.png"}}, "p.toml",
+                                     base_dir=tmp_path)
+    assert config.point == PointTable(centre=(3.0, 2.5), file=str(tmp_path / "a.png"))
+    with pytest.raises(ConfigError, match=r"p\.toml: \[point\] span = \[2, 1\]: low > high"):
+        config_schema.from_dict(PointConfig, {"point": {"span": [2, 1]}}, "p.toml")
+    with pytest.raises(ConfigError, match=r"centre = \[1\]: wrong type \(expected a two-element array\); "
+                                          r"allowed: a \[number, number\] pair, each 0 <= x"):
+        config_schema.from_dict(PointConfig, {"point": {"centre": [1]}}, "p.toml")
+    doc = config_schema.reference_markdown(PointConfig, "Points", "Intro.")
+    assert "| `centre` | [float, float] pair | a [number, number] pair, each 0 <= x | `[1, 0.5]` |" in doc
+    assert "| `span` | range of floats | [low, high], two numbers with low <= high, each 0 <= x |" in doc
+    assert config_schema.to_dict(config) == {"point": {"centre": [3.0, 2.5], "span": [0.0, 1.0],
+                                                       "file": str(tmp_path / "a.png")}}

@@ -37,7 +37,8 @@ def _vec(x, n=3):
 
 
 def check_contract(d: dict) -> None:
-    """The plan's "Generator contract" schema, written out independently of scene_spec.py."""
+    """The SceneSpec JSON contract (what the Blender stage reads), written out independently of
+    scene_spec.py."""
     assert set(d) == {"scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood",
                       "world", "lights", "poses", "objects"}
     assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")

@@ -50,7 +50,8 @@ def add_parser(subparsers) -> None:
         "TensorBoard logs in RUN/tb (tensorboard --logdir RUN/tb). A CPU run with the same config, data "
         "and seed is deterministic.")
     p.add_argument("--config", required=True, metavar="TOML",
-                   help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml")
+                   help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml "
+                   "(keys: docs/TRAIN_CONFIG.md)")
     p.add_argument("--data", required=True, metavar="DIR", help="finalized dotsim dataset directory")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
     p.add_argument("--resume", action="store_true",

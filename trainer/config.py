@@ -1,181 +1,178 @@
-"""Training configuration: one TOML file with [model], [data] and [train] tables.
+"""Training configuration: one TOML file with a top-level seed and [model], [data] and [train] tables.
 
 Every size of the network, the input pipeline and the optimisation is a value here, so the same code
 builds a tiny CPU model for tests (configs/train_tiny.toml) and the published GigaDepth network
-(configs/train_gigadepth.toml). Unknown keys and wrong types are errors naming the file and field.
+(configs/train_gigadepth.toml). Each key is one `setting(...)` line (dotsim.config_schema): default,
+meaning and allowed values, from which come the validation, its errors (file, key, value, what is
+allowed, "did you mean") and docs/TRAIN_CONFIG.md. Rules spanning keys are in `validate`.
+Column = projector column normalised by the projector width, in [0, 1]; sizes in full-resolution
+camera pixels unless said.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-
-class ConfigError(ValueError):
-    """A training configuration value is missing, unknown or out of range."""
+from dotsim import config_schema
+from dotsim.config_schema import ConfigError, FloatRange, setting
 
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Network shape. Column = projector column normalised by the projector width, in [0, 1]."""
-
-    backbone: str = "conv"  # "conv" (published plain stack) or "unet" (the seed's ablation)
-    backbone_channels: tuple[int, ...] = (16, 24, 32, 40, 64, 64, 96, 160)
-    backbone_kernels: tuple[int, ...] = (5, 3, 3, 3, 3, 5, 3, 3)
-    unet_channels: tuple[int, ...] = (32, 64, 128)  # encoder widths below half resolution (unet only)
-    lcn_window: int = 11
-    lcn_eps: float = 1e-2
-    classes: tuple[int, ...] = (16, 10, 8)  # classes per tree level; leaves = product
-    overlaps: tuple[int, ...] = (0, 3, 4)  # extra children on each side of a parent's range
-    # (offset, width) slice of the backbone channels feeding each classifier level and the regressor
-    stage_inputs: tuple[tuple[int, int], ...] = ((0, 64), (32, 64), (64, 64), (96, 64))
-    classifier_hidden: tuple[tuple[int, ...], ...] = ((64, 32), (32,), (32,))
-    regressor_hidden: tuple[int, ...] = (32,)
-    lines: int = 448  # distinct weight sets over the half-resolution rows (rows share when fewer)
-    regress_neighbours: int = 1  # leaves on each side of the true one whose regressors are trained
-    column_padding: float = 0.1  # target x' = (1 - 2 p) x + p keeps the column off the tree's ends
-    chunk_pixels: int = 65536  # pixels per gathered-weight batch (bounds memory, not results)
+    backbone: str = setting("conv", "network body: conv (the published plain stack) or unet (the UNet "
+                            "ablation of GigaDepth's original code)", choices=("conv", "unet"))
+    backbone_channels: tuple[int, ...] = setting((16, 24, 32, 40, 64, 64, 96, 160), "output channels of "
+                                                 "each backbone conv", low=1, min_items=1)
+    backbone_kernels: tuple[int, ...] = setting((5, 3, 3, 3, 3, 5, 3, 3), "kernel size of each backbone "
+                                                "conv (odd; only the first conv is strided)", low=1,
+                                                min_items=1)
+    unet_channels: tuple[int, ...] = setting((32, 64, 128), "encoder widths below half resolution (unet "
+                                             "only)", low=1)
+    lcn_window: int = setting(11, "LCN window side, px (odd)", low=1)
+    lcn_eps: float = setting(1e-2, "eps of LCN (I - mean) / (std + eps), in the ir channel's units",
+                             low=0.0, low_open=True)
+    classes: tuple[int, ...] = setting((16, 10, 8), "classes per tree level; leaves = their product",
+                                       low=2, min_items=1)
+    overlaps: tuple[int, ...] = setting((0, 3, 4), "extra children scored on each side of a parent's "
+                                        "range, per level (0 for the first, below that level's classes)",
+                                        low=0)
+    stage_inputs: tuple[tuple[int, int], ...] = setting(((0, 64), (32, 64), (64, 64), (96, 64)),
+                                                        "(offset, width) slice of the backbone's output "
+                                                        "channels feeding each classifier level and the "
+                                                        "regressor", low=0)
+    classifier_hidden: tuple[tuple[int, ...], ...] = setting(((64, 32), (32,), (32,)), "hidden widths of "
+                                                             "each level's classifier MLP", low=1)
+    regressor_hidden: tuple[int, ...] = setting((32,), "hidden widths of the leaf regressor MLP", low=1)
+    lines: int = setting(448, "distinct weight sets over the half-resolution rows (rows share when fewer)",
+                         low=1)
+    regress_neighbours: int = setting(1, "leaves on each side of the true one whose regressors are trained",
+                                      low=0)
+    column_padding: float = setting(0.1, "p of the target x' = (1 - 2 p) x + p, which keeps the column off "
+                                    "the tree's ends", low=0.0, high=0.5, high_open=True)
+    chunk_pixels: int = setting(65536, "pixels per gathered-weight batch (bounds memory, not results)",
+                                low=1)
 
 
 @dataclass(frozen=True)
 class DataConfig:
-    """Input pipeline; sizes are in full-resolution camera pixels."""
-
-    crop_width: int = 0  # 0 = full width
-    crop_height: int = 0  # 0 = full height; crops start on even rows to keep half-res line identity
-    vertical_jitter: int = 0  # image content shifted by up to this many rows against its line index
-    noise_std: float = 0.0  # std of additive Gaussian noise, in the units of the frames' ir channel
-    intensity_scale: tuple[float, float] = (1.0, 1.0)  # uniform random gain range
-    workers: int = 0  # DataLoader worker processes
+    crop_width: int = setting(0, "training crop width (even; 0 = full width)", low=0)
+    crop_height: int = setting(0, "training crop height (even; 0 = full height); crops start on even rows "
+                               "to keep half-resolution line identity", low=0)
+    vertical_jitter: int = setting(0, "image content shifted by up to this many rows against its line "
+                                   "index", low=0)
+    noise_std: float = setting(0.0, "std of additive Gaussian noise, in the units of the frames' ir "
+                               "channel", low=0.0)
+    intensity_scale: FloatRange = setting((1.0, 1.0), "uniform random gain range", low=0.0)
+    workers: int = setting(0, "DataLoader worker processes (0 = load in the training process)", low=0)
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Optimisation. The published setup is SGD with lr 4 and step decay, 10 epochs, batch 4."""
-
-    epochs: int = 10
-    max_steps: int = 0  # > 0 stops after this many optimiser steps (tests, benchmarks)
-    batch_size: int = 4
-    optimizer: str = "sgd"  # "sgd" or "adam"
-    lr: float = 4.0
-    momentum: float = 0.0
-    weight_decay: float = 0.0
-    lr_step_epochs: int = 3  # step decay: multiply lr by lr_gamma every lr_step_epochs epochs
-    lr_gamma: float = 0.5
-    ce_weights: tuple[float, ...] = (1.0, 1.0, 1.0)
-    l1_weight: float = 1.0  # on the column in leaf units (column * leaves)
-    edge_weight: float = 10.0  # pixel weight 1 + edge_weight * edge
-    amp: bool = True  # mixed precision on CUDA (ignored on CPU)
-    log_every: int = 10
-    image_every: int = 100
-    checkpoint_every: int = 200
+    # The published setup is SGD with lr 4 and step decay, 10 epochs, batch 4.
+    epochs: int = setting(10, "passes over the training frames", low=1)
+    max_steps: int = setting(0, "> 0 stops after this many optimiser steps (tests, benchmarks)", low=0)
+    batch_size: int = setting(4, "frames per optimiser step", low=1)
+    optimizer: str = setting("sgd", "optimiser", choices=("sgd", "adam"))
+    lr: float = setting(4.0, "learning rate", low=0.0, low_open=True)
+    momentum: float = setting(0.0, "SGD momentum", low=0.0, high=1.0)
+    weight_decay: float = setting(0.0, "L2 weight decay", low=0.0)
+    lr_step_epochs: int = setting(3, "step decay: multiply lr by lr_gamma every lr_step_epochs epochs",
+                                  low=1)
+    lr_gamma: float = setting(0.5, "step decay factor", low=0.0, high=1.0, low_open=True)
+    ce_weights: tuple[float, ...] = setting((1.0, 1.0, 1.0), "weight of each tree level's cross-entropy",
+                                            low=0.0)
+    l1_weight: float = setting(1.0, "weight of the L1 on the column in leaf units (column * leaves)",
+                               low=0.0)
+    edge_weight: float = setting(10.0, "pixel weight 1 + edge_weight * edge", low=0.0)
+    amp: bool = setting(True, "mixed precision on CUDA (ignored on CPU)")
+    log_every: int = setting(10, "steps between logged losses", low=1)
+    image_every: int = setting(100, "steps between logged images", low=1)
+    checkpoint_every: int = setting(200, "steps between checkpoints (and one at the end)", low=1)
 
 
 @dataclass(frozen=True)
 class Config:
-    seed: int = 0
+    """A validated training configuration."""
+    seed: int = setting(0, "seed of the initial weights, the frame order and the augmentations", low=0,
+                        high=2**32 - 1)
     model: ModelConfig = field(default_factory=ModelConfig)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """JSON-safe nested dict of every value (lists for tuples), as stored in checkpoints."""
+        return config_schema.to_dict(self)
 
 
-def _tuples(value: Any) -> Any:
-    """Lists from TOML/JSON become tuples so configs compare and hash like the dataclass defaults."""
-    if isinstance(value, list | tuple):
-        return tuple(_tuples(v) for v in value)
-    return value
-
-
-def _section(cls, table: dict[str, Any], where: str):
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(fields)}")
-    values = {}
-    for name, value in table.items():
-        default = getattr(cls(), name)
-        value = _tuples(value)
-        if isinstance(default, bool) != isinstance(value, bool) or (
-            isinstance(default, int | float) and not isinstance(value, int | float)
-        ) or (isinstance(default, str | tuple) and not isinstance(value, type(default))):
-            raise ConfigError(f"{where}.{name}: {value!r} has the wrong type; expected like {default!r}")
-        if isinstance(default, float):
-            value = float(value)
-        values[name] = value
-    return cls(**values)
-
-
-def config_from_dict(d: dict[str, Any], where: str = "config") -> Config:
-    """Build and validate a Config from a TOML/JSON-shaped dict; `where` names the source in errors."""
-    unknown = sorted(set(d) - {"seed", "model", "data", "train"})
-    if unknown:
-        raise ConfigError(f"{where}: unknown table(s) {unknown}; allowed: seed, [model], [data], [train]")
-    cfg = Config(
-        seed=int(d.get("seed", 0)),
-        model=_section(ModelConfig, d.get("model", {}), f"{where} [model]"),
-        data=_section(DataConfig, d.get("data", {}), f"{where} [data]"),
-        train=_section(TrainConfig, d.get("train", {}), f"{where} [train]"),
-    )
-    validate(cfg, where)
+def config_from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
+    """Build and validate a Config from a TOML/JSON-shaped dict; `source` names it in errors."""
+    cfg = config_schema.from_dict(Config, d, source)
+    validate(cfg, source)
     return cfg
 
 
 def load_config(path: str | Path) -> Config:
-    """Read a training TOML file; errors name the file and the offending field."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: training config file not found")
-    try:
-        d = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from e
-    return config_from_dict(d, str(path))
+    """Read a training TOML file; errors name the file, the key, the value and what is allowed."""
+    return config_from_dict(config_schema.read_toml(path), str(path))
 
 
-def validate(cfg: Config, where: str = "config") -> None:
+def validate(cfg: Config, source: str = "<dict>") -> None:
+    """Rules spanning several keys; raises ConfigError naming `source`, the key and the value."""
     m, t, dcfg = cfg.model, cfg.train, cfg.data
     levels = len(m.classes)
-    if m.backbone not in ("conv", "unet"):
-        raise ConfigError(f"{where} [model].backbone: {m.backbone!r}; allowed: 'conv', 'unet'")
-    if len(m.backbone_channels) != len(m.backbone_kernels) or not m.backbone_channels:
-        raise ConfigError(
-            f"{where} [model]: backbone_channels and backbone_kernels need the same nonzero length"
-        )
+
+    def fail(key: str, value: Any, problem: str, allowed: str) -> ConfigError:
+        return config_schema.value_error(f"{source}: {key}", value, problem, allowed)
+
+    if len(m.backbone_kernels) != len(m.backbone_channels):
+        raise fail("[model] backbone_kernels", m.backbone_kernels, "not one per backbone channel entry",
+                   f"{len(m.backbone_channels)} odd kernel sizes")
     if any(k % 2 == 0 for k in m.backbone_kernels):
-        raise ConfigError(f"{where} [model].backbone_kernels: {m.backbone_kernels} must all be odd")
-    if levels < 1 or any(c < 2 for c in m.classes):
-        raise ConfigError(f"{where} [model].classes: {m.classes}; need at least one level of >= 2 classes")
+        raise fail("[model] backbone_kernels", m.backbone_kernels, "an even kernel size", "odd sizes")
+    if m.lcn_window % 2 == 0:
+        raise fail("[model] lcn_window", m.lcn_window, "even", "an odd window")
     if len(m.overlaps) != levels or m.overlaps[0] != 0 or any(
-        o < 0 or o >= c for o, c in zip(m.overlaps, m.classes, strict=True)
+        o >= c for o, c in zip(m.overlaps, m.classes, strict=True)
     ):
-        raise ConfigError(
-            f"{where} [model].overlaps: {m.overlaps}; need one per level, 0 for the first, 0 <= o < classes"
-        )
+        raise fail("[model] overlaps", m.overlaps, "does not fit classes = "
+                   f"{config_schema.toml_text(m.classes)}",
+                   f"{levels} integers, 0 for the first level, 0 <= overlap < that level's classes")
     if len(m.classifier_hidden) != levels:
-        raise ConfigError(f"{where} [model].classifier_hidden: need one list of widths per level ({levels})")
+        raise fail("[model] classifier_hidden", m.classifier_hidden, "not one list per tree level",
+                   f"{levels} lists of hidden widths")
     if len(m.stage_inputs) != levels + 1:
-        raise ConfigError(f"{where} [model].stage_inputs: need {levels + 1} (offset, width) pairs")
+        raise fail("[model] stage_inputs", m.stage_inputs, "not one slice per level and the regressor",
+                   f"{levels + 1} [offset, width] pairs")
     out_ch = m.backbone_channels[-1]
     for off, width in m.stage_inputs:
-        if off < 0 or width < 1 or off + width > out_ch:
-            raise ConfigError(
-                f"{where} [model].stage_inputs: slice ({off}, {width}) exceeds the {out_ch} backbone channels"
-            )
-    if m.lines < 1:
-        raise ConfigError(f"{where} [model].lines: {m.lines} must be >= 1")
-    if not 0 <= m.column_padding < 0.5:
-        raise ConfigError(f"{where} [model].column_padding: {m.column_padding} must be in [0, 0.5)")
-    if dcfg.crop_height % 2 or dcfg.crop_width % 2:
-        raise ConfigError(f"{where} [data]: crop_width/crop_height must be even (half-resolution output)")
-    if t.optimizer not in ("sgd", "adam"):
-        raise ConfigError(f"{where} [train].optimizer: {t.optimizer!r}; allowed: 'sgd', 'adam'")
+        if width < 1 or off + width > out_ch:
+            raise fail("[model] stage_inputs", m.stage_inputs, f"slice [{off}, {width}] is empty or exceeds "
+                       f"the {out_ch} backbone output channels", "offset + width <= the last "
+                       "backbone_channels entry, width >= 1")
+    for key in ("crop_width", "crop_height"):
+        if getattr(dcfg, key) % 2:
+            raise fail(f"[data] {key}", getattr(dcfg, key), "odd (the output is at half resolution)",
+                       "an even number of pixels, or 0")
     if len(t.ce_weights) != levels:
-        raise ConfigError(f"{where} [train].ce_weights: need one weight per level ({levels})")
-    if t.batch_size < 1 or t.epochs < 1:
-        raise ConfigError(f"{where} [train]: batch_size and epochs must be >= 1")
+        raise fail("[train] ce_weights", t.ce_weights, "not one weight per tree level",
+                   f"{levels} weights")
+
+
+def config_reference_markdown() -> str:
+    """docs/TRAIN_CONFIG.md: every key with its type, allowed values, default and meaning."""
+    return config_schema.reference_markdown(Config, "Training configuration reference", (
+        "Generated from `trainer/config.py` (`python -m trainer.config > docs/TRAIN_CONFIG.md`); a test "
+        "checks that this file is current. The generator's config is in docs/CONFIG.md; how the "
+        "trainer uses these values is in docs/TRAINER.md.\n\n"
+        "A training config is a TOML file with the keys below; every key is optional and takes its "
+        "default when left out. An unknown key, a value of the wrong type or out of range, or values "
+        "that do not fit together (one overlap, classifier and loss weight per tree level, stage slices "
+        "inside the backbone's channels) stop `dotsim train` before anything is read or written, with a "
+        "message naming the file, the key, the value and what is allowed. The resolved config is stored "
+        "in every checkpoint."))
+
+
+if __name__ == "__main__":
+    print(config_reference_markdown())

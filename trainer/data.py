@@ -80,7 +80,7 @@ def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarra
 
 
 class FrameDataset(Dataset):
-    """Frames as training samples; `augment` turns on crops and the seed's augmentations."""
+    """Frames as training samples; `augment` turns on crops and GigaDepth's augmentations."""
 
     def __init__(self, frames: list[FrameRef], rig: Rig, cfg: DataConfig, seed: int, augment: bool):
         self.frames, self.rig, self.cfg, self.seed, self.augment = frames, rig, cfg, seed, augment

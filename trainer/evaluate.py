@@ -96,7 +96,7 @@ def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str
 
 def error_image(err: np.ndarray, valid: np.ndarray, max_px: float = 5.0) -> np.ndarray:
     """BGR uint8: |error| 0..max_px on the turbo colour map, outliers (> max_px or no estimate)
-    black, pixels without ground truth mid grey (as the seed's figures)."""
+    black, pixels without ground truth mid grey (as GigaDepth's figures)."""
     err = np.abs(err)
     scaled = np.clip(np.nan_to_num(err, nan=0.0) / max_px * 255, 0, 255).astype(np.uint8)
     img = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)

@@ -171,7 +171,7 @@ class ConvBackbone(nn.Sequential):
 
 
 class UNetBackbone(nn.Module):
-    """The seed's UNet ablation: a strided stem (backbone_channels[0], backbone_kernels[0]) to half
+    """GigaDepth's UNet ablation: a strided stem (backbone_channels[0], backbone_kernels[0]) to half
     resolution, an encoder of unet_channels (each halving), a decoder with skip connections back to half
     resolution, and a 3x3 conv to backbone_channels[-1]."""
 
@@ -220,7 +220,7 @@ class GigaDepthNet(nn.Module):
 
     # ---- shared pieces -------------------------------------------------------------------------
     def inputs(self, ir: torch.Tensor) -> torch.Tensor:
-        """[IR, LCN(IR)] (B, 2, H, W): the seed's input; LCN here so train, eval and infer share it."""
+        """[IR, LCN(IR)] (B, 2, H, W): GigaDepth's input; LCN here so train, eval and infer share it."""
         from dotsim.lcn import lcn_torch
 
         return torch.cat([ir, lcn_torch(ir, self.cfg.lcn_window, self.cfg.lcn_eps)], 1)

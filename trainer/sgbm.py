@@ -1,6 +1,6 @@
 """The baseline: OpenCV StereoSGBM between the IR image and the pattern as seen from infinity.
 
-As GigaDepth (and ARCHITECTURE.md): the IR image is the left image, the reference image
+As GigaDepth (docs/TRAINER.md "Evaluation"): the IR image is the left image, the reference image
 (dotsim.rig.reference_image) the right one, minDisparity 0, 128 disparities at 1216 px width, block 5,
 P1 = 8 * 25, P2 = 32 * 25. Both images are padded by numDisparities columns on the left, or the leftmost
 columns would get no estimate. Each image is scaled to 8 bit by its own 99.5th percentile (the IR and

@@ -1,6 +1,6 @@
 """Hand-built SceneSpec dicts with known geometry, for render tests and benchmarks (pure numpy).
 
-They follow plan.md's SceneSpec; the camera sits at the world origin looking along +z (OpenCV
+They follow the SceneSpec JSON contract; the camera sits at the world origin looking along +z (OpenCV
 axes), so world coordinates equal camera coordinates for pose 0. The real sampler lives in
 generator/scene_spec.py.
 """

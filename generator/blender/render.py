@@ -1,7 +1,7 @@
 """SceneRenderer: SceneSpec dict -> four frames of raw passes, with Cycles, in ONE path-tracing
 render per frame.
 
-How the passes are separated (ARCHITECTURE.md explains why several lights in one render are
+How the passes are separated (docs/RENDERING.md explains why several lights in one render are
 noisy): materials are grey, so colour channels never mix. One spot light emits the pattern in red
 and the flood rectangle in green (projector.py); the world and the extra lights are pure blue. So
 one render gives projector = R, flood = G, ambient = B, and the Z pass gives planar depth. The
@@ -74,7 +74,7 @@ def _configure_render(scene: bpy.types.Scene) -> None:
     scene.render.film_transparent = False
     # Persistent data keeps Cycles' scene (BVH, images) between the frames of a scene; without it
     # every frame rebuilds the BVH (1000 objects cost 2.1x 100 instead of ~1.4x). setup() starts
-    # a fresh Cycles scene for each SceneSpec, because Cycles missed changed settings (the seed)
+    # a fresh Cycles scene for each SceneSpec, because Cycles missed changed settings (its seed)
     # when it kept the old one.
     scene.render.use_persistent_data = True
     view = scene.view_settings
@@ -141,7 +141,7 @@ def select_device(scene: bpy.types.Scene, device: str) -> str:
 
 
 class SceneRenderer:
-    """Renders SceneSpec dicts (plan.md "Generator contract") into raw passes with Cycles.
+    """Renders SceneSpec dicts (generator/scene_spec.py) into raw passes with Cycles.
 
     One instance owns the bpy scene of the process (it starts from factory settings). Call
     render(spec) for each scene; close() removes the temp folder. Use one per process.
@@ -223,7 +223,7 @@ class SceneRenderer:
     def refresh(self) -> None:
         """Make the next render sync the whole scene into Cycles. setup() calls it; call it after
         changing anything else than the poses between renders. Switching persistent data off frees
-        Cycles' kept scene (Cycles missed changed settings, e.g. the seed, when it kept it)."""
+        Cycles' kept scene (Cycles missed changed settings, e.g. its seed, when it kept it)."""
         self.scene.render.use_persistent_data = False
         self.scene.render.use_persistent_data = True
 

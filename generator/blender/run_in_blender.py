@@ -35,7 +35,7 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
         description="Render SceneSpec JSON files with Cycles into DIR/<spec stem>_raw.npz "
         "(arrays projector_K, flood_K, ambient_K, depth_K per frame K).",
     )
-    parser.add_argument("specs", nargs="+", type=Path, help="SceneSpec JSON files (plan.md contract)")
+    parser.add_argument("specs", nargs="+", type=Path, help="SceneSpec JSON files (generator/scene_spec.py)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     return parser.parse_args(argv)
 

@@ -147,7 +147,7 @@ class SceneContent:
         bpy.data.batch_remove(objects + lights)
 
     def build(self, spec: dict) -> None:
-        """World, extra lights and objects of `spec` (see plan.md's SceneSpec)."""
+        """World, extra lights and objects of `spec` (a SceneSpec dict, generator/scene_spec.py)."""
         self.clear()
         strength = spec_number(spec_field(spec, "world", "spec"), "strength", "world", minimum=0.0)
         self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], strength, 1.0)

@@ -1,0 +1,331 @@
+"""Config schema: TOML tables declared as frozen dataclasses whose fields say what they allow.
+
+A configuration is declared once, as dataclasses whose fields are made with `setting` (default, help
+text, allowed values). From that declaration this module validates a TOML file (`read_toml`,
+`from_dict`), writes the resolved values back (`to_dict`) and writes its reference page
+(`reference_markdown`). generator/config.py (docs/CONFIG.md) and trainer/config.py
+(docs/TRAIN_CONFIG.md) are two such declarations.
+
+The root dataclass holds the tables (fields whose type is a dataclass, written `[name]` in TOML) and
+top-level keys (fields made with `setting`); any other field (the generator's `source`) is not a key.
+A setting's type is bool, int, float or str; `IntRange` / `FloatRange` is a *range* `[low, high]`
+with low <= high; `tuple[T, ...]` is a list of T; a fixed `tuple[T1, T2]` is a pair such as
+(offset, width) or (cx, cy); lists and pairs may nest. Bounds apply to every number in a value, choices
+to every string. Errors name the file, the key, the value and what is allowed, and suggest the
+closest key or choice ("did you mean").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import functools
+import math
+import os
+import tomllib
+import typing
+from dataclasses import field
+from pathlib import Path
+from typing import Annotated, Any
+
+_RANGE = "range"
+IntRange = Annotated[tuple[int, int], _RANGE]  # [low, high] with low <= high
+FloatRange = Annotated[tuple[float, float], _RANGE]
+
+
+class ConfigError(ValueError):
+    """A configuration problem, naming the file, the key, the value and what is allowed."""
+
+
+def setting(default: Any, help: str, *, low: float | None = None, high: float | None = None,
+            low_open: bool = False, high_open: bool = False, choices: tuple | None = None,
+            path: bool = False, min_items: int = 0) -> Any:
+    """A dataclass field with its help text and the values it allows.
+
+    Parameters
+    ----------
+    default : the value when the key is left out (lists are given as tuples or lists).
+    help : one line for docs and errors: what the value means, with its unit.
+    low, high : bounds of every number in the value; `low_open` / `high_open` exclude the bound.
+    choices : the strings allowed (for a string or every entry of a list of strings).
+    path : a path, resolved against the config file's directory.
+    min_items : fewest entries of a list.
+    """
+    rule = {"help": help, "low": low, "high": high, "low_open": low_open, "high_open": high_open,
+            "choices": choices, "path": path, "min_items": min_items}
+    return field(default=_tuples(default), metadata=rule)
+
+
+def _tuples(value: Any) -> Any:
+    """Lists (from TOML, JSON or a default) as tuples, so configs compare and hash alike."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list | tuple) else value
+
+
+def _json(value: Any) -> Any:
+    return [_json(v) for v in value] if isinstance(value, list | tuple) else value
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+def _keys(schema: type) -> dict[str, dataclasses.Field]:
+    """The fields of `schema` that are config keys: tables and settings, in declaration order."""
+    return {f.name: f for f in dataclasses.fields(schema) if _is_table(schema, f) or "help" in f.metadata}
+
+
+def _is_table(schema: type, f: dataclasses.Field) -> bool:
+    return dataclasses.is_dataclass(_hints(schema)[f.name])
+
+
+def tables(schema: type) -> dict[str, type]:
+    """Name -> dataclass of every table of a root schema, in declaration order."""
+    return {name: _hints(schema)[name] for name, f in _keys(schema).items() if _is_table(schema, f)}
+
+
+def _is_range(hint: Any) -> bool:
+    return typing.get_origin(hint) is Annotated and _RANGE in hint.__metadata__
+
+
+def _range_items(hint: Any) -> str:
+    return "integers" if typing.get_args(hint.__origin__)[0] is int else "numbers"
+
+
+def _is_list(hint: Any) -> bool:
+    args = typing.get_args(hint)
+    return len(args) == 2 and args[1] is Ellipsis
+
+
+class _Invalid(Exception):
+    """Why a value is not allowed (turned into a ConfigError naming file, key and value)."""
+
+
+def _is_number(value: Any) -> bool:
+    # TOML booleans are Python bools, which are ints: never accept them as numbers.
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _in_bounds(x: float, rule: dict) -> bool:
+    low, high = rule["low"], rule["high"]
+    if not math.isfinite(x):
+        return False
+    if low is not None and (x < low or (rule["low_open"] and x == low)):
+        return False
+    return high is None or (x < high if rule["high_open"] else x <= high)
+
+
+def _did_you_mean(value: str, valid: typing.Iterable[str], cutoff: float = 0.6) -> str:
+    close = difflib.get_close_matches(value, list(valid), n=1, cutoff=cutoff)
+    return f' (did you mean "{close[0]}"?)' if close else ""
+
+
+_SCALARS = {bool: lambda v: isinstance(v, bool), int: lambda v: _is_number(v) and isinstance(v, int),
+            float: _is_number, str: lambda v: isinstance(v, str)}
+
+
+def _convert(hint: Any, value: Any, rule: dict, top: bool = True) -> Any:
+    """`value` as the type `hint` describes (lists become tuples), or raise _Invalid saying why."""
+    if hint in _SCALARS:
+        if not _SCALARS[hint](value):
+            raise _Invalid(f"wrong type ({type(value).__name__})")
+        if hint in (int, float) and not _in_bounds(value, rule):
+            raise _Invalid("out of range")
+        if hint is str and rule["choices"] and value not in rule["choices"]:
+            raise _Invalid("not a valid choice" + _did_you_mean(value, rule["choices"]))
+        return hint(value)
+    if _is_range(hint):
+        low, high = _convert(hint.__origin__, value, rule, top=False)
+        if low > high:
+            raise _Invalid("low > high")
+        return low, high
+    args = typing.get_args(hint)
+    if _is_list(hint):
+        if not isinstance(value, list | tuple):
+            raise _Invalid(f"wrong type ({type(value).__name__}; expected an array)")
+        if top and len(value) < rule["min_items"]:
+            n = rule["min_items"]
+            raise _Invalid(f"needs at least {n} {'entry' if n == 1 else 'entries'}")
+        items = []
+        for item in value:
+            try:
+                items.append(_convert(args[0], item, rule, top=False))
+            except _Invalid as exc:
+                raise _Invalid(f"entry {_json(item)!r}: {exc}") from None
+        return tuple(items)
+    if not isinstance(value, list | tuple) or len(value) != len(args):
+        raise _Invalid(f"wrong type (expected a {_count(len(args))}-element array)")
+    return tuple(_convert(a, v, rule, top=False) for a, v in zip(args, value, strict=True))
+
+
+def _count(n: int) -> str:
+    return {2: "two", 3: "three", 4: "four"}.get(n, str(n))
+
+
+def _fmt(x: Any) -> str:
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def toml_text(value: Any) -> str:
+    """A value as it is written in TOML (for docs and messages)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(toml_text(v) for v in value) + "]"
+    return _fmt(value)
+
+
+def _bounds(rule: dict) -> str:
+    text = "x"
+    if rule["low"] is not None:
+        text = f"{_fmt(rule['low'])} {'<' if rule['low_open'] else '<='} x"
+    if rule["high"] is not None:
+        text += f" {'<' if rule['high_open'] else '<='} {_fmt(rule['high'])}"
+    return "" if text == "x" else text
+
+
+def _noun(hint: Any, plural: bool, float_word: str = "number") -> str:
+    """What a value of type `hint` is called: "integer", "lists of numbers", "[integer, integer] pairs"."""
+    s = "s" if plural else ""
+    if hint in _SCALARS:
+        return {bool: "boolean", int: "integer", float: float_word, str: "string"}[hint] + s
+    if _is_list(hint):
+        return f"list{s} of {_noun(typing.get_args(hint)[0], True, float_word)}"
+    args = typing.get_args(hint)
+    inner = ", ".join(_noun(a, False, float_word) for a in args)
+    return f"[{inner}] {'pair' if len(args) == 2 else 'array'}{s}"
+
+
+def _allowed(hint: Any, rule: dict) -> str:
+    """What a setting allows, in words (used by errors and docs)."""
+    choices = ", ".join(f'"{c}"' for c in rule["choices"] or ())
+    bounds = _bounds(rule)
+    each = f", each {bounds}" if bounds else ""
+    if hint is bool:
+        return "true or false"
+    if hint is str:
+        if rule["path"]:
+            return "a path (string; relative to the config file)"
+        return f"one of {choices}" if choices else "a string"
+    if hint in (int, float):
+        text = "an integer" if hint is int else "a number"
+        return f"{text}, {bounds}" if bounds else text
+    if _is_range(hint):
+        return f"[low, high], two {_range_items(hint)} with low <= high{each}"
+    if not _is_list(hint):
+        return f"a {_noun(hint, False)}{each}"
+    n = rule["min_items"]
+    size = "a list of" if n == 0 else "a non-empty list of" if n == 1 else f"a list of at least {n}"
+    if choices:
+        return f"{size} {choices}"
+    return f"{size} {_noun(typing.get_args(hint)[0], True)}{each}"
+
+
+def _type_name(hint: Any) -> str:
+    if _is_range(hint):
+        return "range of " + _range_items(hint).replace("numbers", "floats")
+    return _noun(hint, False, float_word="float")
+
+
+def value_error(where: str, value: Any, problem: str, allowed: str) -> ConfigError:
+    """The one shape of a config error: `where = value: problem; allowed: ...`."""
+    return ConfigError(f"{where} = {_json(value)!r}: {problem}; allowed: {allowed}")
+
+
+def _unknown_key_error(where: str, key: str, valid: list[str]) -> ConfigError:
+    # A table is only suggested for a table and a key for a key: "[scene]" is no misspelt "seed".
+    alike = [v for v in valid if v.startswith("[") == key.startswith("[")]
+    return ConfigError(f"{where}unknown key \"{key}\"{_did_you_mean(key, alike, cutoff=0.5)}; "
+                       f"valid keys: {', '.join(valid)}")
+
+
+def _setting(owner: type, f: dataclasses.Field, value: Any, where: str, base_dir: Path) -> Any:
+    hint = _hints(owner)[f.name]
+    try:
+        value = _convert(hint, value, f.metadata)
+    except _Invalid as exc:
+        raise value_error(where, value, str(exc), _allowed(hint, f.metadata)) from None
+    if f.metadata["path"] and value:
+        value = str((base_dir / value).resolve())
+    return value
+
+
+def _table(cls: type, given: dict, where: str, base_dir: Path) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    values = {}
+    for key, value in given.items():
+        if key not in fields:
+            raise _unknown_key_error(f"{where} ", key, list(fields))
+        values[key] = _setting(cls, fields[key], value, f"{where} {key}", base_dir)
+    return cls(**values)
+
+
+def from_dict(schema: type, data: dict, origin: str, base_dir: Path | None = None, **fixed: Any) -> Any:
+    """Validate a nested dict (as read from TOML) into `schema`; missing keys take their defaults.
+
+    Paths are made absolute against `base_dir` (default: the current directory). `fixed` are further
+    constructor arguments that are not keys (the generator's `source`). Raises ConfigError naming
+    `origin` (the file), the key, the value and what is allowed.
+    """
+    base_dir = Path.cwd() if base_dir is None else base_dir
+    keys = _keys(schema)
+    valid = [f"[{name}]" if _is_table(schema, f) else name for name, f in keys.items()]
+    for name, value in data.items():
+        if name not in keys:
+            raise _unknown_key_error(f"{origin}: ", f"[{name}]" if isinstance(value, dict) else name, valid)
+        if _is_table(schema, keys[name]) and not isinstance(value, dict):
+            raise ConfigError(f"{origin}: {name} = {_json(value)!r}: expected a [{name}] table")
+    values = {}
+    for name, f in keys.items():
+        if _is_table(schema, f):
+            values[name] = _table(_hints(schema)[name], data.get(name, {}), f"{origin}: [{name}]", base_dir)
+        elif name in data:
+            values[name] = _setting(schema, f, data[name], f"{origin}: {name}", base_dir)
+    return schema(**values, **fixed)
+
+
+def to_dict(config: Any) -> dict:
+    """JSON-safe nested dict of every key of a config (lists for tuples), in declaration order."""
+    out: dict = {}
+    for name, f in _keys(type(config)).items():
+        value = getattr(config, name)
+        out[name] = ({g.name: _json(getattr(value, g.name)) for g in dataclasses.fields(value)}
+                     if _is_table(type(config), f) else _json(value))
+    return out
+
+
+def read_toml(path: str | os.PathLike) -> dict:
+    """The tables of a TOML file. Raises ConfigError naming the file when it is missing or not TOML."""
+    path = Path(path)
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file ({exc.strerror})") from None
+    try:
+        return tomllib.loads(text.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+
+
+def reference_markdown(schema: type, title: str, intro: str) -> str:
+    """A config's reference page: every top-level key and table with type, allowed, default, meaning."""
+
+    def rows(owner: type, fields: list[dataclasses.Field]) -> list[str]:
+        out = ["| key | type | allowed | default | meaning |", "|---|---|---|---|---|"]
+        for f in fields:
+            hint = _hints(owner)[f.name]
+            out.append(f"| `{f.name}` | {_type_name(hint)} | {_allowed(hint, f.metadata)} | "
+                       f"`{toml_text(f.default)}` | {f.metadata['help']} |")
+        return out + [""]
+
+    lines = [f"# {title}", "", intro, ""]
+    top = [f for f in _keys(schema).values() if not _is_table(schema, f)]
+    if top:
+        lines += ["## Top-level keys", "", *rows(schema, top)]
+    for name, cls in tables(schema).items():
+        lines += [f"## [{name}]", "", *rows(cls, list(dataclasses.fields(cls)))]
+    return "\n".join(lines)
