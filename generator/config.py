@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from generator.scene_spec import PRIMITIVE_SHAPES
+
 RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
-PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
-SPLITS = ("train", "test")
 
 
 class ConfigError(ValueError):

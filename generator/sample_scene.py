@@ -1,27 +1,39 @@
-"""Pure, seeded sampling of one scene: (config, scene index, base seed, split) -> SceneSpec.
+"""Pure, seeded sampling of one scene: (config, scene index, base seed, split, resources) -> SceneSpec.
 
-A SceneSpec is everything the Blender stage needs, and `SceneSpec.to_dict()` is exactly the JSON
-contract of /work/plan.md "Generator contract" (also sent to `blender --background --python`).
-Sampling is cheap (milliseconds) and depends on nothing but its arguments: the random stream is
-numpy's SeedSequence((base_seed, scene_index)), so a scene does not depend on which worker renders it.
+The SceneSpec (generator/scene_spec.py, docs/SCENE_SPEC.md) is everything the Blender and post-render
+stages need. Sampling is cheap (milliseconds) and depends on nothing but its arguments: the random
+stream is numpy's SeedSequence((base_seed, scene_index)), so a scene does not depend on which worker
+renders it.
 
-World frame: Blender's, z up, metres. The room is the axis-aligned box [-W/2, W/2] x [-D/2, D/2] x
-[0, H]. Camera poses are world_from_camera 4x4 matrices with OpenCV camera axes (x right, y down,
-z forward). Primitive sizes are full extents along the object's local axes; a plane lies in its
-local xy plane with its normal along local +z. Rotations are Blender XYZ Euler angles in radians
-(R = Rz @ Ry @ Rx).
+The room is the axis-aligned box [-W/2, W/2] x [-D/2, D/2] x [0, H] of the spec's world frame
+(Blender's, z up, metres).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dotsim.rig import Rig, get_preset
 from generator.config import Config
+from generator.scene_spec import (
+    FRAMES_PER_SCENE,
+    SPLITS,
+    AssetMesh,
+    MaskParams,
+    Material,
+    PatternRef,
+    PointLight,
+    PrimitiveMesh,
+    RenderSettings,
+    SceneObject,
+    SceneSpec,
+    SensorModel,
+    Texture,
+)
 
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
 STREAM_SCENE = 0
@@ -81,7 +93,7 @@ class TextureAsset:
 
 @dataclass(frozen=True)
 class SceneResources:
-    """Files a scene refers to, prepared by the pipeline before sampling.
+    """Files a scene refers to (made by generator/resources.py before sampling).
 
     textures: textures to draw surfaces from (may be empty: untextured).
     meshes: asset meshes of the split; empty means built-in primitives.
@@ -94,76 +106,8 @@ class SceneResources:
     meshes: tuple[MeshAsset, ...] = ()
     density: float | None = None
 
-
-@dataclass(frozen=True)
-class Material:
-    albedo: float
-    roughness: float
-    specular: float
-    texture: dict | None = None  # {"path", "scale", "contrast"}
-
-    def to_dict(self) -> dict:
-        return {"albedo": self.albedo, "texture": self.texture, "roughness": self.roughness,
-                "specular": self.specular}
-
-
-@dataclass(frozen=True)
-class SceneObject:
-    name: str
-    mesh: dict  # {"kind": "primitive", "shape", "size"} or {"kind": "asset", "path", "id"}
-    location: tuple[float, float, float]
-    rotation_euler: tuple[float, float, float]
-    scale: tuple[float, float, float]
-    material: Material
-
-    def to_dict(self) -> dict:
-        return {"name": self.name, "mesh": self.mesh, "location": list(self.location),
-                "rotation_euler": list(self.rotation_euler), "scale": list(self.scale),
-                "material": self.material.to_dict()}
-
-
-@dataclass(frozen=True)
-class PointLight:
-    location: tuple[float, float, float]
-    power: float
-    radius: float
-
-    def to_dict(self) -> dict:
-        return {"type": "POINT", "location": list(self.location), "power": self.power,
-                "radius": self.radius}
-
-
-@dataclass(frozen=True)
-class SceneSpec:
-    """One scene, fully determined; `to_dict()` is the Blender stage's input."""
-    scene_index: int
-    split: str
-    seed: int
-    render: dict
-    rig: Rig
-    pattern: dict
-    projector_power: float
-    flood_power: float
-    world_strength: float
-    lights: tuple[PointLight, ...]
-    poses: tuple[np.ndarray, ...]  # 4 x (4, 4) world_from_camera
-    objects: tuple[SceneObject, ...]
-
-    def to_dict(self) -> dict:
-        return {
-            "scene_index": self.scene_index,
-            "split": self.split,
-            "seed": self.seed,
-            "render": dict(self.render),
-            "rig": self.rig.to_dict(),
-            "pattern": dict(self.pattern),
-            "projector": {"power": self.projector_power},
-            "flood": {"power": self.flood_power},
-            "world": {"strength": self.world_strength},
-            "lights": [light.to_dict() for light in self.lights],
-            "poses": [[[float(v) for v in row] for row in pose] for pose in self.poses],
-            "objects": [obj.to_dict() for obj in self.objects],
-        }
+    def with_pattern(self, path: str, sha256: str) -> SceneResources:
+        return replace(self, pattern_path=path, pattern_sha256=sha256)
 
 
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -197,18 +141,18 @@ def ray_box_exit(origin: np.ndarray, direction: np.ndarray, lo: np.ndarray, hi: 
     return float(np.min(np.minimum(t_hi, t_lo)))
 
 
-def _room_planes(size: tuple[float, float, float]) -> list[tuple[str, tuple, tuple, list]]:
+def _room_planes(size: tuple[float, float, float]) -> list[tuple[str, tuple, tuple, tuple]]:
     """(name, location, rotation_euler, plane size) of the six room surfaces, normals inwards
     (z size 1: a plane has no thickness, and a zero scale would make its normals degenerate)."""
     w, d, h = size
     half_pi = math.pi / 2
     return [
-        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), [w, d, 1.0]),
-        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), [w, d, 1.0]),
-        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), [w, h, 1.0]),
-        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), [w, h, 1.0]),
-        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), [h, d, 1.0]),
-        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), [h, d, 1.0]),
+        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (w, d, 1.0)),
+        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), (w, d, 1.0)),
+        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), (w, h, 1.0)),
+        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), (w, h, 1.0)),
+        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), (h, d, 1.0)),
+        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), (h, d, 1.0)),
     ]
 
 
@@ -225,26 +169,26 @@ def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureA
         chosen = textures[int(rng.integers(len(textures)))]
         tiles_per_metre = (1.0 / _log_uniform(rng, *chosen.tile_size) if chosen.tile_size
                            else _log_uniform(rng, *sc.texture_scale))
-        texture = {"path": chosen.path, "scale": extent * tiles_per_metre,
-                   "contrast": _uniform(rng, sc.texture_contrast)}
+        texture = Texture(path=chosen.path, scale=extent * tiles_per_metre,
+                          contrast=_uniform(rng, sc.texture_contrast))
     return Material(albedo=_uniform(rng, sc.albedo), roughness=roughness, specular=specular,
                     texture=texture)
 
 
-def _primitive_size(rng: np.random.Generator, shape: str, extent: float) -> list[float]:
+def _primitive_size(rng: np.random.Generator, shape: str, extent: float) -> tuple[float, float, float]:
     """Full extents along local x, y, z of a primitive whose largest extent is `extent` (m)."""
     a, b = (float(v) for v in rng.uniform(0.25, 1.0, size=2))
     if shape == "box":
-        return [extent, extent * a, extent * b]
+        return (extent, extent * a, extent * b)
     if shape == "sphere":
-        return [extent, extent * (0.6 + 0.4 * a), extent * (0.6 + 0.4 * b)]
+        return (extent, extent * (0.6 + 0.4 * a), extent * (0.6 + 0.4 * b))
     if shape in ("cylinder", "cone"):
         diameter = extent * a
-        return [diameter, diameter, extent] if rng.random() < 0.5 else [extent, extent, extent * a]
+        return (diameter, diameter, extent) if rng.random() < 0.5 else (extent, extent, extent * a)
     if shape == "torus":
-        return [extent, extent, extent * (0.15 + 0.25 * a)]
+        return (extent, extent, extent * (0.15 + 0.25 * a))
     # A plane has no thickness; z = 1 keeps its object scale invertible (a zero scale breaks normals).
-    return [extent, extent * a, 1.0]
+    return (extent, extent * a, 1.0)
 
 
 def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot: np.ndarray,
@@ -283,10 +227,10 @@ def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot
 
 
 def _poses(rng: np.random.Generator, config: Config, base: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Frame 0 at the base pose; frames 1-3 offset by a small random motion in the camera frame."""
+    """Frame 0 at the base pose; the other frames offset by a small random motion in the camera frame."""
     poses = [base]
     max_angle = math.radians(config.motion.rotation)
-    for _ in range(3):
+    for _ in range(FRAMES_PER_SCENE - 1):
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
         delta = np.eye(4)
@@ -298,8 +242,9 @@ def _poses(rng: np.random.Generator, config: Config, base: np.ndarray) -> tuple[
 
 def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: str,
                       resources: SceneResources) -> SceneSpec:
-    """Sample scene `scene_index` of `split`: room, objects, materials, lights, projector, 4 poses."""
-    if split not in ("train", "test"):
+    """Sample scene `scene_index` of `split`: room, objects, materials, lights, projector, poses, and
+    the config's sensor-model and mask parameters."""
+    if split not in SPLITS:
         raise ValueError(f"split must be 'train' or 'test', got {split!r}")
     rng = scene_rng(base_seed, scene_index, STREAM_SCENE)
     sc, li = config.scene, config.lighting
@@ -319,7 +264,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     base_pose = np.eye(4)
     base_pose[:3, :3], base_pose[:3, 3] = cam_rot, cam_pos
 
-    objects = [SceneObject(name=name, mesh={"kind": "primitive", "shape": "plane", "size": size},
+    objects = [SceneObject(name=name, mesh=PrimitiveMesh(shape="plane", size=size),
                            location=location, rotation_euler=rotation, scale=(1.0, 1.0, 1.0),
                            material=_material(rng, config, resources.textures, glossy_allowed=False,
                                               extent=max(size)))
@@ -340,11 +285,11 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         cap = sc.max_angular_size * distance
         extent = _log_uniform(rng, min(low, cap), min(high, cap))
         if resources.meshes:
-            mesh = {"kind": "asset", "path": asset.path, "id": asset.id}
+            mesh = AssetMesh(path=asset.path, id=asset.id)
             scale = (extent / asset.extent,) * 3
         else:
             shape = sc.shapes[int(rng.integers(len(sc.shapes)))]
-            mesh = {"kind": "primitive", "shape": shape, "size": _primitive_size(rng, shape, extent)}
+            mesh = PrimitiveMesh(shape=shape, size=_primitive_size(rng, shape, extent))
             scale = (1.0, 1.0, 1.0)
         rotation = Rotation.random(random_state=rng).as_euler("xyz")
         objects.append(SceneObject(
@@ -360,14 +305,21 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     seed = scene_seed(base_seed, scene_index)
     return SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
-        render={"samples": config.render.samples, "seed": seed, "max_bounces": config.render.max_bounces,
-                "device": config.render.device, "threads": config.render.threads},
+        render=RenderSettings(samples=config.render.samples, seed=seed, max_bounces=config.render.max_bounces,
+                              device=config.render.device, threads=config.render.threads),
         rig=rig,
-        pattern={"path": resources.pattern_path, "sha256": resources.pattern_sha256},
+        pattern=PatternRef(path=resources.pattern_path, sha256=resources.pattern_sha256),
         projector_power=projector_power,
         flood_power=projector_power * li.flood_ratio,
         world_strength=_log_uniform(rng, *li.world_strength),
         lights=lights,
         poses=_poses(rng, config, base_pose),
         objects=tuple(objects),
+        sensor=sensor_model(config),
+        masks=MaskParams(**asdict(config.masks)),
     )
+
+
+def sensor_model(config: Config) -> SensorModel:
+    """The config's [sensor] parameters at its render scale."""
+    return SensorModel(**asdict(config.sensor), pixel_scale=config.rig.scale)

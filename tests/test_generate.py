@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from generator import cli
 from generator.config import ConfigError, config_from_dict, load_config
 from generator.pipeline import LOG_DIR, RUN_FILE, generate
 from generator.post_render import make_frame
+from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "configs" / "tiny.toml"
@@ -33,6 +35,12 @@ def run_cli(*args: str) -> int:
 # ----------------------------------------------------------------------------- post-render, no Blender
 
 
+def spec_with_rig(rig, config):
+    """A sampled spec of `config` whose rig is `rig` (make_frame reads its rig, sensor and masks)."""
+    spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
+    return replace(spec, rig=rig)
+
+
 def test_make_frame_against_analytic_wall():
     rig = get_preset("structure_core").scaled(0.05)
     h, w = rig.camera.height, rig.camera.width
@@ -46,7 +54,7 @@ def test_make_frame_against_analytic_wall():
     projector = flood_only * np.random.default_rng(0).uniform(0, 1, (h, w)).astype(np.float32)
     config = config_from_dict({})
     frame = make_frame({"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth},
-                       rig, config, np.random.default_rng(1))
+                       spec_with_rig(rig, config), np.random.default_rng(1))
     assert set(frame) == set(dataset.FRAME_CHANNELS)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
@@ -75,10 +83,11 @@ def test_make_frame_names_bad_raw_passes():
     rig = get_preset("structure_core").scaled(0.05)
     raw = {name: np.zeros((3, 3), np.float32) for name in ("projector", "flood", "ambient", "depth")}
     with pytest.raises(ValueError, match="scene 4 frame 1: raw pass 'projector' has shape"):
-        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0), where="scene 4 frame 1")
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0),
+                   where="scene 4 frame 1")
     del raw["depth"]
     with pytest.raises(ValueError, match=r"lack \['depth'\]"):
-        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0))
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0))
 
 
 # ----------------------------------------------------------------------------- bad input: nothing written

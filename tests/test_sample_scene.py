@@ -10,7 +10,7 @@ import pytest
 
 from dotsim.rig import Rig
 from generator.config import config_from_dict
-from generator.scene_spec import (
+from generator.sample_scene import (
     SceneResources,
     TextureAsset,
     build_rig,
@@ -37,9 +37,9 @@ def _vec(x, n=3):
 
 
 def check_contract(d: dict) -> None:
-    """The plan's "Generator contract" schema, written out independently of scene_spec.py."""
+    """The JSON contract of docs/SCENE_SPEC.md, written out independently of scene_spec.py."""
     assert set(d) == {"scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood",
-                      "world", "lights", "poses", "objects"}
+                      "world", "lights", "poses", "objects", "sensor", "masks"}
     assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")
     assert isinstance(d["seed"], int)
     r = d["render"]
@@ -74,6 +74,9 @@ def check_contract(d: dict) -> None:
         if mat["texture"] is not None:
             assert set(mat["texture"]) == {"path", "scale", "contrast"}
     assert len({obj["name"] for obj in d["objects"]}) == len(d["objects"])
+    assert d["sensor"]["exposure"] in ("fixed", "auto") and 1 <= d["sensor"]["bit_depth"] <= 16
+    assert d["sensor"]["pixel_scale"] > 0 and d["sensor"]["gain"] > 0
+    assert set(d["masks"]) == {"visibility_threshold", "edge_threshold", "edge_dilation"}
     json.dumps(d, allow_nan=False)  # travels as JSON to `blender --python`
 
 
