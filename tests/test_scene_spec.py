@@ -1,0 +1,110 @@
+"""The typed SceneSpec: JSON round trip, errors that name the field and value, and make_frame
+reading the spec's own sensor-model and mask parameters."""
+
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from generator.config import config_from_dict
+from generator.post_render import make_frame
+from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
+from generator.scene_spec import FRAMES_PER_SCENE, PointLight, PrimitiveMesh, SceneSpec, Texture
+
+RESOURCES = SceneResources("/data/pattern.png", "ab" * 32, (TextureAsset("/data/t0.png"),))
+
+
+def sampled(**overrides) -> SceneSpec:
+    return sample_scene_spec(config_from_dict(overrides), 2, 5, "train", RESOURCES)
+
+
+def test_json_round_trip_gives_the_same_typed_spec():
+    spec = sampled(rig={"scale": 0.1})
+    again = SceneSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
+    assert again == spec and again is not spec
+    assert len(again.poses) == FRAMES_PER_SCENE and again.poses[2].shape == (4, 4)
+    np.testing.assert_array_equal(again.poses[3], spec.poses[3])
+    assert any(isinstance(o.material.texture, Texture) for o in again.objects)
+    assert all(isinstance(o.mesh, PrimitiveMesh) for o in again.objects)
+    assert all(isinstance(light, PointLight) for light in again.lights)
+    assert again.rig == spec.rig and again.sensor == spec.sensor and again.masks == spec.masks
+    assert replace(again, world_strength=again.world_strength + 1) != spec
+
+
+def _set(path: list, value):
+    def change(d: dict) -> None:
+        target = d
+        for key in path[:-1]:
+            target = target[key]
+        if value is _DELETE:
+            del target[path[-1]]
+        else:
+            target[path[-1]] = value
+    return change
+
+
+_DELETE = object()
+
+
+@pytest.mark.parametrize("change, message", [
+    (_set(["objects", 3, "material", "albedo"], -1),
+     "objects[3].material.albedo must be a number >= 0, got -1"),
+    (_set(["masks"], _DELETE), "scene spec: masks is missing"),
+    (_set(["colour"], 1), "scene spec: colour is not a field"),
+    (_set(["render", "samples"], 0), "render.samples must be an integer >= 1, got 0"),
+    (_set(["render", "device"], "TPU"), "render.device must be one of ['CPU', 'GPU'], got 'TPU'"),
+    (_set(["poses", 1], [[1, 0], [0, 1]]), "poses[1] must be a finite 4x4 matrix"),
+    (_set(["poses"], []), "poses must be a non-empty list"),
+    (_set(["lights"], [{"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}]),
+     "lights[0].type must be one of ['POINT'], got 'SUN'"),
+    (_set(["objects", 0, "mesh", "shape"], "pyramid"), "objects[0].mesh.shape must be one of"),
+    (_set(["objects", 0, "mesh", "kind"], "cloud"),
+     "objects[0].mesh.kind must be one of ['primitive', 'asset']"),
+    (_set(["objects", 1, "location"], [1.0, 2.0]), "objects[1].location must be 3 numbers, got [1.0, 2.0]"),
+    (_set(["objects", 2, "rotation_euler", 1], float("nan")),
+     "objects[2].rotation_euler[1] must be a number"),
+    (_set(["sensor", "bit_depth"], 17), "sensor.bit_depth must be an integer >= 1 and <= 16, got 17"),
+    (_set(["sensor", "exposure"], "manual"), "sensor.exposure must be one of ['fixed', 'auto']"),
+    (_set(["masks", "edge_threshold"], 0.0), "masks.edge_threshold must be a number > 0, got 0.0"),
+    (_set(["projector", "power"], "bright"), "projector.power must be a number >= 0, got 'bright'"),
+    (_set(["split"], "val"), "split must be one of ['train', 'test'], got 'val'"),
+    (_set(["rig", "camera", "fx"], -3.0), "rig.camera: fx must be a finite positive number"),
+    (_set(["pattern", "sha256"], _DELETE), "pattern.sha256 is missing"),
+])
+def test_bad_fields_are_named_with_their_value(change, message):
+    d = copy.deepcopy(sampled(rig={"scale": 0.1}).to_dict())
+    d["objects"][5]["material"]["texture"] = {"path": "/t.png", "scale": 2.0, "contrast": 0.5}
+    SceneSpec.from_dict(d)  # valid before the change
+    change(d)
+    with pytest.raises(ValueError, match="scene spec: ") as error:
+        SceneSpec.from_dict(d)
+    assert message in str(error.value)
+
+
+def test_texture_fields_are_checked_where_they_are():
+    d = sampled(rig={"scale": 0.1}).to_dict()
+    d["objects"][4]["material"]["texture"] = {"path": "/t.png", "scale": 2.0, "contrast": -0.5}
+    with pytest.raises(ValueError, match=r"objects\[4\]\.material\.texture\.contrast must be a number >= 0"):
+        SceneSpec.from_dict(d)
+
+
+def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
+    """make_frame takes no config: the bit depth and edge dilation come from the spec."""
+    spec = sampled(rig={"scale": 0.05})
+    h, w = spec.rig.camera.height, spec.rig.camera.width
+    depth = np.full((h, w), 2.0, np.float32)
+    depth[:, w // 2:] = 1.0  # one vertical depth edge
+    raw = {"projector": np.full((h, w), 0.3, np.float32), "flood": np.ones((h, w), np.float32),
+           "ambient": np.full((h, w), 0.05, np.float32), "depth": depth}
+    coarse = replace(spec, sensor=replace(spec.sensor, bit_depth=3, shot_noise=0.0, read_noise=0.0),
+                     masks=replace(spec.masks, edge_dilation=0))
+    wide = replace(coarse, masks=replace(coarse.masks, edge_dilation=3))
+    ir = make_frame(raw, coarse, np.random.default_rng(0))["ir"].astype(np.float64)
+    np.testing.assert_allclose(ir * 7, np.round(ir * 7), atol=1e-6)  # 2**3 - 1 levels
+    narrow_edges = make_frame(raw, coarse, np.random.default_rng(0))["edge"].sum(axis=1)
+    wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
+    assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
