@@ -18,7 +18,7 @@ Blender XYZ Euler angles in radians (R = Rz @ Ry @ Rx). Powers are Blender light
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -281,7 +281,7 @@ class SensorModel:
     pixel_scale: float
 
     def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "sensor") -> SensorModel:
@@ -304,7 +304,7 @@ class MaskParams:
     edge_dilation: int
 
     def to_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return asdict(self)
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "masks") -> MaskParams:

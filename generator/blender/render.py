@@ -9,7 +9,7 @@ compositor packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, 
 tiny numpy reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off,
 because each of them would mix channels or change values.
 
-Reuse: one bpy scene for the life of the renderer; between the four frames only the camera and
+Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
 replaced and meshes, materials and the pattern image are cached, so memory stays flat.
 """
