@@ -162,6 +162,8 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
         raise ConfigError(f"{out}: dataset has scenes_per_shard = {dataset.read_layout(out)}, the config "
                           f"says {config.output.scenes_per_shard}; use the same value or a new --out")
     pattern = config_pattern(config)
+    # An unusable asset cache stops the run before anything is written; built-in textures are
+    # written below, once the folder is ready.
     cached = split_assets(config, split, out) if config.assets.source == "cache" else None
     software = versions(blender)
 

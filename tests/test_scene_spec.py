@@ -108,3 +108,20 @@ def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
     narrow_edges = make_frame(raw, coarse, np.random.default_rng(0))["edge"].sum(axis=1)
     wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
     assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
+
+
+def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():
+    """Blender's own Python has bpy, numpy and the standard library: what run_in_blender.py needs
+    besides bpy must import with nothing else (checked in a fresh interpreter)."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys; import generator.scene_spec, generator.blender.geometry, "
+            "generator.blender.pattern_filter, generator.blender.exr; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} - set(sys.stdlib_module_names)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          cwd=Path(__file__).resolve().parents[1])
+    third_party = {name for name in ast.literal_eval(proc.stdout) if not name.startswith("_")}
+    assert third_party <= {"numpy", "dotsim", "generator", "cython_runtime"}, third_party
