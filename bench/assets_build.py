@@ -104,6 +104,7 @@ def bench_blender(cache_dir: Path, n_objects: int, scenes: int, root: Path) -> N
     from dotsim.rig import get_preset
     from generator.blender.demo_scenes import base_spec
     from generator.blender.render import SceneRenderer
+    from generator.scene_spec import SceneSpec
 
     cache = load_asset_cache(cache_dir, "test")
     rig = get_preset("structure_core").scaled(0.25)
@@ -123,7 +124,7 @@ def bench_blender(cache_dir: Path, n_objects: int, scenes: int, root: Path) -> N
             for s in range(scenes):
                 spec = base_spec(rig.to_dict(), str(pattern_path), pattern.sha256)
                 spec["objects"] = _scene_objects(cache, n_objects, s, use_assets, textured)
-                times.append(_timed(renderer.setup, spec))
+                times.append(_timed(renderer.setup, SceneSpec.from_dict(spec)))
         results[label] = times
         print(
             f"blender build, {n_objects} objects, {label}: first scene {times[0]:.2f} s, "

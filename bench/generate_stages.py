@@ -22,7 +22,7 @@ import numpy as np
 from dotsim import dataset
 from generator.config import config_from_dict
 from generator.post_render import make_frame
-from generator.scene_spec import STREAM_SENSOR, SceneResources, build_rig, sample_scene_spec, scene_rng
+from generator.sample_scene import STREAM_SENSOR, SceneResources, build_rig, sample_scene_spec, scene_rng
 
 
 def raw_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -52,18 +52,19 @@ def stage_times(scale: float, repeats: int) -> dict[str, float]:
     config = config_from_dict({"rig": {"scale": scale}})
     rig = build_rig(config)
     resources = SceneResources("/bench/pattern.png", "0" * 64)
-    spec = sample_scene_spec(config, 0, 0, "train", resources).to_dict()
+    spec = sample_scene_spec(config, 0, 0, "train", resources)
     raws = [raw_frame(rig, np.random.default_rng(k)) for k in range(4)]
-    frames = [make_frame(raw, rig, config, scene_rng(0, 0, STREAM_SENSOR)) for raw in raws]
-    meta = {"split": "train", "rig": spec["rig"], "pattern": {}, "poses": spec["poses"],
-            "config": config.to_dict(), "objects": spec["objects"]}
+    frames = [make_frame(raw, spec, scene_rng(0, 0, STREAM_SENSOR)) for raw in raws]
+    stored = spec.to_dict()
+    meta = {"split": "train", "rig": stored["rig"], "pattern": {}, "poses": stored["poses"],
+            "config": config.to_dict(), "objects": stored["objects"]}
     with tempfile.TemporaryDirectory() as tmp:
         counter = iter(range(10**6))
         return {
             "sample SceneSpec": median_seconds(
                 lambda: sample_scene_spec(config, next(counter), 0, "train", resources), repeats),
             "post-render 4 frames": median_seconds(
-                lambda: [make_frame(raw, rig, config, scene_rng(0, 0, STREAM_SENSOR)) for raw in raws],
+                lambda: [make_frame(raw, spec, scene_rng(0, 0, STREAM_SENSOR)) for raw in raws],
                 repeats),
             "write scene": median_seconds(lambda: dataset.write_scene(tmp, next(counter), meta, frames),
                                           repeats),

@@ -21,6 +21,7 @@ import numpy as np
 
 from bench.render_speed import bench_rig, bench_spec, write_inputs
 from generator.blender.geometry import primitive_mesh
+from generator.scene_spec import SceneSpec
 
 
 def rss_mb() -> float:
@@ -123,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             spec["poses"] = poses(rng)
             for obj in spec["objects"][1::3]:
                 obj["mesh"] = {"kind": "asset", "path": assets[int(rng.integers(len(assets)))], "id": "a"}
-            renderer.render(spec)
+            renderer.render(SceneSpec.from_dict(spec))
             history.append(rss_mb())
             progress.set_postfix(rss_mb=f"{history[-1]:.0f}")
             if time.perf_counter() - start > 60 * args.minutes:

@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 
 from bench.render_speed import bench_rig, bench_spec, timed, write_inputs
+from generator.scene_spec import SceneSpec
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
         inputs = write_inputs(rig, Path(tmp))
         for count in counts:
             spec = bench_spec(rig, inputs, count)
-            (poses,), build = timed(lambda spec=spec: [renderer.setup(spec)])
+            (poses,), build = timed(lambda spec=spec: [renderer.setup(SceneSpec.from_dict(spec))])
             pose = poses[0]
             _, first = timed(lambda pose=pose: renderer.render_frame(pose))
             frames = [timed(lambda pose=pose: renderer.render_frame(pose))[1] for _ in range(args.repeats)]

@@ -35,6 +35,7 @@ import numpy as np
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Rig, get_preset
 from generator.blender import demo_scenes as ds
+from generator.scene_spec import SceneSpec
 
 FULL_WIDTH = 1216
 
@@ -135,13 +136,14 @@ def three_renders(renderer, pose: np.ndarray, spec: dict) -> tuple[np.ndarray, n
 
 def one_render_scene(renderer, spec: dict) -> tuple[np.ndarray, np.ndarray]:
     """Build the scene and render all its frames the one-render way; frame 0's projector and flood."""
-    frames = renderer.render(spec)
+    frames = renderer.render(SceneSpec.from_dict(spec))
     return frames[0]["projector"], frames[0]["flood"]
 
 
 def three_renders_scene(renderer, spec: dict) -> tuple[np.ndarray, np.ndarray]:
     """Build the scene and render all its frames the three-renders way; frame 0's passes."""
-    passes = [three_renders(renderer, pose, spec) for pose in renderer.setup(spec)]
+    poses = renderer.setup(SceneSpec.from_dict(spec))
+    passes = [three_renders(renderer, pose, spec) for pose in poses]
     return passes[0]
 
 
@@ -172,7 +174,7 @@ def reference_projector(renderer, spec: dict, samples: int, cache: Path | None =
         path = cache / f"reference_{key}.npy"
         if path.exists():
             return np.load(path)
-    projector = renderer.render(reference)[0]["projector"]
+    projector = renderer.render(SceneSpec.from_dict(reference))[0]["projector"]
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
         np.save(path, projector)
@@ -202,7 +204,7 @@ def measure(
         results[f"{name}_quality"] = statistics.median(
             correlation(projector, reference, lit) for (projector, _), _ in runs
         )
-    (_, build) = timed(lambda: renderer.setup(spec))
+    (_, build) = timed(lambda: renderer.setup(SceneSpec.from_dict(spec)))
     results["setup_s"] = build
     return results
 

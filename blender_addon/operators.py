@@ -38,7 +38,7 @@ class PreviewSession:
 
     def __init__(self):
         self.renderer = None
-        self.spec: dict | None = None
+        self.spec = None  # the SceneSpec built in the preview scene
 
     def renderer_for(self, context):
         """The SceneRenderer of the preview scene, made (with the scene) when missing or when its
@@ -57,8 +57,9 @@ class PreviewSession:
             self.spec = None
         return self.renderer
 
-    def build(self, context, spec: dict) -> None:
-        """Build `spec` in the preview scene unless it holds it already, and show that scene."""
+    def build(self, context, spec) -> None:
+        """Build the SceneSpec `spec` in the preview scene unless it holds it already, and show that
+        scene."""
         renderer = self.renderer_for(context)
         if spec != self.spec:
             self.spec = None  # a failed setup leaves a half-built scene: never reuse it
@@ -69,16 +70,8 @@ class PreviewSession:
             context.window.scene = renderer.scene
 
     def place_rig(self, frame: int) -> None:
-        """Move camera and projector to the rig pose of `frame`, as SceneRenderer.render_frame does
-        before it renders (same public geometry helpers)."""
-        from generator.blender.geometry import blender_matrix_from_opencv_pose, projector_pose
-
-        pose = np.asarray(self.spec["poses"][frame], np.float64)
-        rig = self.spec["rig"]
-        self.renderer.content.set_camera_pose(pose)
-        self.renderer.projector.set_pose(blender_matrix_from_opencv_pose(
-            projector_pose(pose, np.asarray(rig["projector_rotation"], np.float64),
-                           np.asarray(rig["projector_translation"], np.float64))))
+        """Move camera and projector to the rig pose of `frame` of the built spec."""
+        self.renderer.place_rig(self.spec.poses[frame])
 
     def close(self) -> None:
         """Remove the renderer's objects and temp folder (the scene itself stays). Called before a
@@ -102,7 +95,7 @@ def work_dir(settings) -> Path:
 
 
 def sample(settings):
-    """(config, spec dict) of the scene the settings name (ConfigError naming the file on problems)."""
+    """The SceneSpec of the scene the settings name (ConfigError naming the file on problems)."""
     from .scene_source import load_spec
 
     return load_spec(bpy.path.abspath(settings.config_path), settings.split, settings.scene_index,
@@ -165,14 +158,14 @@ class _DotsimOperator(bpy.types.Operator):
 
 
 def _build_sampled_scene(context, settings):
-    """Check the panel's frame, sample the scene as `dotsim generate` would and build it in the
-    preview scene: (frame, config, spec)."""
+    """Sample the scene as `dotsim generate` would, check the panel's frame against it and build it
+    in the preview scene: (frame, spec)."""
     from .scene_source import check_frame
 
-    frame = check_frame(settings.frame)
-    config, spec = sample(settings)
+    spec = sample(settings)
+    frame = check_frame(settings.frame, spec)
     SESSION.build(context, spec)
-    return frame, config, spec
+    return frame, spec
 
 
 class DOTSIM_OT_build_scene(_DotsimOperator):
@@ -183,11 +176,11 @@ class DOTSIM_OT_build_scene(_DotsimOperator):
 
     def run(self, context, settings) -> str:
         start = time.perf_counter()
-        frame, _, spec = _build_sampled_scene(context, settings)
+        frame, spec = _build_sampled_scene(context, settings)
         SESSION.place_rig(frame)
         _look_through_camera(context)
-        return (f"scene {spec['scene_index']} ({spec['split']}): {len(spec['objects'])} objects, "
-                f"{len(spec['lights'])} extra lights, rig at frame {frame}, built in "
+        return (f"scene {spec.scene_index} ({spec.split}): {len(spec.objects)} objects, "
+                f"{len(spec.lights)} extra lights, rig at frame {frame}, built in "
                 f"{time.perf_counter() - start:.2f} s")
 
 
@@ -202,16 +195,16 @@ class DOTSIM_OT_preview_frame(_DotsimOperator):
         from .scene_source import preview_images
 
         start = time.perf_counter()
-        frame, config, spec = _build_sampled_scene(context, settings)
+        frame, spec = _build_sampled_scene(context, settings)
         with context.temp_override(scene=SESSION.renderer.scene):
-            raw = SESSION.renderer.render_frame(np.asarray(spec["poses"][frame], np.float64))
-        ir, depth_display, depth_scale = preview_images(raw, config, spec, settings.base_seed, frame)
+            raw = SESSION.renderer.render_frame(spec.poses[frame])
+        ir, depth_display, depth_scale = preview_images(raw, spec, settings.base_seed, frame)
         ir_image = _grey_image(IR_IMAGE, ir)
         depth_image = _grey_image(DEPTH_IMAGE, depth_display)
         depth_image["depth_scale_m"] = depth_scale  # metres = pixel value * depth_scale_m
         _show_in_editor(context, "IMAGE_EDITOR", "image", ir_image)
         seconds = time.perf_counter() - start
-        return (f"frame {frame} of scene {spec['scene_index']} rendered in {seconds:.2f} s "
+        return (f"frame {frame} of scene {spec.scene_index} rendered in {seconds:.2f} s "
                 f"({ir.shape[1]} x {ir.shape[0]}): images '{IR_IMAGE}' and '{DEPTH_IMAGE}' (white = "
                 f"{depth_scale:.2f} m)")
 
@@ -223,17 +216,17 @@ class DOTSIM_OT_show_spec(_DotsimOperator):
     bl_label = "Show spec"
 
     def run(self, context, settings) -> str:
-        _, spec = sample(settings)
+        spec = sample(settings)
         text = bpy.data.texts.get(SPEC_TEXT) or bpy.data.texts.new(SPEC_TEXT)
-        text.from_string(json.dumps(spec, indent=2) + "\n")
+        text.from_string(json.dumps(spec.to_dict(), indent=2) + "\n")
         _show_in_editor(context, "TEXT_EDITOR", "text", text)
-        print(f"dotsim: SceneSpec of scene {spec['scene_index']} ({spec['split']}) in text '{SPEC_TEXT}'")
-        return f"spec of scene {spec['scene_index']} ({len(spec['objects'])} objects) in text '{SPEC_TEXT}'"
+        print(f"dotsim: SceneSpec of scene {spec.scene_index} ({spec.split}) in text '{SPEC_TEXT}'")
+        return f"spec of scene {spec.scene_index} ({len(spec.objects)} objects) in text '{SPEC_TEXT}'"
 
 
 def move_rig_to_frame(settings, context) -> None:
     """Update callback of the frame property: the built scene's rig follows the selected frame."""
-    if SESSION.spec is not None and 0 <= settings.frame < len(SESSION.spec["poses"]):
+    if SESSION.spec is not None and 0 <= settings.frame < len(SESSION.spec.poses):
         try:
             SESSION.place_rig(settings.frame)
         except ReferenceError:  # the preview scene is gone; the next build makes a new one

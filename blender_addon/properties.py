@@ -28,8 +28,8 @@ class DotsimSettings(bpy.types.PropertyGroup):
     base_seed: bpy.props.IntProperty(
         name="Seed", min=0, default=0, description="Base seed, as `dotsim generate --seed`")
     frame: bpy.props.IntProperty(
-        name="Frame", min=0, max=3, default=0, update=move_rig_to_frame,
-        description="Which of the scene's four rig poses the camera takes and Preview renders")
+        name="Frame", min=0, default=0, update=move_rig_to_frame,
+        description="Which of the scene's rig poses the camera takes and Preview renders")
     work_dir: bpy.props.StringProperty(
         name="Work folder", subtype="DIR_PATH",
         description="Where the pattern and built-in textures are written (empty: a temp folder)")

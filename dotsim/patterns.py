@@ -24,6 +24,12 @@ from dotsim import __version__
 from dotsim.images import ImageError, read_grey_image, write_image
 
 _LEVELS = 65535
+# Dots per pattern pixel when neither n_dots nor density is given. 0.02 puts about 189k dots in the
+# Structure Core's 3072 x 3072 pattern: with 2 pattern px per camera px that is one dot per 12.5
+# camera px (Kinect v1: about one per 10) and about 6 dots in a 9 x 9 camera window. Measured with
+# bench.pattern_uniqueness (windows searched over 128 disparities): 9 x 9 camera-px windows are 100%
+# unique at 0.02 (99.9% at 0.01), 5 x 5 ones 97.1% (64% at 0.01); 1.5 s for 3072 x 3072.
+DEFAULT_DENSITY = 0.02
 
 
 class PatternError(ValueError):
@@ -184,14 +190,6 @@ def generate_dot_pattern(width: int, height: int, *, n_dots: int | None = None, 
     pattern.params.update({"generator": "poisson_disc", "min_spacing": min_spacing, "seed": seed,
                            "density": n_dots / (width * height)})
     return pattern
-
-
-# Dots per pattern pixel when neither n_dots nor density is given. 0.02 puts about 189k dots in the
-# Structure Core's 3072 x 3072 pattern: with 2 pattern px per camera px that is one dot per 12.5
-# camera px (Kinect v1: about one per 10) and about 6 dots in a 9 x 9 camera window. Measured with
-# bench.pattern_uniqueness (windows searched over 128 disparities): 9 x 9 camera-px windows are 100%
-# unique at 0.02 (99.9% at 0.01), 5 x 5 ones 97.1% (64% at 0.01); 1.5 s for 3072 x 3072.
-DEFAULT_DENSITY = 0.02
 
 
 def detect_dots(image: np.ndarray, threshold: float = 0.25) -> np.ndarray:

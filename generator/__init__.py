@@ -1,11 +1,14 @@
 """The generator stage: config -> sampled scenes -> Cycles renders -> shards of training data.
 
 Modules (one idea each; only generator/blender/ imports bpy):
-  config       TOML config -> validated Config (schema, defaults, errors; docs/CONFIG.md)
-  scene_spec   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
-  blender/     SceneRenderer: SceneSpec dict -> raw passes (projector, flood, ambient, depth)
-  sensor_model pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
-  post_render  raw passes -> stored channels (IR, ambient, flood, depth, masks, ground truth)
-  pipeline     workers, resume, failure logs, shards (generate())
-  cli          `dotsim generate`
+  config         TOML config -> validated Config (schema, defaults, errors; docs/CONFIG.md)
+  scene_spec     the typed SceneSpec, validated once (docs/SCENE_SPEC.md); numpy + dotsim.rig only
+  sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
+  resources      the files scenes refer to: pattern, built-in textures, asset cache
+  blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth)
+  sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
+  post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
+  render_scenes  render_scenes(job, indices): sample, render, post-render, write; the worker pool
+  pipeline       generate(): checks, prepare_run, resume, progress, sealing
+  cli            `dotsim generate`
 """

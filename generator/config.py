@@ -20,9 +20,9 @@ from pathlib import Path
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
+from generator.scene_spec import PRIMITIVE_SHAPES
 
 RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
-PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 
 
 @dataclass(frozen=True)

@@ -16,12 +16,11 @@ import numpy as np
 
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column
-from generator.config import Config
+from generator.blender.geometry import NO_HIT_DEPTH
+from generator.scene_spec import SceneSpec
 from generator.sensor_model import apply_sensor_model
 
 RAW_PASSES = ("projector", "flood", "ambient", "depth")
-# Blender's Z pass says 1e10 where a ray hits nothing; anything this far is "no hit".
-_NO_HIT_DEPTH = 1e9
 
 
 def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
@@ -39,21 +38,23 @@ def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
     return out
 
 
-def make_frame(raw: dict, rig: Rig, config: Config, rng: np.random.Generator,
+def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
                where: str = "frame") -> dict[str, np.ndarray]:
-    """Stored channels of one frame from its raw passes (see the module docstring)."""
+    """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
+    spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise."""
+    rig, masks = spec.rig, spec.masks
     raw = check_raw_passes(raw, rig, where)
-    depth = np.where(raw["depth"] >= _NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
+    depth = np.where(raw["depth"] >= NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
     return {
-        "ir": apply_sensor_model(ambient + raw["projector"], config.sensor, rng, config.rig.scale),
+        "ir": apply_sensor_model(ambient + raw["projector"], spec.sensor, rng, spec.sensor.pixel_scale),
         "ambient": ambient,
         "flood": flood,
         "depth": depth,
-        "visibility": visibility_mask(ambient, flood, config.masks.visibility_threshold, depth=depth),
-        "edge": edge_mask(depth, config.masks.edge_threshold, config.masks.edge_dilation),
+        "visibility": visibility_mask(ambient, flood, masks.visibility_threshold, depth=depth),
+        "edge": edge_mask(depth, masks.edge_threshold, masks.edge_dilation),
         "projector_column": depth_to_projector_column(gt_depth, rig),
         "disparity": depth_to_disparity(gt_depth, rig),
     }

@@ -1,130 +1,247 @@
-"""Pure, seeded sampling of one scene: (config, scene index, base seed, split) -> SceneSpec.
+"""The SceneSpec: one scene, fully determined, as typed values validated once (docs/SCENE_SPEC.md).
 
-A SceneSpec is everything the Blender stage needs, and `SceneSpec.to_dict()` is exactly the JSON
-the Blender stage reads (also sent to `blender --background --python`).
-Sampling is cheap (milliseconds) and depends on nothing but its arguments: the random stream is
-numpy's SeedSequence((base_seed, scene_index)), so a scene does not depend on which worker renders it.
+The sampler (generator/sample_scene.py) makes one from a config; the Blender stage
+(generator/blender/render.py) builds and renders it; the post-render stage (generator/post_render.py)
+turns its raw passes into stored frames with its sensor-model and mask parameters; the Blender
+add-on previews it. `SceneSpec.to_dict()` is its JSON form (what `run_in_blender.py` reads) and
+`SceneSpec.from_dict()` the one way in from outside: it checks every field and raises ValueError
+naming the field and the value, e.g. "scene spec: objects[3].material.albedo must be a number >= 0,
+got -1". Code holding a SceneSpec never looks a field up by string key again.
 
-World frame: Blender's, z up, metres. The room is the axis-aligned box [-W/2, W/2] x [-D/2, D/2] x
-[0, H]. Camera poses are world_from_camera 4x4 matrices with OpenCV camera axes (x right, y down,
-z forward). Primitive sizes are full extents along the object's local axes; a plane lies in its
-local xy plane with its normal along local +z. Rotations are Blender XYZ Euler angles in radians
-(R = Rz @ Ry @ Rx).
+Needs only numpy, the standard library and dotsim.rig, so Blender's own Python can import it.
+
+World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
+axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
+Blender XYZ Euler angles in radians (R = Rz @ Ry @ Rx). Powers are Blender light powers in watts.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from dotsim.rig import Rig, get_preset
-from generator.config import Config
+from dotsim.rig import Rig
 
-# Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
-STREAM_SCENE = 0
-STREAM_SENSOR = 1
+PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
+SPLITS = ("train", "test")
+DEVICES = ("CPU", "GPU")
+EXPOSURES = ("fixed", "auto")
+# A sampled scene is one static scene seen from this many nearby rig poses (frame 0 and three moves).
+FRAMES_PER_SCENE = 4
 
-# Keep the camera this far from every room surface (m): objects sampled between camera and wall
-# need some room, and the rig moves a few centimetres between frames.
-_WALL_CLEARANCE = 0.4
-# Attempts to place an object in the projector's view but outside the camera's; rejection
-# sampling succeeds in about a fifth of tries for Structure Core (69 vs 57 degree fields).
-_OUT_OF_VIEW_TRIES = 32
+Vector3 = tuple[float, float, float]
 
 
-def scene_rng(base_seed: int, scene_index: int, stream: int) -> np.random.Generator:
-    """The random generator of one stream of one scene (independent of worker assignment)."""
-    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=(stream,)))
+class _Fields:
+    """One mapping of a spec dict, read with every error naming `where` and the value."""
+
+    def __init__(self, d: Any, where: str, required: tuple[str, ...], optional: tuple[str, ...] = ()):
+        self.where = where
+        if not isinstance(d, dict):
+            raise ValueError(f"scene spec: {where or 'spec'} must be a mapping, got {d!r}")
+        if missing := [key for key in required if key not in d]:
+            raise ValueError(f"scene spec: {self.name(missing[0])} is missing")
+        if unknown := sorted(set(d) - set(required) - set(optional)):
+            raise ValueError(f"scene spec: {self.name(unknown[0])} is not a field; allowed: "
+                             f"{list(required + optional)}")
+        self.d = d
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def raw(self, key: str, default: Any = None) -> Any:
+        return self.d.get(key, default)
+
+    def number(self, key: str, low: float | None = None, low_open: bool = False,
+               high: float | None = None) -> float:
+        return _number(self.d[key], self.name(key), low, low_open, high)
+
+    def integer(self, key: str, low: int, high: int | None = None) -> int:
+        value = self.d[key]
+        bounds = f">= {low}" + (f" and <= {high}" if high is not None else "")
+        if (isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low
+                or (high is not None and value > high)):
+            raise ValueError(f"scene spec: {self.name(key)} must be an integer {bounds}, got {value!r}")
+        return int(value)
+
+    def text(self, key: str, choices: tuple[str, ...] | None = None) -> str:
+        value = self.d[key]
+        if choices is not None and value not in choices:
+            raise ValueError(f"scene spec: {self.name(key)} must be one of {list(choices)}, got {value!r}")
+        if not isinstance(value, str) or not value:
+            raise ValueError(f"scene spec: {self.name(key)} must be a non-empty string, got {value!r}")
+        return value
+
+    def vector(self, key: str) -> Vector3:
+        value = self.d[key]
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise ValueError(f"scene spec: {self.name(key)} must be 3 numbers, got {value!r}")
+        return tuple(_number(v, f"{self.name(key)}[{k}]") for k, v in enumerate(value))  # type: ignore[return-value]
+
+    def items(self, key: str) -> list:
+        value = self.d[key]
+        if not isinstance(value, list | tuple):
+            raise ValueError(f"scene spec: {self.name(key)} must be a list, got {value!r}")
+        return list(value)
 
 
-def frame_sensor_rng(base_seed: int, scene_index: int, frame: int) -> np.random.Generator:
-    """The sensor-noise generator of one frame: a stream of its own, so any frame can be
-    post-rendered alone (the Blender add-on's preview) and give what `dotsim generate` stores."""
-    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index),
-                                                        spawn_key=(STREAM_SENSOR, frame)))
-
-
-def scene_seed(base_seed: int, scene_index: int) -> int:
-    """A 31-bit integer identifying the scene's random state (recorded; also seeds Cycles)."""
-    return int(np.random.SeedSequence((base_seed, scene_index)).generate_state(1)[0] >> 1)
-
-
-def build_rig(config: Config) -> Rig:
-    """The rig of a config: the preset, its overrides, scaled to the render resolution."""
-    rig = get_preset(config.rig.preset)
-    if config.rig.baseline != 0.0:
-        rig = replace(rig, projector_translation=(config.rig.baseline, *rig.projector_translation[1:]))
-    rig = replace(rig, max_depth=config.rig.max_depth)
-    return rig.scaled(config.rig.scale) if config.rig.scale != 1.0 else rig
+def _number(value: Any, name: str, low: float | None = None, low_open: bool = False,
+            high: float | None = None) -> float:
+    """`value` as a float; ValueError naming `name` unless it is a finite number within bounds."""
+    bounds = ""
+    if low is not None:
+        bounds = f" {'>' if low_open else '>='} {low:g}"
+    if high is not None:
+        bounds += f"{' and' if bounds else ''} <= {high:g}"
+    ok = (not isinstance(value, bool) and isinstance(value, int | float | np.integer | np.floating)
+          and math.isfinite(value) and (low is None or value > low or (value == low and not low_open))
+          and (high is None or value <= high))
+    if not ok:
+        raise ValueError(f"scene spec: {name} must be a number{bounds}, got {value!r}")
+    return float(value)
 
 
 @dataclass(frozen=True)
-class MeshAsset:
-    """A mesh from the asset cache: its .npz path and id, its largest extent as stored (m), and the
-    range of largest extents (m) to scale it to."""
+class RenderSettings:
+    """Cycles settings: samples per pixel, Cycles seed, maximum bounces, device, threads (0: all)."""
+    samples: int
+    seed: int
+    max_bounces: int
+    device: str
+    threads: int
+
+    def to_dict(self) -> dict:
+        return {"samples": self.samples, "seed": self.seed, "max_bounces": self.max_bounces,
+                "device": self.device, "threads": self.threads}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "render") -> RenderSettings:
+        f = _Fields(d, where, ("samples", "seed", "max_bounces", "device", "threads"))
+        return cls(samples=f.integer("samples", 1), seed=f.integer("seed", 0),
+                   max_bounces=f.integer("max_bounces", 0), device=f.text("device", DEVICES),
+                   threads=f.integer("threads", 0))
+
+
+@dataclass(frozen=True)
+class PatternRef:
+    """The projector pattern image (PNG, the projector's resolution) and its sha256."""
     path: str
-    id: str
-    extent: float
-    size_range: tuple[float, float]
+    sha256: str
+
+    def to_dict(self) -> dict:
+        return {"path": self.path, "sha256": self.sha256}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "pattern") -> PatternRef:
+        f = _Fields(d, where, ("path", "sha256"))
+        return cls(path=f.text("path"), sha256=f.text("sha256"))
 
 
 @dataclass(frozen=True)
-class TextureAsset:
-    """A reflectance texture (PNG) and the range of its tile size in metres (None: the config's
-    [scene] texture_scale decides)."""
+class Texture:
+    """A reflectance texture on a surface: PNG path, UV scale (tiles across the object's UV range)
+    and contrast (0: flat albedo, 1: the texture's full range)."""
     path: str
-    tile_size: tuple[float, float] | None = None
+    scale: float
+    contrast: float
 
+    def to_dict(self) -> dict:
+        return {"path": self.path, "scale": self.scale, "contrast": self.contrast}
 
-@dataclass(frozen=True)
-class SceneResources:
-    """Files a scene refers to, prepared by the pipeline before sampling.
-
-    textures: textures to draw surfaces from (may be empty: untextured).
-    meshes: asset meshes of the split; empty means built-in primitives.
-    density: object-count factor of the split (None: the config's [assets] factor for the split;
-    an asset cache carries its own clutter density per split).
-    """
-    pattern_path: str
-    pattern_sha256: str
-    textures: tuple[TextureAsset, ...] = ()
-    meshes: tuple[MeshAsset, ...] = ()
-    density: float | None = None
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> Texture:
+        f = _Fields(d, where, ("path", "scale", "contrast"))
+        return cls(path=f.text("path"), scale=f.number("scale"), contrast=f.number("contrast", low=0.0))
 
 
 @dataclass(frozen=True)
 class Material:
+    """A grey surface: infrared albedo, roughness, specular level and an optional texture."""
     albedo: float
     roughness: float
     specular: float
-    texture: dict | None = None  # {"path", "scale", "contrast"}
+    texture: Texture | None = None
 
     def to_dict(self) -> dict:
-        return {"albedo": self.albedo, "texture": self.texture, "roughness": self.roughness,
-                "specular": self.specular}
+        return {"albedo": self.albedo, "texture": None if self.texture is None else self.texture.to_dict(),
+                "roughness": self.roughness, "specular": self.specular}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> Material:
+        f = _Fields(d, where, ("albedo", "texture", "roughness", "specular"))
+        texture = f.raw("texture")
+        return cls(albedo=f.number("albedo", low=0.0), roughness=f.number("roughness", low=0.0),
+                   specular=f.number("specular", low=0.0),
+                   texture=None if texture is None else Texture.from_dict(texture, f"{where}.texture"))
+
+
+@dataclass(frozen=True)
+class PrimitiveMesh:
+    """A built-in shape (PRIMITIVE_SHAPES) with full extents `size` along its local x, y, z (m); a
+    plane lies in its local xy plane facing +z (its z size is 1: a plane has no thickness)."""
+    shape: str
+    size: Vector3
+
+    def to_dict(self) -> dict:
+        return {"kind": "primitive", "shape": self.shape, "size": list(self.size)}
+
+
+@dataclass(frozen=True)
+class AssetMesh:
+    """A mesh of the asset cache: its .npz path and its id (metres as stored)."""
+    path: str
+    id: str
+
+    def to_dict(self) -> dict:
+        return {"kind": "asset", "path": self.path, "id": self.id}
+
+
+Mesh = PrimitiveMesh | AssetMesh
+
+
+def mesh_from_dict(d: Any, where: str) -> Mesh:
+    """A PrimitiveMesh or AssetMesh from its dict, chosen by "kind"."""
+    kind = _Fields(d, where, ("kind",), ("shape", "size", "path", "id")).text("kind", ("primitive", "asset"))
+    if kind == "primitive":
+        f = _Fields(d, where, ("kind", "shape", "size"))
+        return PrimitiveMesh(shape=f.text("shape", PRIMITIVE_SHAPES), size=f.vector("size"))
+    f = _Fields(d, where, ("kind", "path", "id"))
+    return AssetMesh(path=f.text("path"), id=f.text("id"))
 
 
 @dataclass(frozen=True)
 class SceneObject:
+    """A mesh placed in the world: location (m), rotation_euler (rad), scale (applied after a
+    primitive's size, along the object's axes) and material."""
     name: str
-    mesh: dict  # {"kind": "primitive", "shape", "size"} or {"kind": "asset", "path", "id"}
-    location: tuple[float, float, float]
-    rotation_euler: tuple[float, float, float]
-    scale: tuple[float, float, float]
+    mesh: Mesh
+    location: Vector3
+    rotation_euler: Vector3
+    scale: Vector3
     material: Material
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "mesh": self.mesh, "location": list(self.location),
+        return {"name": self.name, "mesh": self.mesh.to_dict(), "location": list(self.location),
                 "rotation_euler": list(self.rotation_euler), "scale": list(self.scale),
                 "material": self.material.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> SceneObject:
+        f = _Fields(d, where, ("name", "mesh", "location", "rotation_euler", "scale", "material"))
+        return cls(name=f.text("name"), mesh=mesh_from_dict(f.raw("mesh"), f"{where}.mesh"),
+                   location=f.vector("location"), rotation_euler=f.vector("rotation_euler"),
+                   scale=f.vector("scale"),
+                   material=Material.from_dict(f.raw("material"), f"{where}.material"))
 
 
 @dataclass(frozen=True)
 class PointLight:
-    location: tuple[float, float, float]
+    """An extra point light (ambient light, rendered in the ambient pass): location (m), power (W),
+    radius (m, soft shadows)."""
+    location: Vector3
     power: float
     radius: float
 
@@ -133,241 +250,155 @@ class PointLight:
                 "radius": self.radius}
 
 
+Light = PointLight
+LIGHT_TYPES = ("POINT",)
+
+
+def light_from_dict(d: Any, where: str) -> Light:
+    """A light from its dict, chosen by "type" (LIGHT_TYPES)."""
+    f = _Fields(d, where, ("type", "location", "power", "radius"))
+    f.text("type", LIGHT_TYPES)
+    return PointLight(location=f.vector("location"), power=f.number("power", low=0.0),
+                      radius=f.number("radius", low=0.0))
+
+
 @dataclass(frozen=True)
+class SensorModel:
+    """The IR sensor model's parameters (generator/sensor_model.py; meanings in docs/CONFIG.md
+    [sensor]); pixel_scale is the render resolution over the full sensor resolution (bloom and blur
+    sizes are full-resolution pixels)."""
+    exposure: str
+    gain: float
+    auto_percentile: float
+    auto_target: float
+    bloom_threshold: float
+    bloom_strength: float
+    bloom_sigma: float
+    blur_sigma: float
+    shot_noise: float
+    read_noise: float
+    bit_depth: int
+    pixel_scale: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "sensor") -> SensorModel:
+        f = _Fields(d, where, tuple(field.name for field in fields(cls)))
+        numbers = {name: f.number(name, low=0.0) for name in ("bloom_threshold", "bloom_strength",
+                                                              "bloom_sigma", "blur_sigma", "shot_noise",
+                                                              "read_noise")}
+        return cls(exposure=f.text("exposure", EXPOSURES), gain=f.number("gain", low=0.0, low_open=True),
+                   auto_percentile=f.number("auto_percentile", low=0.0, high=100.0),
+                   auto_target=f.number("auto_target", low=0.0, low_open=True),
+                   bit_depth=f.integer("bit_depth", 1, 16),
+                   pixel_scale=f.number("pixel_scale", low=0.0, low_open=True), **numbers)
+
+
+@dataclass(frozen=True)
+class MaskParams:
+    """Thresholds of the stored masks (dotsim.masks; meanings in docs/CONFIG.md [masks])."""
+    visibility_threshold: float
+    edge_threshold: float
+    edge_dilation: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "masks") -> MaskParams:
+        f = _Fields(d, where, ("visibility_threshold", "edge_threshold", "edge_dilation"))
+        return cls(visibility_threshold=f.number("visibility_threshold", low=0.0),
+                   edge_threshold=f.number("edge_threshold", low=0.0, low_open=True),
+                   edge_dilation=f.integer("edge_dilation", 0))
+
+
+def _pose(value: Any, name: str) -> np.ndarray:
+    try:
+        matrix = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        matrix = np.empty(0)
+    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise ValueError(f"scene spec: {name} must be a finite 4x4 matrix, got {value!r}")
+    return matrix
+
+
+_TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
+              "lights", "poses", "objects", "sensor", "masks")
+
+
+@dataclass(frozen=True, eq=False)
 class SceneSpec:
-    """One scene, fully determined; `to_dict()` is the Blender stage's input."""
+    """Everything one scene's frames need: what to render (rig, pattern, objects, lights, poses,
+    Cycles settings) and how to turn the renders into stored frames (sensor model, masks).
+
+    Two specs are equal when their dicts are (poses are arrays, which dataclass equality cannot
+    compare)."""
     scene_index: int
     split: str
     seed: int
-    render: dict
+    render: RenderSettings
     rig: Rig
-    pattern: dict
+    pattern: PatternRef
     projector_power: float
     flood_power: float
     world_strength: float
-    lights: tuple[PointLight, ...]
-    poses: tuple[np.ndarray, ...]  # 4 x (4, 4) world_from_camera
+    lights: tuple[Light, ...]
+    poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera per frame
     objects: tuple[SceneObject, ...]
+    sensor: SensorModel
+    masks: MaskParams
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
 
     def to_dict(self) -> dict:
+        """JSON-safe dict; SceneSpec.from_dict(spec.to_dict()) equals spec (floats survive JSON)."""
         return {
             "scene_index": self.scene_index,
             "split": self.split,
             "seed": self.seed,
-            "render": dict(self.render),
+            "render": self.render.to_dict(),
             "rig": self.rig.to_dict(),
-            "pattern": dict(self.pattern),
+            "pattern": self.pattern.to_dict(),
             "projector": {"power": self.projector_power},
             "flood": {"power": self.flood_power},
             "world": {"strength": self.world_strength},
             "lights": [light.to_dict() for light in self.lights],
             "poses": [[[float(v) for v in row] for row in pose] for pose in self.poses],
             "objects": [obj.to_dict() for obj in self.objects],
+            "sensor": self.sensor.to_dict(),
+            "masks": self.masks.to_dict(),
         }
 
+    @classmethod
+    def from_dict(cls, d: Any) -> SceneSpec:
+        """The spec of a dict made by to_dict() (e.g. read from JSON); ValueError naming the first
+        field that is missing, unknown or out of range, and its value."""
+        f = _Fields(d, "", _TOP_LEVEL)
+        poses = f.items("poses")
+        if not poses:
+            raise ValueError("scene spec: poses must be a non-empty list of 4x4 matrices, got []")
+        try:
+            rig = Rig.from_dict(f.raw("rig"))
+        except ValueError as error:
+            raise ValueError(f"scene spec: {error}") from None
+        return cls(
+            scene_index=f.integer("scene_index", 0),
+            split=f.text("split", SPLITS),
+            seed=f.integer("seed", 0),
+            render=RenderSettings.from_dict(f.raw("render")),
+            rig=rig,
+            pattern=PatternRef.from_dict(f.raw("pattern")),
+            projector_power=_Fields(f.raw("projector"), "projector", ("power",)).number("power", low=0.0),
+            flood_power=_Fields(f.raw("flood"), "flood", ("power",)).number("power", low=0.0),
+            world_strength=_Fields(f.raw("world"), "world", ("strength",)).number("strength", low=0.0),
+            lights=tuple(light_from_dict(light, f"lights[{k}]") for k, light in enumerate(f.items("lights"))),
+            poses=tuple(_pose(pose, f"poses[{k}]") for k, pose in enumerate(poses)),
+            objects=tuple(SceneObject.from_dict(obj, f"objects[{k}]")
+                          for k, obj in enumerate(f.items("objects"))),
+            sensor=SensorModel.from_dict(f.raw("sensor")),
+            masks=MaskParams.from_dict(f.raw("masks")),
+        )
 
-def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
-    return float(rng.uniform(bounds[0], bounds[1]))
-
-
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    """Log-uniform in [low, high]; low itself when low >= high or low <= 0 (a zero lower bound)."""
-    if high <= low:
-        return float(low)
-    if low <= 0:
-        return float(rng.uniform(low, high))
-    return float(math.exp(rng.uniform(math.log(low), math.log(high))))
-
-
-def camera_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """world_from_camera rotation (OpenCV axes) of a camera at yaw (about world z; 0 looks along +y),
-    pitch (positive looks up) and roll (about the optical axis), radians."""
-    level = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: x, y, z axes
-    r_yaw = Rotation.from_euler("z", yaw).as_matrix()
-    # In camera coordinates a positive rotation about x tips the optical axis towards -y (up).
-    r_pitch_roll = Rotation.from_euler("xz", [pitch, roll]).as_matrix()
-    return r_yaw @ level @ r_pitch_roll
-
-
-def ray_box_exit(origin: np.ndarray, direction: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
-    """Ray parameter t where origin + t * direction leaves the box [lo, hi] (origin inside)."""
-    with np.errstate(divide="ignore"):
-        t_hi = np.where(direction > 0, (hi - origin) / direction, np.inf)
-        t_lo = np.where(direction < 0, (lo - origin) / direction, np.inf)
-    return float(np.min(np.minimum(t_hi, t_lo)))
-
-
-def _room_planes(size: tuple[float, float, float]) -> list[tuple[str, tuple, tuple, list]]:
-    """(name, location, rotation_euler, plane size) of the six room surfaces, normals inwards
-    (z size 1: a plane has no thickness, and a zero scale would make its normals degenerate)."""
-    w, d, h = size
-    half_pi = math.pi / 2
-    return [
-        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), [w, d, 1.0]),
-        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), [w, d, 1.0]),
-        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), [w, h, 1.0]),
-        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), [w, h, 1.0]),
-        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), [h, d, 1.0]),
-        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), [h, d, 1.0]),
-    ]
-
-
-def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureAsset, ...],
-              glossy_allowed: bool, extent: float) -> Material:
-    """A surface material; `extent` (m, the object's largest size) turns the texture's physical tile
-    size into the UV scale the renderer applies (UVs span about one object)."""
-    sc = config.scene
-    glossy = glossy_allowed and rng.random() < sc.glossy_share
-    roughness = _uniform(rng, sc.glossy_roughness if glossy else sc.roughness)
-    specular = _uniform(rng, sc.glossy_specular if glossy else sc.specular)
-    texture = None
-    if textures and rng.random() < sc.textured_share:
-        chosen = textures[int(rng.integers(len(textures)))]
-        tiles_per_metre = (1.0 / _log_uniform(rng, *chosen.tile_size) if chosen.tile_size
-                           else _log_uniform(rng, *sc.texture_scale))
-        texture = {"path": chosen.path, "scale": extent * tiles_per_metre,
-                   "contrast": _uniform(rng, sc.texture_contrast)}
-    return Material(albedo=_uniform(rng, sc.albedo), roughness=roughness, specular=specular,
-                    texture=texture)
-
-
-def _primitive_size(rng: np.random.Generator, shape: str, extent: float) -> list[float]:
-    """Full extents along local x, y, z of a primitive whose largest extent is `extent` (m)."""
-    a, b = (float(v) for v in rng.uniform(0.25, 1.0, size=2))
-    if shape == "box":
-        return [extent, extent * a, extent * b]
-    if shape == "sphere":
-        return [extent, extent * (0.6 + 0.4 * a), extent * (0.6 + 0.4 * b)]
-    if shape in ("cylinder", "cone"):
-        diameter = extent * a
-        return [diameter, diameter, extent] if rng.random() < 0.5 else [extent, extent, extent * a]
-    if shape == "torus":
-        return [extent, extent, extent * (0.15 + 0.25 * a)]
-    # A plane has no thickness; z = 1 keeps its object scale invertible (a zero scale breaks normals).
-    return [extent, extent * a, 1.0]
-
-
-def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot: np.ndarray,
-                     cam_pos: np.ndarray, room_lo: np.ndarray, room_hi: np.ndarray,
-                     in_view: bool) -> tuple[np.ndarray, float]:
-    """World position and camera depth of one object centre.
-
-    In view: a uniform camera pixel back-projected to a depth drawn within [scene] distance that stays inside
-    the room.
-    Out of view: a uniform projector pixel whose point the camera does not see (rejection sampling;
-    falls back to the last try), so the object casts shadows only the projector's view explains.
-    """
-    near, far = config.scene.distance
-    cam, proj = rig.camera, rig.projector
-    for _ in range(1 if in_view else _OUT_OF_VIEW_TRIES):
-        if in_view:
-            u, v = rng.uniform(-0.5, cam.width - 0.5), rng.uniform(-0.5, cam.height - 0.5)
-            origin_cam = np.zeros(3)
-            ray_cam = np.array([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0])
-        else:
-            x, y = rng.uniform(-0.5, proj.width - 0.5), rng.uniform(-0.5, proj.height - 0.5)
-            origin_cam = rig.t
-            ray_cam = rig.R.T @ np.array([(x - proj.cx) / proj.fx, (y - proj.cy) / proj.fy, 1.0])
-        exit_t = ray_box_exit(cam_pos + cam_rot @ origin_cam, cam_rot @ ray_cam, room_lo, room_hi)
-        limit = max(near, min(far, exit_t - 0.05))
-        t = (_log_uniform(rng, near, limit) if config.scene.distance_sampling == "log-uniform"
-             else _uniform(rng, (near, limit)))
-        point_cam = origin_cam + t * ray_cam
-        if in_view or point_cam[2] <= 0:
-            break
-        u = cam.fx * point_cam[0] / point_cam[2] + cam.cx
-        v = cam.fy * point_cam[1] / point_cam[2] + cam.cy
-        if not (-0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5):
-            break
-    return cam_pos + cam_rot @ point_cam, float(np.linalg.norm(point_cam))
-
-
-def _poses(rng: np.random.Generator, config: Config, base: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Frame 0 at the base pose; frames 1-3 offset by a small random motion in the camera frame."""
-    poses = [base]
-    max_angle = math.radians(config.motion.rotation)
-    for _ in range(3):
-        axis = rng.normal(size=3)
-        axis /= np.linalg.norm(axis)
-        delta = np.eye(4)
-        delta[:3, :3] = Rotation.from_rotvec(axis * rng.uniform(0.0, max_angle)).as_matrix()
-        delta[:3, 3] = rng.uniform(-config.motion.translation, config.motion.translation, size=3)
-        poses.append(base @ delta)
-    return tuple(poses)
-
-
-def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: str,
-                      resources: SceneResources) -> SceneSpec:
-    """Sample scene `scene_index` of `split`: room, objects, materials, lights, projector, 4 poses."""
-    if split not in ("train", "test"):
-        raise ValueError(f"split must be 'train' or 'test', got {split!r}")
-    rng = scene_rng(base_seed, scene_index, STREAM_SCENE)
-    sc, li = config.scene, config.lighting
-    rig = build_rig(config)
-
-    room = (_uniform(rng, sc.room_size), _uniform(rng, sc.room_size), _uniform(rng, sc.room_height))
-    room_lo = np.array([-room[0] / 2, -room[1] / 2, 0.0])
-    room_hi = np.array([room[0] / 2, room[1] / 2, room[2]])
-    # The camera stands in the front part of the room looking roughly along +y, so that depths from
-    # near to far (the back wall) all occur.
-    clearance = np.minimum(_WALL_CLEARANCE, (room_hi - room_lo) / 4)
-    cam_lo, cam_hi = room_lo + clearance, room_hi - clearance
-    cam_pos = np.array([rng.uniform(cam_lo[0], cam_hi[0]),
-                        rng.uniform(cam_lo[1], min(cam_hi[1], 0.0)),
-                        rng.uniform(cam_lo[2], min(cam_hi[2], 2.0))])
-    cam_rot = camera_rotation(rng.uniform(-0.7, 0.7), rng.uniform(-0.6, 0.2), rng.uniform(-0.1, 0.1))
-    base_pose = np.eye(4)
-    base_pose[:3, :3], base_pose[:3, 3] = cam_rot, cam_pos
-
-    objects = [SceneObject(name=name, mesh={"kind": "primitive", "shape": "plane", "size": size},
-                           location=location, rotation_euler=rotation, scale=(1.0, 1.0, 1.0),
-                           material=_material(rng, config, resources.textures, glossy_allowed=False,
-                                              extent=max(size)))
-               for name, location, rotation, size in _room_planes(room)]
-
-    density = config.density(split) if resources.density is None else resources.density
-    count = round(int(rng.integers(sc.object_count[0], sc.object_count[1] + 1)) * density)
-    for k in range(count):
-        in_view = rng.random() < sc.in_view_share
-        location, distance = _object_position(rng, config, rig, cam_rot, cam_pos, room_lo, room_hi,
-                                              in_view)
-        # Bounded by the distance: no object fills the view or swallows the camera when the rig moves.
-        if resources.meshes:
-            asset = resources.meshes[int(rng.integers(len(resources.meshes)))]
-            low, high = asset.size_range
-        else:
-            low, high = sc.object_size
-        cap = sc.max_angular_size * distance
-        extent = _log_uniform(rng, min(low, cap), min(high, cap))
-        if resources.meshes:
-            mesh = {"kind": "asset", "path": asset.path, "id": asset.id}
-            scale = (extent / asset.extent,) * 3
-        else:
-            shape = sc.shapes[int(rng.integers(len(sc.shapes)))]
-            mesh = {"kind": "primitive", "shape": shape, "size": _primitive_size(rng, shape, extent)}
-            scale = (1.0, 1.0, 1.0)
-        rotation = Rotation.random(random_state=rng).as_euler("xyz")
-        objects.append(SceneObject(
-            name=f"object_{k:04d}", mesh=mesh, location=tuple(float(v) for v in location),
-            rotation_euler=tuple(float(v) for v in rotation), scale=scale,
-            material=_material(rng, config, resources.textures, glossy_allowed=True, extent=extent)))
-
-    lights = tuple(
-        PointLight(location=tuple(float(v) for v in rng.uniform(room_lo + 0.1, room_hi - 0.1)),
-                   power=_log_uniform(rng, *li.light_power), radius=_uniform(rng, li.light_radius))
-        for _ in range(int(rng.integers(li.extra_lights[0], li.extra_lights[1] + 1))))
-    projector_power = _uniform(rng, li.projector_power)
-    seed = scene_seed(base_seed, scene_index)
-    return SceneSpec(
-        scene_index=scene_index, split=split, seed=seed,
-        render={"samples": config.render.samples, "seed": seed, "max_bounces": config.render.max_bounces,
-                "device": config.render.device, "threads": config.render.threads},
-        rig=rig,
-        pattern={"path": resources.pattern_path, "sha256": resources.pattern_sha256},
-        projector_power=projector_power,
-        flood_power=projector_power * li.flood_ratio,
-        world_strength=_log_uniform(rng, *li.world_strength),
-        lights=lights,
-        poses=_poses(rng, config, base_pose),
-        objects=tuple(objects),
-    )

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from generator.config import SensorConfig
+from generator.scene_spec import SensorModel
 
 
-def expose(signal: np.ndarray, params: SensorConfig) -> np.ndarray:
+def expose(signal: np.ndarray, params: SensorModel) -> np.ndarray:
     """Radiance -> level (full scale 1). fixed: gain * signal. auto: the auto_percentile of the
     signal maps to auto_target (a black image stays black)."""
     signal = np.asarray(signal, np.float64)
@@ -46,7 +46,7 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
     return np.round(np.clip(level, 0.0, 1.0) * steps) / steps
 
 
-def apply_sensor_model(signal: np.ndarray, params: SensorConfig, rng: np.random.Generator,
+def apply_sensor_model(signal: np.ndarray, params: SensorModel, rng: np.random.Generator,
                        pixel_scale: float = 1.0) -> np.ndarray:
     """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).
 

@@ -18,6 +18,7 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
 from generator.blender import demo_scenes as ds
+from generator.scene_spec import SceneSpec
 
 bpy = pytest.importorskip("bpy")
 from generator.blender.render import SceneRenderer  # noqa: E402  (needs bpy)
@@ -59,7 +60,7 @@ def ncc(a: np.ndarray, b: np.ndarray) -> float:
 def test_wall_depth_exact_and_dots_shift_by_fb_over_z(renderer, pattern, z):
     spec = _spec(pattern, samples=4)
     spec["objects"] = [ds.wall(z)]
-    frame = renderer.render(spec)[0]
+    frame = renderer.render(SceneSpec.from_dict(spec))[0]
     np.testing.assert_allclose(frame["depth"], z, rtol=1e-6)
     # Divide out the flood (same light, same falloff) to leave the pattern; compare with the pattern
     # as seen from infinity (dotsim.rig, pure numpy), away from the borders.
@@ -99,7 +100,7 @@ def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
         ds.wall(wall_z, albedo=albedo),
         ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6)),
     ]
-    frame = renderer.render(spec)[0]
+    frame = renderer.render(SceneSpec.from_dict(spec))[0]
 
     rays = pixel_rays(*pixel_grid(RIG.camera), RIG.camera)
     box_t = _box_intersections(np.zeros(3), rays, lower, upper)
@@ -135,7 +136,7 @@ def _clutter_spec(pattern, samples: int, seed: int = 7, **kwargs) -> dict:
 def test_clutter_projector_pass_matches_oracle(renderer, pattern):
     """Random boxes, spheres, cylinders, cones and tori before a wall: the projector pass agrees with
     dotsim.oracle's numpy projection of the pattern through the rendered depth."""
-    frame = renderer.render(_clutter_spec(pattern, samples=16))[0]
+    frame = renderer.render(SceneSpec.from_dict(_clutter_spec(pattern, samples=16)))[0]
     expected = expected_pattern_image(frame["depth"], RIG, pattern[0].image, supersample=4)
     # Compare the pattern, not the shading (albedo and textures differ per object, the oracle knows
     # none of them): projector / flood (same light, same shading) against the oracle's pattern
@@ -150,9 +151,9 @@ def test_clutter_projector_pass_matches_oracle(renderer, pattern):
 
 def test_same_spec_renders_bit_identical_after_another_scene(renderer, pattern):
     spec = _clutter_spec(pattern, samples=2)
-    first = renderer.render(spec)[0]
-    renderer.render(_clutter_spec(pattern, samples=1, seed=11))
-    second = renderer.render(spec)[0]
+    first = renderer.render(SceneSpec.from_dict(spec))[0]
+    renderer.render(SceneSpec.from_dict(_clutter_spec(pattern, samples=1, seed=11)))
+    second = renderer.render(SceneSpec.from_dict(spec))[0]
     for name in first:
         np.testing.assert_array_equal(first[name], second[name], err_msg=name)
 
@@ -179,7 +180,7 @@ def test_channels_separate_exactly(renderer, pattern, tmp_path, only):
     )
     for obj in spec["objects"][1::2]:
         obj["material"].update(roughness=0.1, specular=1.0)
-    frame = renderer.render(spec)[0]
+    frame = renderer.render(SceneSpec.from_dict(spec))[0]
     assert frame[only].max() > 0
     for name in on:
         if name != only:
@@ -193,11 +194,11 @@ def test_later_poses_move_camera_and_projector_together(renderer, pattern):
     moved[2, 3] = 0.5
     spec = _spec(pattern, samples=4, poses=[np.eye(4).tolist(), moved.tolist()])
     spec["objects"] = [ds.wall(2.0)]
-    frames = renderer.render(spec)
+    frames = renderer.render(SceneSpec.from_dict(spec))
     assert len(frames) == 2
     near = _spec(pattern, samples=4)
     near["objects"] = [ds.wall(1.5)]
-    expected = renderer.render(near)[0]
+    expected = renderer.render(SceneSpec.from_dict(near))[0]
     np.testing.assert_allclose(frames[1]["depth"], 1.5, rtol=1e-6)
     assert ncc(frames[1]["projector"], expected["projector"]) > 0.999
     assert ncc(frames[0]["projector"], expected["projector"]) < 0.5  # the dots moved by 1.5 px
@@ -207,7 +208,8 @@ def test_seed_change_alone_changes_the_render(renderer, pattern):
     """Cycles must not reuse stale settings between scenes (it did with persistent data)."""
     first, second = (_clutter_spec(pattern, samples=1, seed=7) for _ in range(2))
     second["render"]["seed"] = 8
-    a, b, a_again = (renderer.render(spec)[0]["projector"] for spec in (first, second, first))
+    a, b, a_again = (renderer.render(SceneSpec.from_dict(spec))[0]["projector"]
+                     for spec in (first, second, first))
     assert not np.array_equal(a, b)
     np.testing.assert_array_equal(a, a_again)
 
@@ -235,7 +237,7 @@ def test_bad_spec_errors_name_the_field(renderer, pattern, change, message):
     spec["objects"] = [ds.wall(2.0)]
     change(spec)
     with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]")):
-        renderer.render(spec)
+        renderer.render(SceneSpec.from_dict(spec))
 
 
 def test_gpu_request_uses_a_gpu_or_falls_back_to_cpu_with_a_warning(renderer):

@@ -114,12 +114,13 @@ def test_cycles_wall_render_recovers_the_known_dots(rig, pattern, tmp_path):
     pytest.importorskip("bpy")
     from generator.blender import demo_scenes
     from generator.blender.render import SceneRenderer
+    from generator.scene_spec import SceneSpec
 
     pattern.save_png(tmp_path / "pattern.png")
     spec = demo_scenes.base_spec(rig.to_dict(), str(tmp_path / "pattern.png"), pattern.sha256, samples=16)
     spec["objects"] = [demo_scenes.wall(DISTANCE)]
     with SceneRenderer() as renderer:
-        frame = renderer.render(spec)[0]
+        frame = renderer.render(SceneSpec.from_dict(spec))[0]
     np.testing.assert_allclose(frame["depth"], DISTANCE, rtol=1e-6)
     on, off = frame["projector"] + frame["ambient"], frame["ambient"]
     result = extract_wall_pattern([on], [off], rig, DISTANCE)

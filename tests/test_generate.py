@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,9 @@ from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from generator import cli
 from generator.config import ConfigError, config_from_dict, load_config
-from generator.pipeline import LOG_DIR, RUN_FILE, generate
+from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import make_frame
+from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = REPO / "configs" / "tiny.toml"
@@ -33,6 +35,12 @@ def run_cli(*args: str) -> int:
 # ----------------------------------------------------------------------------- post-render, no Blender
 
 
+def spec_with_rig(rig, config):
+    """A sampled spec of `config` whose rig is `rig` (make_frame reads its rig, sensor and masks)."""
+    spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
+    return replace(spec, rig=rig)
+
+
 def test_make_frame_against_analytic_wall():
     rig = get_preset("structure_core").scaled(0.05)
     h, w = rig.camera.height, rig.camera.width
@@ -46,7 +54,7 @@ def test_make_frame_against_analytic_wall():
     projector = flood_only * np.random.default_rng(0).uniform(0, 1, (h, w)).astype(np.float32)
     config = config_from_dict({})
     frame = make_frame({"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth},
-                       rig, config, np.random.default_rng(1))
+                       spec_with_rig(rig, config), np.random.default_rng(1))
     assert set(frame) == set(dataset.FRAME_CHANNELS)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
@@ -75,10 +83,11 @@ def test_make_frame_names_bad_raw_passes():
     rig = get_preset("structure_core").scaled(0.05)
     raw = {name: np.zeros((3, 3), np.float32) for name in ("projector", "flood", "ambient", "depth")}
     with pytest.raises(ValueError, match="scene 4 frame 1: raw pass 'projector' has shape"):
-        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0), where="scene 4 frame 1")
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0),
+                   where="scene 4 frame 1")
     del raw["depth"]
     with pytest.raises(ValueError, match=r"lack \['depth'\]"):
-        make_frame(raw, rig, config_from_dict({}), np.random.default_rng(0))
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0))
 
 
 # ----------------------------------------------------------------------------- bad input: nothing written
@@ -205,6 +214,33 @@ def test_same_seed_same_dataset_regardless_of_workers(rendered, tmp_path):
         for fa, fb in zip(a.frames, b.frames, strict=True):
             for name in fa:
                 np.testing.assert_array_equal(fa[name], fb[name])
+
+
+def test_render_scenes_in_a_fresh_process_as_another_front_end_would(rendered, tmp_path):
+    """prepare_run once, render_scenes(job, indices) in a process of its own (as a Ray or Slurm task
+    would), then seal: the scenes equal those generate() wrote, files and metadata alike."""
+    import pickle
+    import subprocess
+    import sys
+
+    source, _ = rendered
+    out = tmp_path / "front_end"
+    job = prepare_run(load_config(TINY), out, "train", seed=3)
+    (tmp_path / "job.pickle").write_bytes(pickle.dumps(job))
+    task = ("import pickle, sys; from generator.render_scenes import render_scenes; "
+            "job = pickle.load(open(sys.argv[1], 'rb')); "
+            "print([(r.index, r.ok, r.frames) for r in render_scenes(job, [1, 0])])")
+    proc = subprocess.run([sys.executable, "-c", task, str(tmp_path / "job.pickle")], cwd=REPO,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "[(1, True, 4), (0, True, 4)]" in proc.stdout
+    dataset.finalize_dataset(out)
+    for index in (0, 1):
+        a = dataset.scene_dir(source, index, 2)
+        b = dataset.scene_dir(out, index, 2)
+        assert sorted(p.name for p in a.iterdir()) == sorted(p.name for p in b.iterdir())
+        for path in a.iterdir():
+            assert path.read_bytes() == (b / path.name).read_bytes(), path.name
 
 
 def test_other_seed_or_config_refused_on_an_existing_dataset(rendered, tmp_path):

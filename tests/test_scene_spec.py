@@ -1,214 +1,127 @@
-"""SceneSpec sampling: determinism, the contract schema, geometry checked by projecting."""
+"""The typed SceneSpec: JSON round trip, errors that name the field and value, and make_frame
+reading the spec's own sensor-model and mask parameters."""
 
 from __future__ import annotations
 
+import copy
 import json
-import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from dotsim.rig import Rig
 from generator.config import config_from_dict
-from generator.scene_spec import (
-    SceneResources,
-    TextureAsset,
-    build_rig,
-    camera_rotation,
-    ray_box_exit,
-    sample_scene_spec,
-)
+from generator.post_render import make_frame
+from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
+from generator.scene_spec import FRAMES_PER_SCENE, PointLight, PrimitiveMesh, SceneSpec, Texture
 
-RESOURCES = SceneResources("/data/pattern.png", "ab" * 32,
-                           (TextureAsset("/data/t0.png"), TextureAsset("/data/t1.png", (0.5, 0.5))))
-SHAPES = {"plane", "box", "sphere", "cylinder", "cone", "torus"}
+RESOURCES = SceneResources("/data/pattern.png", "ab" * 32, (TextureAsset("/data/t0.png"),))
 
 
-def spec_dict(overrides=None, index=0, seed=0, split="train"):
-    return sample_scene_spec(config_from_dict(overrides or {}), index, seed, split, RESOURCES).to_dict()
+def sampled(**overrides) -> SceneSpec:
+    return sample_scene_spec(config_from_dict(overrides), 2, 5, "train", RESOURCES)
 
 
-def _number(x):
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+def test_json_round_trip_gives_the_same_typed_spec():
+    spec = sampled(rig={"scale": 0.1})
+    again = SceneSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
+    assert again == spec and again is not spec
+    assert len(again.poses) == FRAMES_PER_SCENE and again.poses[2].shape == (4, 4)
+    np.testing.assert_array_equal(again.poses[3], spec.poses[3])
+    assert any(isinstance(o.material.texture, Texture) for o in again.objects)
+    assert all(isinstance(o.mesh, PrimitiveMesh) for o in again.objects)
+    assert all(isinstance(light, PointLight) for light in again.lights)
+    assert again.rig == spec.rig and again.sensor == spec.sensor and again.masks == spec.masks
+    assert replace(again, world_strength=again.world_strength + 1) != spec
 
 
-def _vec(x, n=3):
-    return isinstance(x, list) and len(x) == n and all(_number(v) for v in x)
-
-
-def check_contract(d: dict) -> None:
-    """The SceneSpec JSON contract (what the Blender stage reads), written out independently of
-    scene_spec.py."""
-    assert set(d) == {"scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood",
-                      "world", "lights", "poses", "objects"}
-    assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")
-    assert isinstance(d["seed"], int)
-    r = d["render"]
-    assert set(r) == {"samples", "seed", "max_bounces", "device", "threads"}
-    assert r["samples"] >= 1 and r["device"] in ("CPU", "GPU") and r["threads"] >= 0
-    Rig.from_dict(d["rig"])
-    assert set(d["pattern"]) == {"path", "sha256"} and d["pattern"]["path"].startswith("/")
-    assert set(d["projector"]) == {"power"} and d["projector"]["power"] > 0
-    assert set(d["flood"]) == {"power"} and d["flood"]["power"] > 0
-    assert set(d["world"]) == {"strength"} and d["world"]["strength"] >= 0
-    for light in d["lights"]:
-        assert set(light) == {"type", "location", "power", "radius"} and light["type"] == "POINT"
-        assert _vec(light["location"]) and light["power"] >= 0 and light["radius"] >= 0
-    assert len(d["poses"]) == 4
-    for pose in d["poses"]:
-        m = np.array(pose, dtype=float)
-        assert m.shape == (4, 4) and np.allclose(m[3], [0, 0, 0, 1])
-        assert np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)
-        assert np.linalg.det(m[:3, :3]) > 0
-    for obj in d["objects"]:
-        assert set(obj) == {"name", "mesh", "location", "rotation_euler", "scale", "material"}
-        mesh = obj["mesh"]
-        if mesh["kind"] == "primitive":
-            assert set(mesh) == {"kind", "shape", "size"} and mesh["shape"] in SHAPES
-            assert _vec(mesh["size"]) and min(mesh["size"]) >= 0
+def _set(path: list, value):
+    def change(d: dict) -> None:
+        target = d
+        for key in path[:-1]:
+            target = target[key]
+        if value is _DELETE:
+            del target[path[-1]]
         else:
-            assert mesh["kind"] == "asset" and set(mesh) == {"kind", "path", "id"}
-        assert _vec(obj["location"]) and _vec(obj["rotation_euler"]) and _vec(obj["scale"])
-        mat = obj["material"]
-        assert set(mat) == {"albedo", "texture", "roughness", "specular"}
-        assert 0 <= mat["albedo"] <= 1 and 0 <= mat["roughness"] <= 1 and 0 <= mat["specular"] <= 1
-        if mat["texture"] is not None:
-            assert set(mat["texture"]) == {"path", "scale", "contrast"}
-    assert len({obj["name"] for obj in d["objects"]}) == len(d["objects"])
-    json.dumps(d, allow_nan=False)  # travels as JSON to `blender --python`
+            target[path[-1]] = value
+    return change
 
 
-def camera_points(d: dict, frame: int = 0) -> np.ndarray:
-    """Object centres (excluding the six room surfaces) in the camera frame of `frame`."""
-    pose = np.array(d["poses"][frame])
-    world = np.array([o["location"] for o in d["objects"] if o["name"].startswith("object_")])
-    return (world - pose[:3, 3]) @ pose[:3, :3]  # R^T (X - c), row-vector form
+_DELETE = object()
 
 
-def test_spec_follows_contract():
-    for index in range(3):
-        check_contract(spec_dict(index=index))
-    check_contract(spec_dict(split="test"))
+@pytest.mark.parametrize("change, message", [
+    (_set(["objects", 3, "material", "albedo"], -1),
+     "objects[3].material.albedo must be a number >= 0, got -1"),
+    (_set(["masks"], _DELETE), "scene spec: masks is missing"),
+    (_set(["colour"], 1), "scene spec: colour is not a field"),
+    (_set(["render", "samples"], 0), "render.samples must be an integer >= 1, got 0"),
+    (_set(["render", "device"], "TPU"), "render.device must be one of ['CPU', 'GPU'], got 'TPU'"),
+    (_set(["poses", 1], [[1, 0], [0, 1]]), "poses[1] must be a finite 4x4 matrix"),
+    (_set(["poses"], []), "poses must be a non-empty list"),
+    (_set(["lights"], [{"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}]),
+     "lights[0].type must be one of ['POINT'], got 'SUN'"),
+    (_set(["objects", 0, "mesh", "shape"], "pyramid"), "objects[0].mesh.shape must be one of"),
+    (_set(["objects", 0, "mesh", "kind"], "cloud"),
+     "objects[0].mesh.kind must be one of ['primitive', 'asset']"),
+    (_set(["objects", 1, "location"], [1.0, 2.0]), "objects[1].location must be 3 numbers, got [1.0, 2.0]"),
+    (_set(["objects", 2, "rotation_euler", 1], float("nan")),
+     "objects[2].rotation_euler[1] must be a number"),
+    (_set(["sensor", "bit_depth"], 17), "sensor.bit_depth must be an integer >= 1 and <= 16, got 17"),
+    (_set(["sensor", "exposure"], "manual"), "sensor.exposure must be one of ['fixed', 'auto']"),
+    (_set(["masks", "edge_threshold"], 0.0), "masks.edge_threshold must be a number > 0, got 0.0"),
+    (_set(["projector", "power"], "bright"), "projector.power must be a number >= 0, got 'bright'"),
+    (_set(["split"], "val"), "split must be one of ['train', 'test'], got 'val'"),
+    (_set(["rig", "camera", "fx"], -3.0), "rig.camera: fx must be a finite positive number"),
+    (_set(["pattern", "sha256"], _DELETE), "pattern.sha256 is missing"),
+])
+def test_bad_fields_are_named_with_their_value(change, message):
+    d = copy.deepcopy(sampled(rig={"scale": 0.1}).to_dict())
+    d["objects"][5]["material"]["texture"] = {"path": "/t.png", "scale": 2.0, "contrast": 0.5}
+    SceneSpec.from_dict(d)  # valid before the change
+    change(d)
+    with pytest.raises(ValueError, match="scene spec: ") as error:
+        SceneSpec.from_dict(d)
+    assert message in str(error.value)
 
 
-def test_same_inputs_same_spec_and_different_index_differs():
-    a, b = spec_dict(index=5, seed=11), spec_dict(index=5, seed=11)
-    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
-    assert json.dumps(spec_dict(index=6, seed=11)) != json.dumps(a)
-    assert json.dumps(spec_dict(index=5, seed=12)) != json.dumps(a)
+def test_texture_fields_are_checked_where_they_are():
+    d = sampled(rig={"scale": 0.1}).to_dict()
+    d["objects"][4]["material"]["texture"] = {"path": "/t.png", "scale": 2.0, "contrast": -0.5}
+    with pytest.raises(ValueError, match=r"objects\[4\]\.material\.texture\.contrast must be a number >= 0"):
+        SceneSpec.from_dict(d)
 
 
-def test_objects_mostly_in_view_and_inside_distance_range():
-    overrides = {"scene": {"object_count": [400, 400], "in_view_share": 0.8}}
-    d = spec_dict(overrides, index=2)
-    rig = Rig.from_dict(d["rig"])
-    p = camera_points(d)
-    assert len(p) == 400
-    in_front = p[:, 2] > 0
-    u = rig.camera.fx * p[:, 0] / p[:, 2] + rig.camera.cx
-    v = rig.camera.fy * p[:, 1] / p[:, 2] + rig.camera.cy
-    in_view = in_front & (u >= -0.5) & (u <= rig.camera.width - 0.5) & (v >= -0.5) & \
-        (v <= rig.camera.height - 0.5)
-    # 80% are placed in view; a binomial(400, 0.8) stays within +-0.06 of that with high probability.
-    assert 0.74 <= in_view.mean() <= 0.86
-    # The others are in the projector's view (they cast shadows the camera cannot explain).
-    q = (p[~in_view] - rig.t) @ rig.R.T
-    xp = rig.projector.fx * q[:, 0] / q[:, 2] + rig.projector.cx
-    yp = rig.projector.fy * q[:, 1] / q[:, 2] + rig.projector.cy
-    in_projector = (q[:, 2] > 0) & (xp >= -0.5) & (xp <= rig.projector.width - 0.5) & \
-        (yp >= -0.5) & (yp <= rig.projector.height - 0.5)
-    assert in_projector.mean() > 0.95
-    distance = np.linalg.norm(p[in_view], axis=1)
-    assert distance.min() >= 0.3 * 0.999 and distance.max() <= 10.0 * 1.001
+def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
+    """make_frame takes no config: the bit depth and edge dilation come from the spec."""
+    spec = sampled(rig={"scale": 0.05})
+    h, w = spec.rig.camera.height, spec.rig.camera.width
+    depth = np.full((h, w), 2.0, np.float32)
+    depth[:, w // 2:] = 1.0  # one vertical depth edge
+    raw = {"projector": np.full((h, w), 0.3, np.float32), "flood": np.ones((h, w), np.float32),
+           "ambient": np.full((h, w), 0.05, np.float32), "depth": depth}
+    coarse = replace(spec, sensor=replace(spec.sensor, bit_depth=3, shot_noise=0.0, read_noise=0.0),
+                     masks=replace(spec.masks, edge_dilation=0))
+    wide = replace(coarse, masks=replace(coarse.masks, edge_dilation=3))
+    ir = make_frame(raw, coarse, np.random.default_rng(0))["ir"].astype(np.float64)
+    np.testing.assert_allclose(ir * 7, np.round(ir * 7), atol=1e-6)  # 2**3 - 1 levels
+    narrow_edges = make_frame(raw, coarse, np.random.default_rng(0))["edge"].sum(axis=1)
+    wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
+    assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
 
 
-def test_objects_inside_room_and_never_swallow_the_camera():
-    d = spec_dict({"scene": {"object_count": [300, 300]}}, index=4)
-    walls = {o["name"]: o for o in d["objects"] if not o["name"].startswith("object_")}
-    w, dd = walls["floor"]["mesh"]["size"][:2]
-    h = walls["ceiling"]["location"][2]
-    for obj in d["objects"]:
-        x, y, z = obj["location"]
-        assert -w / 2 - 1e-9 <= x <= w / 2 + 1e-9 and -dd / 2 - 1e-9 <= y <= dd / 2 + 1e-9
-        assert -1e-9 <= z <= h + 1e-9
-    for frame in range(4):
-        centre = np.array(d["poses"][frame])[:3, 3]
-        for obj in d["objects"]:
-            if obj["name"].startswith("object_"):
-                size = np.array(obj["mesh"]["size"])
-                if obj["mesh"]["shape"] == "plane":
-                    size[2] = 0.0  # a plane's z size is a (thickness-less) scale, not an extent
-                radius = 0.5 * np.linalg.norm(size)
-                assert np.linalg.norm(np.array(obj["location"]) - centre) > radius
+def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():
+    """Blender's own Python has bpy, numpy and the standard library: what run_in_blender.py needs
+    besides bpy must import with nothing else (checked in a fresh interpreter)."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
 
-
-def test_room_planes_face_inwards():
-    d = spec_dict(index=1)
-    for obj in d["objects"][:6]:
-        rx, ry, rz = obj["rotation_euler"]
-        # Blender XYZ Euler: R = Rz Ry Rx; a plane's normal is its local +z.
-        cx, sx, cy, sy, cz, sz = (math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry),
-                                  math.cos(rz), math.sin(rz))
-        normal = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]) @ np.array(
-            [[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]]) @ np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]]) \
-            @ np.array([0.0, 0.0, 1.0])
-        centre = np.array([0.0, 0.0, d["objects"][1]["location"][2] / 2])  # ceiling height / 2
-        assert normal @ (centre - np.array(obj["location"])) > 0, obj["name"]
-
-
-def test_camera_rotation_axes():
-    r = camera_rotation(0.0, 0.0, 0.0)
-    np.testing.assert_allclose(r @ [0, 0, 1], [0, 1, 0], atol=1e-12)   # looks along world +y
-    np.testing.assert_allclose(r @ [1, 0, 0], [1, 0, 0], atol=1e-12)   # image right = world +x
-    np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, -1], atol=1e-12)  # image down = world -z
-    assert (camera_rotation(0.0, 0.3, 0.0) @ [0, 0, 1])[2] == pytest.approx(math.sin(0.3))
-    np.testing.assert_allclose(camera_rotation(math.pi / 2, 0, 0) @ [0, 0, 1], [-1, 0, 0], atol=1e-12)
-
-
-def test_ray_box_exit():
-    lo, hi = np.array([-1.0, -2.0, 0.0]), np.array([1.0, 2.0, 3.0])
-    assert ray_box_exit(np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), lo, hi) == 2.0
-    assert ray_box_exit(np.array([0.5, 0.0, 1.0]), np.array([-1.0, 0.0, -1.0]), lo, hi) == 1.0
-
-
-def test_poses_move_within_motion_limits():
-    d = spec_dict({"motion": {"translation": 0.05, "rotation": 2.0}}, index=3)
-    base = np.array(d["poses"][0])
-    for pose in d["poses"][1:]:
-        delta = np.linalg.inv(base) @ np.array(pose)
-        assert np.all(np.abs(delta[:3, 3]) <= 0.05 + 1e-12)
-        angle = math.degrees(math.acos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
-        assert angle <= 2.0 + 1e-9
-    assert not np.allclose(d["poses"][1], d["poses"][0])
-
-
-def test_split_density_and_scaled_rig():
-    overrides = {"scene": {"object_count": [200, 200]},
-                 "assets": {"train_density": 1.0, "test_density": 1.5}, "rig": {"scale": 0.25}}
-    train = spec_dict(overrides, split="train")
-    test = spec_dict(overrides, split="test")
-    assert len(train["objects"]) == 6 + 200 and len(test["objects"]) == 6 + 300
-    assert train["rig"]["camera"]["width"] == 304 and train["rig"]["camera"]["height"] == 224
-    rig = build_rig(config_from_dict({"rig": {"baseline": 0.05}}))
-    assert rig.baseline == 0.05 and rig.camera.width == 1216
-
-
-def test_textures_and_glossy_shares():
-    d = spec_dict({"scene": {"object_count": [500, 500], "textured_share": 0.5, "glossy_share": 0.2}})
-    objects = [o for o in d["objects"] if o["name"].startswith("object_")]
-    textured = np.mean([o["material"]["texture"] is not None for o in objects])
-    glossy = np.mean([o["material"]["roughness"] <= 0.2 and o["material"]["specular"] >= 0.5
-                      for o in objects])
-    assert 0.43 <= textured <= 0.57 and 0.14 <= glossy <= 0.26
-    assert {o["material"]["texture"]["path"] for o in objects if o["material"]["texture"]} == \
-        {t.path for t in RESOURCES.textures}
-    # UV scale = object extent x tiles per metre: t1 has 0.5 m tiles, t0 the config's 0.5-4 per metre.
-    for o in objects:
-        texture = o["material"]["texture"]
-        if texture:
-            extent = max(o["mesh"]["size"][:2] + ([o["mesh"]["size"][2]] if o["mesh"]["shape"] != "plane"
-                                                  else []))
-            if texture["path"] == "/data/t1.png":
-                assert texture["scale"] == pytest.approx(extent * 2.0)
-            else:
-                assert 0.5 * extent * 0.999 <= texture["scale"] <= 4.0 * extent * 1.001
+    code = ("import sys; import generator.scene_spec, generator.blender.geometry, "
+            "generator.blender.pattern_filter, generator.blender.exr; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} - set(sys.stdlib_module_names)))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          cwd=Path(__file__).resolve().parents[1])
+    third_party = {name for name in ast.literal_eval(proc.stdout) if not name.startswith("_")}
+    assert third_party <= {"numpy", "dotsim", "generator", "cython_runtime"}, third_party

@@ -1,15 +1,20 @@
 """Hand-built SceneSpec dicts with known geometry, for render tests and benchmarks (pure numpy).
 
-They follow the SceneSpec JSON contract; the camera sits at the world origin looking along +z (OpenCV
-axes), so world coordinates equal camera coordinates for pose 0. The real sampler lives in
-generator/scene_spec.py.
+They are the spec's JSON form (docs/SCENE_SPEC.md): edit them as dicts, then make the typed spec
+with `SceneSpec.from_dict`, which checks them. The camera sits at the world origin looking along +z
+(OpenCV axes), so world coordinates equal camera coordinates for pose 0. Sensor-model and mask
+parameters are the config's defaults. The real sampler lives in generator/sample_scene.py.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 
 import numpy as np
+
+from generator.config import Config
+from generator.sample_scene import sensor_model
 
 IDENTITY_POSE = np.eye(4).tolist()
 
@@ -42,6 +47,8 @@ def base_spec(
         "lights": lights or [],
         "poses": poses or [IDENTITY_POSE],
         "objects": [],
+        "sensor": sensor_model(Config()).to_dict(),
+        "masks": asdict(Config().masks),
     }
 
 

@@ -17,31 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from generator.scene_spec import PRIMITIVE_SHAPES
+
 # Right-multiplying an OpenCV pose by this flips its y and z axes into Blender's camera/light axes.
 OPENCV_TO_BLENDER_AXES = np.diag([1.0, -1.0, -1.0, 1.0])
 # Blender's sensor width is arbitrary for a pinhole; only lens / sensor_width matters.
 SENSOR_WIDTH_MM = 36.0
-
-
-def intrinsics_tuple(d: dict, where: str) -> tuple[int, int, float, float, float, float]:
-    """(width, height, fx, fy, cx, cy) from a Rig.to_dict() intrinsics dict; ValueError naming
-    `where` and the key when one is missing or not a number."""
-    values = []
-    for key in ("width", "height", "fx", "fy", "cx", "cy"):
-        if not isinstance(d, dict) or key not in d:
-            raise ValueError(f"{where}.{key} is missing")
-        try:
-            values.append(float(d[key]))
-        except (TypeError, ValueError):
-            raise ValueError(f"{where}.{key} must be a number, got {d[key]!r}") from None
-    width, height, fx, fy, cx, cy = values
-    if width < 1 or height < 1 or width != int(width) or height != int(height):
-        raise ValueError(
-            f"{where} width/height must be positive integers, got {d['width']!r} x {d['height']!r}"
-        )
-    if fx <= 0 or fy <= 0:
-        raise ValueError(f"{where} fx/fy must be positive, got {fx}, {fy}")
-    return int(width), int(height), fx, fy, cx, cy
+# Blender's Z pass is 1e10 where a camera ray hits nothing; anything this far is "no hit".
+NO_HIT_DEPTH = 1.0e9
 
 
 def camera_parameters(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> dict:
@@ -127,9 +110,6 @@ class MeshData:
     corner_uvs: np.ndarray
     smooth: np.ndarray
     normals: np.ndarray | None = None
-
-
-PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 
 
 def _grid_mesh(points: np.ndarray, uv: np.ndarray, smooth: bool) -> MeshData:

@@ -1,5 +1,5 @@
-"""SceneRenderer: SceneSpec dict -> four frames of raw passes, with Cycles, in ONE path-tracing
-render per frame.
+"""SceneRenderer: SceneSpec (generator/scene_spec.py) -> one frame of raw passes per pose, with
+Cycles, in ONE path-tracing render per frame.
 
 How the passes are separated (docs/RENDERING.md explains why several lights in one render are
 noisy): materials are grey, so colour channels never mix. One spot light emits the pattern in red
@@ -9,7 +9,7 @@ compositor packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, 
 tiny numpy reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off,
 because each of them would mix channels or change values.
 
-Reuse: one bpy scene for the life of the renderer; between the four frames only the camera and
+Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
 replaced and meshes, materials and the pattern image are cached, so memory stays flat.
 """
@@ -22,19 +22,20 @@ import shutil
 import sys
 import tempfile
 import warnings
+from dataclasses import astuple
 from pathlib import Path
 
 import bpy
 import numpy as np
 
+from generator.scene_spec import RenderSettings, SceneSpec
+
 from .exr import read_exr
-from .geometry import blender_matrix_from_opencv_pose, intrinsics_tuple, projector_pose
+from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, projector_pose
 from .pattern_filter import footprint_width
 from .projector import ProjectorLight
-from .scene_builder import SceneContent, spec_field, spec_number
+from .scene_builder import SceneContent
 
-# Z is 1e10 where a camera ray hits nothing; anything this far is "no hit".
-NO_HIT_DEPTH = 1.0e9
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
 
 
@@ -141,7 +142,7 @@ def select_device(scene: bpy.types.Scene, device: str) -> str:
 
 
 class SceneRenderer:
-    """Renders SceneSpec dicts (generator/scene_spec.py) into raw passes with Cycles.
+    """Renders SceneSpecs (docs/SCENE_SPEC.md) into raw passes with Cycles.
 
     One instance owns the bpy scene of the process (it starts from factory settings). Call
     render(spec) for each scene; close() removes the temp folder. Use one per process.
@@ -169,73 +170,57 @@ class SceneRenderer:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _apply_render_settings(self, render: dict) -> None:
+    def _apply_render_settings(self, render: RenderSettings) -> None:
         cycles = self.scene.cycles
-        cycles.samples = int(spec_number(render, "samples", "render", minimum=1))
-        cycles.seed = int(spec_number(render, "seed", "render", minimum=0))
-        bounces = int(spec_number(render, "max_bounces", "render", minimum=0))
-        cycles.max_bounces = bounces
-        cycles.diffuse_bounces = bounces
-        cycles.glossy_bounces = bounces
-        cycles.transmission_bounces = bounces
+        cycles.samples = render.samples
+        cycles.seed = render.seed
+        cycles.max_bounces = render.max_bounces
+        cycles.diffuse_bounces = render.max_bounces
+        cycles.glossy_bounces = render.max_bounces
+        cycles.transmission_bounces = render.max_bounces
         cycles.volume_bounces = 0
-        threads = int(spec_number(render, "threads", "render", minimum=0))
-        self.scene.render.threads_mode = "FIXED" if threads else "AUTO"
-        if threads:
-            self.scene.render.threads = threads
-        self.device = select_device(self.scene, spec_field(render, "device", "render"))
+        self.scene.render.threads_mode = "FIXED" if render.threads else "AUTO"
+        if render.threads:
+            self.scene.render.threads = render.threads
+        self.device = select_device(self.scene, render.device)
 
-    def setup(self, spec: dict) -> list[np.ndarray]:
+    def setup(self, spec: SceneSpec) -> tuple[np.ndarray, ...]:
         """Build `spec` in the bpy scene (everything except the frame poses); returns the 4x4
         world_from_camera poses to render."""
         # Checked first: a bad spec should fail before anything is built.
-        poses = spec_field(spec, "poses", "spec")
-        if not isinstance(poses, list) or not poses:
-            raise ValueError("scene spec: poses must be a non-empty list of 4x4 matrices")
-        matrices = []
-        for k, pose in enumerate(poses):
-            matrix = np.asarray(pose, np.float64)
-            if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
-                raise ValueError(f"scene spec: poses[{k}] must be a finite 4x4 matrix, got {pose!r}")
-            matrices.append(matrix)
-        self._apply_render_settings(spec_field(spec, "render", "spec"))
-        rig = spec_field(spec, "rig", "spec")
-        camera = intrinsics_tuple(spec_field(rig, "camera", "rig"), "rig.camera")
-        projector = intrinsics_tuple(spec_field(rig, "projector", "rig"), "rig.projector")
-        self.content.set_camera(camera)
-        self.projector.set_intrinsics(projector)
-        self._projector_rotation = np.asarray(rig.get("projector_rotation", np.eye(3)), np.float64)
-        self._projector_translation = np.asarray(spec_field(rig, "projector_translation", "rig"), np.float64)
-        pattern = spec_field(spec, "pattern", "spec")
-        path = spec_field(pattern, "path", "pattern")
-        if not Path(path).is_file():
-            raise ValueError(f"scene spec: pattern.path {path} does not exist")
-        width = footprint_width(projector[2], camera[2], self.scene.cycles.samples)  # (W, H, fx, ...)
-        self.projector.set_pattern(path, str(pattern.get("sha256") or path), width, self._tmp)
-        self.projector.set_powers(
-            spec_number(spec_field(spec, "projector", "spec"), "power", "projector"),
-            spec_number(spec_field(spec, "flood", "spec"), "power", "flood"),
-        )
+        if not Path(spec.pattern.path).is_file():
+            raise ValueError(f"scene spec: pattern.path {spec.pattern.path} does not exist")
+        self._apply_render_settings(spec.render)
+        rig = spec.rig
+        self.content.set_camera(rig.camera)
+        self.projector.set_intrinsics(astuple(rig.projector))
+        self._rig = rig
+        width = footprint_width(rig.projector.fx, rig.camera.fx, self.scene.cycles.samples)
+        pattern = spec.pattern
+        self.projector.set_pattern(pattern.path, pattern.sha256 or pattern.path, width, self._tmp)
+        self.projector.set_powers(spec.projector_power, spec.flood_power)
         self.content.build(spec)
         self.refresh()
-        return matrices
+        return spec.poses
 
     def refresh(self) -> None:
         """Make the next render sync the whole scene into Cycles. setup() calls it; call it after
         changing anything else than the poses between renders. Switching persistent data off frees
-        Cycles' kept scene (Cycles missed changed settings, e.g. its seed, when it kept it)."""
+        Cycles' kept scene (Cycles missed changed settings, e.g. the seed, when it kept it)."""
         self.scene.render.use_persistent_data = False
         self.scene.render.use_persistent_data = True
+
+    def place_rig(self, world_from_camera: np.ndarray) -> None:
+        """Move the camera to `world_from_camera` (4x4, OpenCV axes) and the projector with it, as
+        the built spec's rig says."""
+        self.content.set_camera_pose(world_from_camera)
+        self.projector.set_pose(blender_matrix_from_opencv_pose(
+            projector_pose(world_from_camera, self._rig.R, self._rig.t)))
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth} float32 (H, W);
         depth is planar (metres), inf where nothing is hit."""
-        self.content.set_camera_pose(world_from_camera)
-        self.projector.set_pose(
-            blender_matrix_from_opencv_pose(
-                projector_pose(world_from_camera, self._projector_rotation, self._projector_translation)
-            )
-        )
+        self.place_rig(world_from_camera)
         output = Path(self.scene.render.filepath)
         output.unlink(missing_ok=True)  # never read a previous frame if Blender fails to write
         with _quiet_stdout():
@@ -252,6 +237,6 @@ class SceneRenderer:
             "depth": depth,
         }
 
-    def render(self, spec: dict) -> list[dict[str, np.ndarray]]:
+    def render(self, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
         """All frames of `spec`: a list (one per pose) of {projector, flood, ambient, depth}."""
         return [self.render_frame(pose) for pose in self.setup(spec)]

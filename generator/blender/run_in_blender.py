@@ -35,7 +35,7 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
         description="Render SceneSpec JSON files with Cycles into DIR/<spec stem>_raw.npz "
         "(arrays projector_K, flood_K, ambient_K, depth_K per frame K).",
     )
-    parser.add_argument("specs", nargs="+", type=Path, help="SceneSpec JSON files (generator/scene_spec.py)")
+    parser.add_argument("specs", nargs="+", type=Path, help="SceneSpec JSON files (docs/SCENE_SPEC.md)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     return parser.parse_args(argv)
 
@@ -59,6 +59,7 @@ def main(argv: list[str]) -> int:
     if str(REPO_ROOT) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT))
     from generator.blender.render import SceneRenderer
+    from generator.scene_spec import SceneSpec
 
     args.out.mkdir(parents=True, exist_ok=True)
     failures = 0
@@ -67,7 +68,7 @@ def main(argv: list[str]) -> int:
     try:
         for spec_path in args.specs:
             try:
-                spec = json.loads(spec_path.read_text())
+                spec = SceneSpec.from_dict(json.loads(spec_path.read_text()))
                 frames = renderer.render(spec)
                 arrays = {f"{name}_{k}": frame[name] for k, frame in enumerate(frames) for name in frame}
                 write_npz_atomic(args.out / f"{spec_path.stem}_raw.npz", arrays)

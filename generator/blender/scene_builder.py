@@ -1,5 +1,8 @@
 """Builds a SceneSpec's content in bpy: camera, ambient (world and extra lights), objects.
 
+It receives a typed SceneSpec (generator/scene_spec.py, validated when it was made) and dispatches
+on the types of its meshes and lights, so nothing is looked up by string key here.
+
 Everything that can outlive a scene is cached and reused: the six unit primitive meshes, asset
 meshes by path (least recently used dropped beyond a cap), materials by texture path. Objects and
 extra lights belong to one collection that is emptied at the start of every scene, so nothing
@@ -8,7 +11,7 @@ accumulates over many scenes in one process.
 
 from __future__ import annotations
 
-import math
+import functools
 from collections import OrderedDict
 from pathlib import Path
 
@@ -16,8 +19,17 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from .geometry import (
+from dotsim.rig import Intrinsics
+from generator.scene_spec import (
     PRIMITIVE_SHAPES,
+    AssetMesh,
+    PointLight,
+    PrimitiveMesh,
+    SceneObject,
+    SceneSpec,
+)
+
+from .geometry import (
     MeshData,
     blender_matrix_from_opencv_pose,
     camera_parameters,
@@ -83,31 +95,6 @@ class MeshCache:
         self._assets.clear()
 
 
-def spec_field(d: dict, key: str, where: str):
-    """d[key]; ValueError naming `where`.key when d is not a dict or lacks the key."""
-    if not isinstance(d, dict) or key not in d:
-        raise ValueError(f"scene spec: {where}.{key} is missing")
-    return d[key]
-
-
-def spec_number(d: dict, key: str, where: str, minimum: float | None = None) -> float:
-    """d[key] as a float; ValueError naming `where`.key unless it is a finite number >= minimum."""
-    value = spec_field(d, key, where)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"scene spec: {where}.{key} must be a finite number, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise ValueError(f"scene spec: {where}.{key} must be >= {minimum}, got {value!r}")
-    return float(value)
-
-
-def spec_vector(d: dict, key: str, where: str) -> tuple[float, float, float]:
-    """d[key] as 3 floats; ValueError naming `where`.key otherwise."""
-    value = spec_field(d, key, where)
-    if not isinstance(value, list | tuple) or len(value) != 3:
-        raise ValueError(f"scene spec: {where}.{key} must be 3 numbers, got {value!r}")
-    return tuple(spec_number({key: v}, key, f"{where}[{k}]") for k, v in enumerate(value))  # type: ignore[return-value]
-
-
 class SceneContent:
     """The camera, world and the per-scene collection of objects and extra lights."""
 
@@ -129,12 +116,12 @@ class SceneContent:
         self.meshes = MeshCache()
         self.materials = MaterialCache()
 
-    def set_camera(self, intrinsics: tuple[int, int, float, float, float, float]) -> None:
-        width, height = intrinsics[:2]
-        self.scene.render.resolution_x = width
-        self.scene.render.resolution_y = height
+    def set_camera(self, camera: Intrinsics) -> None:
+        self.scene.render.resolution_x = camera.width
+        self.scene.render.resolution_y = camera.height
         self.scene.render.resolution_percentage = 100
-        for name, value in camera_parameters(*intrinsics).items():
+        for name, value in camera_parameters(camera.width, camera.height, camera.fx, camera.fy,
+                                             camera.cx, camera.cy).items():
             setattr(self.camera.data, name, value)
 
     def set_camera_pose(self, world_from_camera: np.ndarray) -> None:
@@ -146,71 +133,69 @@ class SceneContent:
         lights = [obj.data for obj in objects if obj.type == "LIGHT"]
         bpy.data.batch_remove(objects + lights)
 
-    def build(self, spec: dict) -> None:
-        """World, extra lights and objects of `spec` (a SceneSpec dict, generator/scene_spec.py)."""
+    def build(self, spec: SceneSpec) -> None:
+        """World, extra lights and objects of `spec`."""
         self.clear()
-        strength = spec_number(spec_field(spec, "world", "spec"), "strength", "world", minimum=0.0)
-        self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], strength, 1.0)
+        self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], spec.world_strength, 1.0)
         self.background.inputs["Strength"].default_value = 1.0
-        for k, light_spec in enumerate(spec_field(spec, "lights", "spec")):
-            self._add_light(light_spec, f"lights[{k}]")
-        objects = spec_field(spec, "objects", "spec")
-        meshes = [o.get("mesh") for o in objects if isinstance(o, dict)]
-        in_use = {m.get("path") for m in meshes if isinstance(m, dict) and m.get("kind") == "asset"}
-        for k, object_spec in enumerate(objects):
-            self._add_object(object_spec, f"objects[{k}]", in_use)
+        for k, light in enumerate(spec.lights):
+            self.add_light(light, f"lights[{k}]")
+        in_use = {obj.mesh.path for obj in spec.objects if isinstance(obj.mesh, AssetMesh)}
+        for k, obj in enumerate(spec.objects):
+            self._add_object(obj, f"objects[{k}]", in_use)
 
-    def _add_light(self, light_spec: dict, where: str) -> None:
-        kind = spec_field(light_spec, "type", where)
-        if kind != "POINT":
-            raise ValueError(f"scene spec: {where}.type must be 'POINT', got {kind!r}")
-        light = bpy.data.lights.new(f"dotsim_{where}", "POINT")
-        light.color = AMBIENT_COLOUR
-        light.energy = spec_number(light_spec, "power", where, minimum=0.0)
-        light.shadow_soft_size = spec_number(light_spec, "radius", where, minimum=0.0)
-        obj = bpy.data.objects.new(f"dotsim_{where}", light)
-        obj.location = spec_vector(light_spec, "location", where)
+    @functools.singledispatchmethod
+    def add_light(self, light, where: str) -> None:
+        """Add one extra light of the spec (one registered method per light type)."""
+        raise TypeError(f"scene spec: {where} is a {type(light).__name__}, not a light type")
+
+    @add_light.register(PointLight)
+    def _(self, light: PointLight, where: str) -> None:
+        data = bpy.data.lights.new(f"dotsim_{where}", "POINT")
+        data.color = AMBIENT_COLOUR
+        data.energy = light.power
+        data.shadow_soft_size = light.radius
+        obj = bpy.data.objects.new(f"dotsim_{where}", data)
+        obj.location = light.location
         self.collection.objects.link(obj)
 
-    def _add_object(self, object_spec: dict, where: str, in_use: set[str]) -> None:
-        mesh_spec = spec_field(object_spec, "mesh", where)
-        kind = spec_field(mesh_spec, "kind", f"{where}.mesh")
-        if kind == "primitive":
-            mesh = self.meshes.primitive(spec_field(mesh_spec, "shape", f"{where}.mesh"))
-            size = np.array(spec_vector(mesh_spec, "size", f"{where}.mesh"))
-        elif kind == "asset":
-            path = spec_field(mesh_spec, "path", f"{where}.mesh")
-            try:
-                mesh = self.meshes.asset(path, in_use)
-            except ValueError as error:
-                raise ValueError(f"scene spec: {where}.mesh: {error}") from None
-            size = np.ones(3)
-        else:
-            raise ValueError(f"scene spec: {where}.mesh.kind must be 'primitive' or 'asset', got {kind!r}")
-        obj = bpy.data.objects.new(str(object_spec.get("name", where)), mesh)
-        obj.location = spec_vector(object_spec, "location", where)
-        obj.rotation_euler = spec_vector(object_spec, "rotation_euler", where)
-        # The unit primitive times its size, then the object's own scale (both along object axes).
-        obj.scale = (size * np.array(spec_vector(object_spec, "scale", where))).tolist()
-        material_spec = spec_field(object_spec, "material", where)
-        texture = material_spec.get("texture") if isinstance(material_spec, dict) else None
-        mwhere = f"{where}.material"
-        obj["dotsim_albedo"] = spec_number(material_spec, "albedo", mwhere, minimum=0.0)
-        obj["dotsim_roughness"] = spec_number(material_spec, "roughness", mwhere, minimum=0.0)
-        obj["dotsim_specular"] = spec_number(material_spec, "specular", mwhere, minimum=0.0)
-        if texture is not None:
-            obj["dotsim_tex_scale"] = spec_number(texture, "scale", f"{mwhere}.texture")
-            obj["dotsim_contrast"] = spec_number(texture, "contrast", f"{mwhere}.texture", minimum=0.0)
-            texture_path = spec_field(texture, "path", f"{mwhere}.texture")
-        else:
-            texture_path = None
+    @functools.singledispatchmethod
+    def mesh(self, mesh, where: str, in_use: set[str]) -> tuple[bpy.types.Mesh, np.ndarray]:
+        """(Blender mesh, size along the object's axes) of a spec mesh (one method per mesh type)."""
+        raise TypeError(f"scene spec: {where} is a {type(mesh).__name__}, not a mesh type")
+
+    @mesh.register(PrimitiveMesh)
+    def _(self, mesh: PrimitiveMesh, where: str, in_use: set[str]) -> tuple[bpy.types.Mesh, np.ndarray]:
+        return self.meshes.primitive(mesh.shape), np.array(mesh.size)
+
+    @mesh.register(AssetMesh)
+    def _(self, mesh: AssetMesh, where: str, in_use: set[str]) -> tuple[bpy.types.Mesh, np.ndarray]:
         try:
-            material = self.materials.get(texture_path)
+            return self.meshes.asset(mesh.path, in_use), np.ones(3)
         except ValueError as error:
-            raise ValueError(f"scene spec: {mwhere}.texture: {error}") from None
+            raise ValueError(f"scene spec: {where}: {error}") from None
+
+    def _add_object(self, spec_object: SceneObject, where: str, in_use: set[str]) -> None:
+        mesh, size = self.mesh(spec_object.mesh, f"{where}.mesh", in_use)
+        obj = bpy.data.objects.new(spec_object.name, mesh)
+        obj.location = spec_object.location
+        obj.rotation_euler = spec_object.rotation_euler
+        # The unit primitive times its size, then the object's own scale (both along object axes).
+        obj.scale = (size * np.array(spec_object.scale)).tolist()
+        material = spec_object.material
+        obj["dotsim_albedo"] = material.albedo
+        obj["dotsim_roughness"] = material.roughness
+        obj["dotsim_specular"] = material.specular
+        if material.texture is not None:
+            obj["dotsim_tex_scale"] = material.texture.scale
+            obj["dotsim_contrast"] = material.texture.contrast
+        try:
+            blender_material = self.materials.get(None if material.texture is None else material.texture.path)
+        except ValueError as error:
+            raise ValueError(f"scene spec: {where}.material.texture: {error}") from None
         self.collection.objects.link(obj)
         obj.material_slots[0].link = "OBJECT"
-        obj.material_slots[0].material = material
+        obj.material_slots[0].material = blender_material
 
     def release(self) -> None:
         """Remove everything this object created (used when the renderer closes)."""

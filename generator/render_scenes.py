@@ -1,0 +1,252 @@
+"""Render scenes into a dataset: `render_scenes(job, indices)` in this process, `render_pool` over
+spawned worker processes.
+
+A RenderJob is everything a scene needs besides its index; `generator.pipeline.prepare_run` makes
+one (and gets the dataset folder ready). Any front end can then hand out indices: `dotsim
+generate` through `render_pool`, a Ray task or a Slurm array task by calling `render_scenes` on its
+share. For each index the scene is sampled (generator/sample_scene.py), rendered (bpy as a module:
+one SceneRenderer per process, reused; or with `job.blender`: `EXE --background --python
+generator/blender/run_in_blender.py` per batch), post-rendered (generator/post_render.py) and
+written atomically (dotsim.dataset.write_scene). A failing scene is logged
+(DATASET/logs/scene_NNNNNNN.log, with its traceback) and reported in its SceneResult, never raised.
+Scene k depends only on (config, k, base seed), so the dataset does not depend on who renders what.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from dotsim import dataset
+from generator.config import Config
+from generator.post_render import RAW_PASSES, make_frame
+from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
+from generator.scene_spec import SceneSpec
+
+LOG_DIR = "logs"
+RUN_IN_BLENDER = Path(__file__).resolve().parent / "blender" / "run_in_blender.py"
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """Everything rendering a scene of a dataset needs besides its index (picklable).
+
+    out: the dataset folder (prepared: pattern stored, textures written); seed: the base seed;
+    pattern_meta: the pattern entry recorded in every scene.json; versions: software versions
+    recorded there; blender: a Blender executable, or None for bpy as a module.
+    """
+    config: Config
+    out: Path
+    split: str
+    seed: int
+    resources: SceneResources
+    pattern_meta: dict
+    versions: dict
+    blender: str | None
+
+
+@dataclass
+class SceneResult:
+    """Outcome of one scene; seconds: the time spent on it (render to write)."""
+    index: int
+    ok: bool
+    frames: int = 0
+    seconds: float = 0.0
+    error: str = ""
+
+
+def render_scenes(job: RenderJob, indices: Iterable[int]) -> list[SceneResult]:
+    """Render scenes `indices` of `job` into `job.out`, here in this process; one SceneResult each.
+
+    With bpy as a module the first call makes this process's SceneRenderer (a factory-reset bpy
+    session) and later calls reuse it, so call it in a process of its own (a pool worker, a Ray or
+    Slurm task), not in one holding Blender data it needs. Complete scenes are rendered again: skip
+    them with `dotsim.dataset.is_scene_complete`. Seal the dataset afterwards
+    (`dotsim.dataset.finalize_dataset`), once, when every front end is done.
+    """
+    indices = list(indices)
+    if job.blender is not None:
+        return _render_with_blender(job, indices)
+    renderer = _process_renderer()
+    if isinstance(renderer, str):
+        text = f"the render worker could not start:\n{renderer}"
+        for index in indices:
+            _log_failure(job, index, text)
+        return [SceneResult(index, False, error=text) for index in indices]
+    return [_render_in_process(job, renderer, index) for index in indices]
+
+
+def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
+                on_results: Callable[[list[SceneResult]], None]) -> None:
+    """`render_scenes` of every batch in `workers` spawned processes; `on_results` gets each batch's
+    results as they come (a worker that died reports its batch failed).
+
+    Ctrl-C cancels the batches not yet started and terminates the workers at once (the default
+    executor shutdown would render every queued scene first); the next run removes the scenes
+    they left half-written.
+    """
+    pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                  initializer=_init_worker, initargs=(job,))
+    try:
+        futures = {pool.submit(_render_batch, b): b for b in batches}
+        for future in concurrent.futures.as_completed(futures):
+            try:
+                results = future.result()
+            except Exception as exc:  # a worker died (crash in Blender): its scenes failed
+                text = "".join(traceback.format_exception(exc))
+                results = [SceneResult(i, False, error=text) for i in futures[future]]
+                for result in results:
+                    _log_failure(job, result.index, f"worker process failed:\n{text}")
+            on_results(results)
+    except KeyboardInterrupt:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for worker in multiprocessing.active_children():
+            worker.terminate()
+        raise
+    pool.shutdown()
+
+
+def scene_meta(job: RenderJob, spec: SceneSpec) -> dict:
+    """scene.json content (the writer adds format/version/frame fields). Paths of files inside the
+    dataset (textures) are stored relative to it, so a dataset can move and two runs of the same
+    config and seed give identical metadata wherever they were written."""
+    objects = []
+    for obj in spec.objects:
+        texture = obj.material.texture
+        if texture is not None and Path(texture.path).is_relative_to(job.out):
+            texture = replace(texture, path=Path(texture.path).relative_to(job.out).as_posix())
+            obj = replace(obj, material=replace(obj.material, texture=texture))
+        objects.append(obj)
+    stored = replace(spec, objects=tuple(objects)).to_dict()
+    return {"split": job.split, "seed": spec.seed, "base_seed": job.seed, "config": job.config.to_dict(),
+            "rig": stored["rig"], "pattern": job.pattern_meta, "poses": stored["poses"],
+            "objects": stored["objects"], "lights": stored["lights"], "projector": stored["projector"],
+            "flood": stored["flood"], "world": stored["world"], "render": stored["render"],
+            "versions": job.versions}
+
+
+def read_raw_npz(path: Path, frame_count: int) -> list[dict[str, np.ndarray]]:
+    """Raw frames from run_in_blender.py's npz: arrays named PASS_K (pass name, frame index)."""
+    with np.load(path) as data:
+        return [{name: data[f"{name}_{k}"] for name in RAW_PASSES} for k in range(frame_count)]
+
+
+def _sample(job: RenderJob, index: int) -> SceneSpec:
+    return sample_scene_spec(job.config, index, job.seed, job.split, job.resources)
+
+
+def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> int:
+    """Post-render the raw frames of one scene and write it; returns the number of frames."""
+    index = spec.scene_index
+    if len(raw_frames) != len(spec.poses):
+        raise ValueError(f"scene {index}: renderer returned {len(raw_frames)} frames for "
+                         f"{len(spec.poses)} poses")
+    frames = [make_frame(raw, spec, frame_sensor_rng(job.seed, index, k), where=f"scene {index} frame {k}")
+              for k, raw in enumerate(raw_frames)]
+    dataset.write_scene(job.out, index, scene_meta(job, spec), frames,
+                        scenes_per_shard=job.config.output.scenes_per_shard)
+    return len(frames)
+
+
+def _log_failure(job: RenderJob, index: int, text: str) -> None:
+    log_dir = job.out / LOG_DIR
+    log_dir.mkdir(exist_ok=True)
+    dataset.atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
+
+
+def _clear_failure_log(job: RenderJob, index: int) -> None:
+    (job.out / LOG_DIR / f"{dataset.scene_name(index)}.log").unlink(missing_ok=True)
+
+
+def _render_in_process(job: RenderJob, renderer, index: int) -> SceneResult:
+    start = time.perf_counter()
+    try:
+        spec = _sample(job, index)
+        frames = _finish_scene(job, spec, renderer.render(spec))
+        _clear_failure_log(job, index)
+        return SceneResult(index, True, frames, time.perf_counter() - start)
+    except Exception:
+        _log_failure(job, index, traceback.format_exc())
+        return SceneResult(index, False, error=traceback.format_exc(limit=1))
+
+
+def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult]:
+    start = time.perf_counter()
+    results = []
+    with tempfile.TemporaryDirectory(prefix="dotsim-blender-") as tmp:
+        tmp = Path(tmp)
+        specs = {index: _sample(job, index) for index in indices}
+        spec_paths = []
+        for index, spec in specs.items():
+            spec_paths.append(tmp / f"{dataset.scene_name(index)}.json")
+            spec_paths[-1].write_text(json.dumps(spec.to_dict()))
+        command = [job.blender, "--background", "--factory-startup", "--python", str(RUN_IN_BLENDER),
+                   "--", *map(str, spec_paths), "--out", str(tmp)]
+        proc = subprocess.run(command, capture_output=True, text=True)
+        blender_share = (time.perf_counter() - start) / len(indices)
+        for index, spec in specs.items():
+            raw_path = tmp / f"{dataset.scene_name(index)}_raw.npz"
+            scene_start = time.perf_counter()
+            try:
+                if not raw_path.exists():
+                    raise RuntimeError(f"blender wrote no {raw_path.name} (exit code {proc.returncode}); "
+                                       f"command: {' '.join(command)}\n--- stdout ---\n{proc.stdout[-4000:]}"
+                                       f"\n--- stderr ---\n{proc.stderr[-4000:]}")
+                frames = _finish_scene(job, spec, read_raw_npz(raw_path, len(spec.poses)))
+                _clear_failure_log(job, index)
+                results.append(SceneResult(index, True, frames,
+                                           blender_share + time.perf_counter() - scene_start))
+            except Exception:
+                _log_failure(job, index, traceback.format_exc())
+                results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
+    return results
+
+
+# The process's SceneRenderer, or the traceback of its failed start (bpy as a module).
+_PROCESS: dict = {}
+
+
+def _process_renderer():
+    """This process's SceneRenderer, made on first use, or the traceback text of why it could not."""
+    if not _PROCESS:
+        try:
+            # The only place the run touches bpy: one renderer per process, reused.
+            from generator.blender.render import SceneRenderer
+            _PROCESS["renderer"] = SceneRenderer()
+        except Exception:
+            # Raising here would break a whole pool without a traceback; fail each scene instead.
+            _PROCESS["renderer"] = traceback.format_exc()
+    return _PROCESS["renderer"]
+
+
+_POOL_JOB: dict = {}
+
+
+def _init_worker(job: RenderJob) -> None:
+    # Ctrl-C reaches the whole process group; the parent decides (it terminates the workers), so a
+    # render is never interrupted half-way inside Blender, which swallows the exception and goes on.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _POOL_JOB["job"] = job
+    if job.blender is None:
+        # spawn copies the parent's sys.path; a parent that already imported bpy (a test session, the
+        # Blender addon) has Blender's script folders on it, where `import bpy` would find Blender's
+        # inner bpy package instead of the module and fail with "No module named '_bpy'".
+        sys.path[:] = [p for p in sys.path if f"{os.sep}bpy{os.sep}" not in p]
+        _process_renderer()
+
+
+def _render_batch(indices: list[int]) -> list[SceneResult]:
+    return render_scenes(_POOL_JOB["job"], indices)
