@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from dotsim.pattern_store import make_pattern
 from generator.config import Config, ConfigError, load_config
-from generator.pipeline import builtin_textures, cached_assets, make_pattern
+from generator.pipeline import builtin_textures, cached_assets
 from generator.post_render import make_frame
 from generator.scene_spec import SceneResources, build_rig, frame_sensor_rng, sample_scene_spec
 
@@ -36,7 +37,7 @@ def prepare_resources(config: Config, split: str, work_dir: str | os.PathLike) -
     work_dir = Path(work_dir)
     rig = build_rig(config)
     try:
-        pattern = make_pattern(config, rig.projector.width, rig.projector.height)
+        pattern = make_pattern(config.pattern, rig.projector.width, rig.projector.height)
     except PatternError as exc:
         raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
     pattern_path = work_dir / f"pattern_{pattern.sha256[:16]}.png"

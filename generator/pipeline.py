@@ -33,13 +33,14 @@ import traceback
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
-from dotsim.patterns import DotPattern, PatternError, generate_dot_pattern, load_pattern
+from dotsim.file_io import atomic_write_bytes, json_bytes
+from dotsim.pattern_store import make_pattern, pattern_entry, store_pattern
+from dotsim.patterns import PatternError
 from generator.config import Config, ConfigError, check_output_dir
 from generator.post_render import RAW_PASSES, make_frame
 from generator.scene_spec import (
@@ -98,26 +99,6 @@ class RunSummary:
 # ----------------------------------------------------------------------------- resources
 
 
-def make_pattern(config: Config, width: int, height: int) -> DotPattern:
-    """The projector pattern of a config at the projector resolution (width x height px).
-
-    A pattern file of another size is resampled (area averaging when shrinking), so one captured
-    full-resolution pattern serves scaled-down rigs.
-    """
-    pc = config.pattern
-    if pc.source == "procedural":
-        return generate_dot_pattern(width, height, density=pc.density, min_spacing=pc.min_spacing,
-                                    dot_sigma=pc.dot_sigma, seed=pc.seed)
-    pattern = load_pattern(pc.path)
-    if pattern.image.shape == (height, width):
-        return pattern
-    shrinking = pattern.image.shape[1] > width
-    image = cv2.resize(pattern.image.astype(np.float32), (width, height),
-                       interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-    return DotPattern(image=np.clip(image, 0.0, 1.0), centres=None, source=pattern.source,
-                      params={**pattern.params, "resampled_from": list(pattern.image.shape[::-1])})
-
-
 def builtin_textures(out: Path, split: str) -> tuple[TextureAsset, ...]:
     """Procedural reflectance textures (assets_manifest families) under DATASET/textures, made once.
 
@@ -137,7 +118,7 @@ def builtin_textures(out: Path, split: str) -> tuple[TextureAsset, ...]:
             if not path.exists():
                 rng = np.random.default_rng((_SPLIT_CODE[split], family_index, k))
                 image = family.make(sample_params({}, family.defaults, rng), rng)
-                dataset.atomic_write_bytes(path, png_bytes(texture_from_image(image)))
+                atomic_write_bytes(path, png_bytes(texture_from_image(image)))
             textures.append(TextureAsset(str(path)))
     return tuple(textures)
 
@@ -272,7 +253,7 @@ def _finish_scene(job: _Job, spec_dict: dict, raw_frames: list[dict]) -> int:
 def _log_failure(job: _Job, index: int, text: str) -> None:
     log_dir = job.out / LOG_DIR
     log_dir.mkdir(exist_ok=True)
-    dataset.atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
+    atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
 
 
 def _clear_failure_log(job: _Job, index: int) -> None:
@@ -426,7 +407,7 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
                           f"says {config.output.scenes_per_shard}; use the same value or a new --out")
     rig = build_rig(config)
     try:
-        pattern = make_pattern(config, rig.projector.width, rig.projector.height)
+        pattern = make_pattern(config.pattern, rig.projector.width, rig.projector.height)
     except PatternError as exc:
         raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
     assets = cached_assets(config, split) if config.assets.source == "cache" else None
@@ -436,16 +417,15 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     out.mkdir(parents=True, exist_ok=True)
     dataset.remove_partial_scenes(out)
     try:
-        pattern_file = dataset.store_pattern(out, pattern)
+        pattern_file = store_pattern(out, pattern)
     except dataset.FormatError as exc:
         raise ConfigError(f"{exc}; use a new --out directory for a different pattern") from None
     if not (out / RUN_FILE).exists():
-        record_bytes = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
-        dataset.write_dataset_file(out, RUN_FILE, record_bytes)
+        dataset.write_dataset_file(out, RUN_FILE, json_bytes(record))
     if assets is None:
         assets = SceneResources("", "", textures=builtin_textures(out, split))
     resources = replace(assets, pattern_path=str(pattern_file), pattern_sha256=pattern.sha256)
-    job = _Job(config, out, split, seed, resources, dataset.pattern_entry(pattern), software, blender)
+    job = _Job(config, out, split, seed, resources, pattern_entry(pattern), software, blender)
 
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard

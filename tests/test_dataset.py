@@ -4,7 +4,6 @@ import hashlib
 import json
 import os
 
-import cv2
 import numpy as np
 import OpenEXR
 import pytest
@@ -276,25 +275,3 @@ def test_capture_scene_with_ir_only(tmp_path):
     assert [set(f) for f in scene.frames] == [{"ir"}] * 4
     with pytest.raises(ds.FormatError, match=r"\['depth'\] requested but the scene has \['ir'\]"):
         ds.read_frame(path / "frame_0.exr", channels=["depth"])
-
-
-def test_store_pattern_writes_once_and_refuses_another(tmp_path):
-    from dotsim.patterns import generate_dot_pattern
-
-    pattern = generate_dot_pattern(40, 30, n_dots=60, seed=1)
-    path = ds.store_pattern(tmp_path / "data", pattern)
-    assert path == tmp_path / "data" / ds.PATTERN_FILE
-    stored = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # decoded independently of load_pattern
-    assert stored.dtype == np.uint16
-    np.testing.assert_array_equal(stored, np.round(pattern.image.astype(np.float64) * 65535))
-    before = path.stat().st_mtime_ns
-    assert ds.store_pattern(tmp_path / "data", generate_dot_pattern(40, 30, n_dots=60, seed=1)) == path
-    assert path.stat().st_mtime_ns == before  # a rerun keeps the file
-    with pytest.raises(ds.FormatError, match=r"pattern.png: holds another pattern \(40x30"):
-        ds.store_pattern(tmp_path / "data", generate_dot_pattern(40, 30, n_dots=60, seed=2))
-    path.write_bytes(b"broken")
-    with pytest.raises(ds.FormatError, match="pattern.png: not a readable PNG image"):
-        ds.store_pattern(tmp_path / "data", pattern)
-    assert ds.pattern_entry(pattern) == {"source": "procedural", "sha256": pattern.sha256,
-                                         "file": "pattern.png", "width": 40, "height": 30,
-                                         "params": pattern.params}

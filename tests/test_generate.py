@@ -322,19 +322,3 @@ def test_failing_scenes_are_logged_and_the_run_goes_on(tmp_path, capsys):
     assert logs == [f"scene_000000{k}.log" for k in range(3)]
     assert "blender wrote no scene_0000001_raw.npz" in (out / LOG_DIR / logs[1]).read_text()
     assert not list(out.glob("shard_*/scene_*"))
-
-
-def test_pattern_file_is_resampled_to_the_projector(tmp_path):
-    from dotsim.patterns import generate_dot_pattern
-    from generator.pipeline import make_pattern
-
-    big = generate_dot_pattern(614, 614, density=0.01, seed=5)
-    big.save_png(tmp_path / "captured.png")
-    config = config_from_dict({"pattern": {"source": "file", "path": "captured.png"}}, base_dir=tmp_path)
-    pattern = make_pattern(config, 307, 307)
-    assert pattern.image.shape == (307, 307)
-    assert pattern.params["resampled_from"] == [614, 614]
-    # Area averaging keeps the mean brightness: the projector emits the same total light.
-    assert pattern.image.mean() == pytest.approx(big.image.mean(), rel=0.01)
-    same = make_pattern(config, 614, 614)
-    np.testing.assert_array_equal(same.image, big.image)

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from dotsim.dataset import FormatError, atomic_write_bytes, read_frame
+from dotsim.dataset import FormatError, read_frame
+from dotsim.file_io import atomic_write_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.rig import Rig, backproject
 from dotsim.show import colourise
