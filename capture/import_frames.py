@@ -215,6 +215,6 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
                             channels=CAPTURE_CHANNELS)
         written += 1
-    index = dataset.finalize_dataset(out_dir)
+    index = dataset.seal_dataset(out_dir).index
     return {"dataset": str(out_dir), "frames": len(pairs), "scenes": len(scenes), "written": written,
             "skipped": skipped, "index_scenes": index["scene_count"]}

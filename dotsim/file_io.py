@@ -28,7 +28,20 @@ _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 
 
 class DiskFullError(OSError):
-    """A write ran out of space; the message names the file, the space it needed and the free space."""
+    """A write ran out of space; the message names the file, the space it needed and the free space.
+
+    An OSError with errno ENOSPC whose str() is the message alone (one line for a CLI to print);
+    it survives pickling, so a worker process can raise it to its parent.
+    """
+
+    def __init__(self, message: str):
+        super().__init__(errno.ENOSPC, message)
+
+    def __str__(self) -> str:
+        return self.strerror
+
+    def __reduce__(self):
+        return type(self), (self.strerror,)
 
 
 def temporary_name(final_name: str) -> str:
@@ -59,8 +72,8 @@ def disk_full_error(path: str | os.PathLike, needed: int, exact: bool = True) ->
     except OSError:
         free = "free space unknown"
     amount = _size_text(needed) if exact else f"more than {_size_text(needed)}"
-    return DiskFullError(errno.ENOSPC, f"{path}: no space left on device: writing it needs {amount}, "
-                         f"{free} on {path.parent}; free some space and rerun")
+    return DiskFullError(f"{path}: no space left on device: writing it needs {amount}, {free} on "
+                         f"{path.parent}; free some space and rerun")
 
 
 def is_disk_full(error: BaseException) -> bool:

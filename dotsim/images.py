@@ -64,7 +64,7 @@ def read_grey_image(path: str | os.PathLike) -> GreyImage:
     """
     path = Path(path)
     if not path.is_file():
-        raise ImageError(f"{path}: no such file")
+        raise ImageError(f"{path}: {'is a folder, not a file' if path.is_dir() else 'no such file'}")
     try:
         data = path.read_bytes()
     except OSError as error:

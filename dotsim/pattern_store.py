@@ -40,13 +40,47 @@ def make_pattern(settings, width: int, height: int) -> DotPattern:
 
     settings: the section (generator.config.PatternConfig): `source` "procedural" (a Poisson-disc
     pattern from `density`, `min_spacing`, `dot_sigma`, `seed`) or "file" (the image at `path`,
-    resampled by resample_pattern when its size differs). Raises PatternError naming the file.
+    resampled by resample_pattern when its size differs). Raises PatternError naming the file,
+    also for a file with almost no signal (check_pattern_signal).
     """
     if settings.source == "procedural":
         return generate_dot_pattern(width, height, density=settings.density,
                                     min_spacing=settings.min_spacing, dot_sigma=settings.dot_sigma,
                                     seed=settings.seed)
-    return resample_pattern(load_pattern(settings.path), width, height)
+    pattern = load_pattern(settings.path)
+    check_pattern_signal(pattern, settings.path)
+    return resample_pattern(pattern, width, height)
+
+
+# A pattern image's dots should reach full scale (the projector's power is scaled by the pattern
+# value) and cover a visible share of it. Procedural patterns at the densities the config allows
+# have 1-6% of pixels above half their peak; one dot in a whole image has about 0.001%.
+MIN_PATTERN_PEAK = 1 / 16
+MIN_LIT_SHARE = 1e-3
+
+
+def check_pattern_signal(pattern: DotPattern, where) -> None:
+    """Refuse a pattern with almost no signal: a brightest pixel below MIN_PATTERN_PEAK of full
+    scale, or fewer than MIN_LIT_SHARE of its pixels above half the brightest value.
+
+    Examples
+    --------
+    >>> check_pattern_signal(generate_dot_pattern(64, 48, density=0.01, seed=0), "procedural")
+    >>> one_dot = np.zeros((48, 64)); one_dot[10, 10] = 1 / 255
+    >>> check_pattern_signal(DotPattern(one_dot), "one_dot.png")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    dotsim.patterns.PatternError: one_dot.png: brightest pixel is 0.0039 of full scale (below 1/16): ...
+    """
+    peak = float(pattern.image.max())
+    if peak < MIN_PATTERN_PEAK:
+        raise PatternError(f"{where}: brightest pixel is {peak:.4f} of full scale (below 1/16): almost "
+                           f"no light; rescale the image so its dots reach full scale")
+    lit = int((pattern.image > 0.5 * peak).sum())
+    if lit < MIN_LIT_SHARE * pattern.image.size:
+        raise PatternError(f"{where}: only {lit} of {pattern.image.size} pixels are above half the "
+                           f"brightest value: almost no dots (at least {MIN_LIT_SHARE:.1%} of the pixels "
+                           f"are needed; a dot pattern has a few percent)")
 
 
 def store_pattern(dataset_dir: str | os.PathLike, pattern: DotPattern) -> Path:

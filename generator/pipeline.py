@@ -2,7 +2,8 @@
 
 `generate()` validates everything before it writes anything (config values, output directory,
 Blender executable, an existing dataset's config), then:
-  1. removes partial scenes left by a crashed run and skips complete ones (resume);
+  1. removes partial scenes left by a crashed run and damaged ones (a frame deleted after the
+     fact), and skips complete ones (resume);
   2. writes the projector pattern once (DATASET/pattern.png) and the built-in textures it needs;
   3. renders the remaining scenes in W spawned worker processes: each worker holds one
      SceneRenderer (bpy is imported only there) for all its scenes, or, with `blender=EXE`, runs
@@ -11,7 +12,8 @@ Blender executable, an existing dataset's config), then:
   4. post-renders each frame (generator.post_render) and writes the scene atomically
      (dotsim.dataset.write_scene); a failing scene is logged (DATASET/logs/scene_NNNNNNN.log, with
      its traceback) and the run goes on;
-  5. seals the dataset (dotsim.dataset.finalize_dataset) and returns a RunSummary.
+  5. seals the dataset (dotsim.dataset.seal_dataset: incremental, so every run seals, and a run
+     killed before its seal leaves nothing a rerun does not mend) and returns a RunSummary.
 Scene k is sampled from (config, k, base seed) alone, so the output does not depend on W.
 """
 
@@ -38,7 +40,7 @@ from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
-from dotsim.file_io import atomic_write_bytes, json_bytes
+from dotsim.file_io import DiskFullError, atomic_write_bytes, json_bytes
 from dotsim.pattern_store import make_pattern, pattern_entry, store_pattern
 from dotsim.patterns import PatternError
 from generator.config import Config, ConfigError, check_output_dir
@@ -83,6 +85,7 @@ class RunSummary:
     seconds: float = 0.0
     worker_seconds: float = 0.0
     failed: list[int] = field(default_factory=list)
+    redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
 
     def line(self) -> str:
         per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
@@ -90,6 +93,8 @@ class RunSummary:
         scenes = "scene" if self.done == 1 else "scenes"
         text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
                 f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
+        if self.redone:
+            text += f"; {len(self.redone)} damaged scene(s) found and redone: {self.redone[:10]}"
         if self.failed:
             text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
                     f"tracebacks in {self.out / LOG_DIR}"
@@ -274,6 +279,8 @@ def _render_in_process(indices: list[int]) -> list[SceneResult]:
             frames = _finish_scene(job, spec, renderer.render(spec))
             _clear_failure_log(job, index)
             results.append(SceneResult(index, True, frames, time.perf_counter() - start))
+        except DiskFullError:
+            raise  # every later scene would fail too: stop the run (the parent reports it)
         except Exception:
             _log_failure(job, index, traceback.format_exc())
             results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
@@ -313,6 +320,8 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
                 _clear_failure_log(job, index)
                 results.append(SceneResult(index, True, frames,
                                            blender_share + time.perf_counter() - scene_start))
+            except DiskFullError:
+                raise
             except Exception:
                 _log_failure(job, index, traceback.format_exc())
                 results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))
@@ -336,9 +345,9 @@ def _render_batch(indices: list[int]) -> list[SceneResult]:
 def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunSummary, bar: tqdm) -> None:
     """Render the batches in `workers` spawned processes, counting results into `summary`.
 
-    Ctrl-C cancels the scenes not yet started and terminates the workers at once (the default
-    executor shutdown would render every queued scene first); the next run removes the scenes
-    they left half-written.
+    Ctrl-C, a full disk or any other error that stops the run cancels the scenes not yet started
+    and terminates the workers at once (the default executor shutdown would render every queued
+    scene first); the next run removes the scenes they left half-written.
     """
     pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                   initializer=_init_worker, initargs=(job,))
@@ -347,6 +356,8 @@ def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunS
         for future in concurrent.futures.as_completed(futures):
             try:
                 results = future.result()
+            except DiskFullError:
+                raise
             except Exception as exc:  # a worker died (crash in Blender): its scenes failed
                 text = "".join(traceback.format_exception(exc))
                 results = [SceneResult(i, False, error=text) for i in futures[future]]
@@ -361,7 +372,7 @@ def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunS
                     summary.failed.append(result.index)
                     bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
             bar.update(len(results))
-    except KeyboardInterrupt:
+    except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         for worker in multiprocessing.active_children():
             worker.terminate()
@@ -430,7 +441,10 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard
     todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
-    summary = RunSummary(out=out, skipped=scenes - len(todo))
+    # A final scene folder only ever appears complete, so one that is not was damaged after the
+    # fact (a frame deleted, a bad copy): remove it and render it again.
+    damaged = [i for i in todo if dataset.remove_scene(out, i, spp)]
+    summary = RunSummary(out=out, skipped=scenes - len(todo), redone=damaged)
     batch = 1 if blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
     batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
@@ -439,10 +453,10 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
         _render_all(job, batches, min(workers, len(batches)), summary, bar)
     bar.close()
     summary.failed.sort()
-    # finalize re-hashes every file: skip it when nothing changed since the last sealed run.
-    changed = summary.done or not (out / dataset.INDEX_FILE).exists()
-    if changed and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
-        dataset.finalize_dataset(out)
+    # Always: a run killed after its last scene and before or during its seal left a stale seal,
+    # and sealing is incremental (unchanged shards cost a listing and their scene.json files).
+    if (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
+        dataset.seal_dataset(out)
     summary.seconds = time.perf_counter() - began
     return summary
 

@@ -2,10 +2,10 @@
 
 Layout::
 
-    DATASET/index.json                      written by finalize_dataset (shards, counts, checksums)
+    DATASET/index.json                      written by seal_dataset (shards, counts, checksums)
     DATASET/dataset.json                    layout (scenes_per_shard), written with the first scene
     DATASET/<other files>                   dataset-level files, e.g. pattern.png (write_dataset_file)
-    DATASET/shard_00000/shard.json          written by finalize_dataset (sha256 of every file)
+    DATASET/shard_00000/shard.json          written by seal_dataset (sha256 of every file)
     DATASET/shard_00000/scene_0000000/scene.json      metadata, written last (lists frame sha256)
     DATASET/shard_00000/scene_0000000/frame_0.exr     one EXR per frame, channels FRAME_CHANNELS
 
@@ -19,9 +19,11 @@ Modules, one idea each (this package re-exports their public names):
 - layout: names and paths, FormatError, the format version, dataset.json, listing shards/scenes
 - frames: the EXR frame codec and FRAME_CHANNELS
 - scene_meta: scene.json's required keys and its validation
-- writer: write_scene, write_dataset_file, and resume (is_scene_complete, remove_partial_scenes)
-- seal: finalize_dataset (shard.json, index.json)
+- writer: write_scene, write_dataset_file, and resume (is_scene_complete, remove_partial_scenes,
+  remove_scene)
+- seal: seal_dataset (shard.json, index.json), incremental, rerunnable at any time
 - reader: open_dataset, read_scene, read_frame, dataset_summary
+- verify: verify_dataset (every checksum, the seal against the disk) and repair_dataset
 
 The dataset's pattern file (store_pattern, pattern_entry) lives in dotsim.pattern_store.
 """
@@ -31,6 +33,7 @@ from dotsim.dataset.frames import (
     FRAME_CHANNELS,
     MASK_CHANNELS,
     decode_frame,
+    encode_frame,
     write_frame_file,
 )
 from dotsim.dataset.layout import (
@@ -62,10 +65,13 @@ from dotsim.dataset.reader import (
     read_scene_meta,
 )
 from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size, parse_scene_meta
-from dotsim.dataset.seal import finalize_dataset
+from dotsim.dataset.seal import SealResult, finalize_dataset, seal_dataset
+from dotsim.dataset.verify import Problem, RepairResult, VerifyReport, repair_dataset, verify_dataset
 from dotsim.dataset.writer import (
     is_scene_complete,
+    leftovers,
     remove_partial_scenes,
+    remove_scene,
     write_dataset_file,
     write_scene,
 )
@@ -88,10 +94,11 @@ def __getattr__(name: str):
 __all__ = [
     "DEFAULT_SCENES_PER_SHARD", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS", "INDEX_FILE",
     "LAYOUT_FILE", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE", "SHARD_FILE",
-    "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "FormatError", "Scene", "SceneRef",
-    "atomic_write_bytes", "camera_size", "check_format_version", "complete_scenes", "dataset_summary",
-    "decode_frame", "finalize_dataset", "frame_name", "is_scene_complete", "open_dataset",
-    "parse_scene_meta", "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta",
-    "remove_partial_scenes", "scene_dir", "scene_name", "sha256_bytes", "sha256_file", "shard_name",
-    "write_dataset_file", "write_frame_file", "write_scene",
+    "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "FormatError", "Problem", "RepairResult", "Scene",
+    "SceneRef", "SealResult", "VerifyReport", "atomic_write_bytes", "camera_size", "check_format_version",
+    "complete_scenes", "dataset_summary", "decode_frame", "encode_frame", "finalize_dataset", "frame_name",
+    "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta", "pattern_path", "read_frame",
+    "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes", "remove_scene",
+    "repair_dataset", "scene_dir", "scene_name", "seal_dataset", "sha256_bytes", "sha256_file",
+    "shard_name", "verify_dataset", "write_dataset_file", "write_frame_file", "write_scene",
 ]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_version
-from dotsim.file_io import sha256_file
+from dotsim.file_io import atomic_write_bytes, sha256_bytes
 
 # Lossless; chosen over PIZ by bench/read_shards.py --compression (numbers in docs/FORMAT.md).
 EXR_COMPRESSION = "ZIP_COMPRESSION"
@@ -85,12 +85,12 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     return pixels
 
 
-def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int],
-                     channels: tuple[str, ...] | None = None, compression: str = EXR_COMPRESSION,
-                     where: str = "frame") -> str:
-    """Write one frame EXR at `path` (write_scene calls it inside its temp dir); return its sha256.
+def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] | None = None,
+                 compression: str = EXR_COMPRESSION, where: str = "frame") -> bytes:
+    """The bytes of one frame EXR (validated and converted to FRAME_CHANNELS dtypes first).
 
-    compression: an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
+    channels: the channel set the frame must carry (default all of FRAME_CHANNELS); compression:
+    an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
     """
     import OpenEXR
 
@@ -98,8 +98,18 @@ def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int
     pixels = _frame_pixels(frame, channels, shape, where)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               "dotsim_format_version": FORMAT_VERSION}
-    OpenEXR.File(header, pixels).write(str(path))
-    return sha256_file(path)
+    stream = io.BytesIO()
+    OpenEXR.File(header, pixels).write(stream)
+    return stream.getvalue()
+
+
+def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int],
+                     channels: tuple[str, ...] | None = None, compression: str = EXR_COMPRESSION,
+                     where: str = "frame") -> str:
+    """Write one frame EXR at `path` atomically (encode_frame); return its sha256."""
+    data = encode_frame(frame, shape, channels, compression, where)
+    atomic_write_bytes(path, data)
+    return sha256_bytes(data)
 
 
 def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str, np.ndarray]:
@@ -112,12 +122,13 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
 
     try:
         exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+        # A truncated file opens with no parts; header() then raises a ValueError naming no file.
+        header, stored = exr.header(), exr.channels()
     except Exception as e:  # OpenEXR raises plain RuntimeError/ValueError for corrupt files
         raise FormatError(f"{path}: not a readable OpenEXR file ({e})") from None
-    version = exr.header().get("dotsim_format_version")
+    version = header.get("dotsim_format_version")
     if version is not None:
         check_format_version(version, path)
-    stored = exr.channels()
     source = "height, width of the rig camera in scene.json"
     if channels is None:
         channels = [c for c in FRAME_CHANNELS if c in stored]

@@ -55,7 +55,7 @@ class Scene:
 
 @dataclass
 class Dataset:
-    """An opened, finalized dataset: its index.json and the scenes its shards list."""
+    """An opened, sealed dataset: its index.json and the scenes its shards list."""
 
     root: Path
     index: dict
@@ -73,7 +73,7 @@ class Dataset:
 
 
 def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset:
-    """Open a finalized dataset: read index.json, check versions and every shard.json's sha256.
+    """Open a sealed dataset: read index.json, check versions and every shard.json's sha256.
 
     verify: also make read_scene/read_frame through this Dataset check file checksums.
     """
@@ -82,8 +82,8 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
         raise FormatError(f"{root}: dataset directory does not exist")
     index_path = root / INDEX_FILE
     if not index_path.exists():
-        hint = ("it has scene shards: run finalize_dataset (or the generator to completion)"
-                if any(shard_dirs(root)) else "the directory holds no dotsim dataset")
+        hint = ("it has scene shards: seal it with `dotsim seal DIR` (or run the generator to "
+                "completion)" if any(shard_dirs(root)) else "the directory holds no dotsim dataset")
         raise FormatError(f"{index_path}: missing; {hint}")
     index = load_json(index_path)
     check_format_version(index.get("format_version"), index_path)
@@ -94,7 +94,7 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
                 raise FormatError(f"{path}: missing (listed in {index_path})")
             if sha256_file(path) != sha:
                 raise FormatError(f"{path}: sha256 differs from the one in {index_path} (file changed "
-                                  f"or corrupt; rerun finalize_dataset if it was rewritten on purpose)")
+                                  f"or corrupt; `dotsim verify DIR` lists what is wrong)")
     refs = []
     for entry in require(index, "shards", list, index_path):
         shard_path = root / entry["name"] / SHARD_FILE
@@ -103,8 +103,8 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
         except FileNotFoundError:
             raise FormatError(f"{shard_path}: missing (listed in {index_path})") from None
         if sha256_bytes(data) != entry["sha256"]:
-            raise FormatError(f"{shard_path}: sha256 differs from the one in {index_path} "
-                              f"(file changed or corrupt; rerun finalize_dataset if it was rewritten)")
+            raise FormatError(f"{shard_path}: sha256 differs from the one in {index_path} (a seal was "
+                              f"interrupted or the file changed; `dotsim verify DIR --repair` mends it)")
         shard = load_json(shard_path, data)
         check_format_version(shard.get("format_version"), shard_path)
         for s in require(shard, "scenes", list, shard_path):

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import __version__ as DOTSIM_VERSION
-from dotsim.dataset.frames import FRAME_CHANNELS, write_frame_file
+from dotsim.dataset.frames import FRAME_CHANNELS, encode_frame
 from dotsim.dataset.layout import (
     DEFAULT_SCENES_PER_SHARD,
     FORMAT_VERSION,
@@ -29,13 +29,21 @@ from dotsim.dataset.layout import (
     scene_dir,
 )
 from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size
-from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, json_bytes, temporary_name
+from dotsim.file_io import (
+    TMP_PREFIX,
+    atomic_write_bytes,
+    disk_full_error,
+    is_disk_full,
+    json_bytes,
+    sha256_bytes,
+    temporary_name,
+)
 
 _TMP_PID_RE = re.compile(r"-(\d+)$")
 
 
 def write_dataset_file(dataset_dir: str | os.PathLike, name: str, data: bytes) -> Path:
-    """Atomically write a dataset-level file (e.g. pattern.png); finalize_dataset checksums it."""
+    """Atomically write a dataset-level file (e.g. pattern.png); seal_dataset checksums it."""
     if "/" in name or name.startswith(".") or name in (INDEX_FILE, LAYOUT_FILE):
         raise FormatError(f"dataset-level file name {name!r} is not allowed (plain name, not "
                           f"hidden, not {INDEX_FILE} or {LAYOUT_FILE})")
@@ -85,6 +93,20 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     final = scene_dir(dataset_dir, scene_index, scenes_per_shard)
     if final.exists():
         raise FormatError(f"{final}: scene already exists (check is_scene_complete before writing)")
+    # Encoded (and so validated) before anything is written: a bad frame leaves no trace on disk.
+    encoded = [encode_frame(frame, shape, channels, where=f"{where} frame {k}")
+               for k, frame in enumerate(frames)]
+    full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
+    full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
+                     scene_index=scene_index, frame_count=len(frames),
+                     channels={c: FRAME_CHANNELS[c].name for c in channels},
+                     frames=[{"file": frame_name(k), "sha256": sha256_bytes(data)}
+                             for k, data in enumerate(encoded)])
+    try:
+        scene_json = json_bytes(full_meta)
+    except (TypeError, ValueError) as e:
+        raise FormatError(f"{where}: meta is not JSON-safe ({e})") from None
+
     final.parent.mkdir(parents=True, exist_ok=True)
     record_layout(dataset_dir, scenes_per_shard)
     tmp = final.parent / temporary_name(final.name)
@@ -92,23 +114,14 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
         shutil.rmtree(tmp)
     tmp.mkdir()
     try:
-        frame_entries = []
-        for k, frame in enumerate(frames):
-            name = frame_name(k)
-            sha = write_frame_file(tmp / name, frame, shape, channels, where=f"{where} frame {k}")
-            frame_entries.append({"file": name, "sha256": sha})
-        full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
-        full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
-                         scene_index=scene_index, frame_count=len(frames),
-                         channels={c: FRAME_CHANNELS[c].name for c in channels}, frames=frame_entries)
-        try:
-            data = json_bytes(full_meta)
-        except (TypeError, ValueError) as e:
-            raise FormatError(f"{where}: meta is not JSON-safe ({e})") from None
-        (tmp / SCENE_FILE).write_bytes(data)
+        for k, data in enumerate(encoded):
+            atomic_write_bytes(tmp / frame_name(k), data)
+        atomic_write_bytes(tmp / SCENE_FILE, scene_json)
         os.rename(tmp, final)
-    except BaseException:
+    except BaseException as error:
         shutil.rmtree(tmp, ignore_errors=True)
+        if is_disk_full(error):
+            raise disk_full_error(final, sum(map(len, encoded)) + len(scene_json)) from None
         raise
     return final
 
@@ -128,6 +141,23 @@ def is_scene_complete(dataset_dir: str | os.PathLike, scene_index: int,
         return False
 
 
+def remove_scene(dataset_dir: str | os.PathLike, scene_index: int,
+                 scenes_per_shard: int = DEFAULT_SCENES_PER_SHARD) -> Path | None:
+    """Delete a scene's final directory (a damaged scene, so that it is written again); returns it,
+    or None when there is none. The folder is first renamed to a ``.tmp-`` name, so a crash
+    half-way leaves a leftover remove_partial_scenes deletes, never half a scene under its name.
+    """
+    final = scene_dir(dataset_dir, scene_index, scenes_per_shard)
+    if not final.exists():
+        return None
+    doomed = final.parent / temporary_name(final.name)
+    if doomed.exists():
+        shutil.rmtree(doomed)
+    os.rename(final, doomed)
+    shutil.rmtree(doomed)
+    return final
+
+
 def _pid_alive(pid: int) -> bool:
     if pid == os.getpid():
         return False  # our own leftovers are never in use by a live writer at resume time
@@ -140,25 +170,31 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = False) -> list[Path]:
-    """Delete ``.tmp-*`` leftovers (half-written scenes and JSON files) from crashed writers.
-
-    Leftovers whose writer process (the pid suffix) is still running on this machine are kept
-    unless include_live, so a resume never pulls files from under a concurrent worker.
-    Returns the removed paths.
-    """
+def leftovers(dataset_dir: str | os.PathLike, include_live: bool = False) -> list[Path]:
+    """``.tmp-*`` leftovers (half-written scenes and files) of writers that are no longer running on
+    this machine (the pid suffix), or of every writer with include_live, sorted."""
     root = Path(dataset_dir)
-    removed = []
     # Temp names live beside their final names: top level, shard dirs, and other first-level dirs
     # (e.g. the generator's logs/).
     candidates = list(root.glob(TMP_PREFIX + "*")) + list(root.glob("*/" + TMP_PREFIX + "*"))
+    found = []
     for p in sorted(candidates):
         m = _TMP_PID_RE.search(p.name)
-        if m and not include_live and _pid_alive(int(m.group(1))):
-            continue
+        if include_live or not (m and _pid_alive(int(m.group(1)))):
+            found.append(p)
+    return found
+
+
+def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = False) -> list[Path]:
+    """Delete the leftovers of crashed writers (see leftovers) and return their paths.
+
+    Leftovers whose writer process is still running on this machine are kept unless
+    include_live, so a resume never pulls files from under a concurrent worker.
+    """
+    removed = leftovers(dataset_dir, include_live)
+    for p in removed:
         if p.is_dir():
             shutil.rmtree(p)
         else:
-            p.unlink()
-        removed.append(p)
+            p.unlink(missing_ok=True)
     return removed
