@@ -11,7 +11,6 @@ under a temporary name and renamed; the index is rewritten (atomically) every fe
 "complete": false, so an interrupted build resumes where it stopped.
 """
 
-import hashlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -27,7 +26,7 @@ from assets_manifest.params import canonical_json, sample_params, spec_seed
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 from assets_manifest.user_folders import load_image_file, load_mesh_file
-from dotsim.dataset import TMP_PREFIX, atomic_write_bytes, sha256_file
+from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, sha256_bytes, sha256_file
 
 CACHE_FORMAT = "dotsim-assets/1"
 # Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
@@ -154,7 +153,7 @@ def asset_key(spec: AssetSpec) -> str:
     """What the built file depends on: kind, source spec and builder version."""
     source = {k: v for k, v in spec.source.items() if k != "file"}
     payload = canonical_json({"kind": spec.kind, "source": source, "builder": BUILDER_VERSION})
-    return hashlib.sha256(payload.encode()).hexdigest()
+    return sha256_bytes(payload.encode())
 
 
 def _build_mesh(spec: AssetSpec) -> dict[str, np.ndarray]:
@@ -335,7 +334,7 @@ def build_asset_cache(
             entries[spec.id] = {
                 **meta,
                 "path": relative,
-                "sha256": hashlib.sha256(data).hexdigest(),
+                "sha256": sha256_bytes(data),
                 "content_sha256": content,
                 **extra,
             }

@@ -32,7 +32,6 @@ seed, the content hash of a user file, or the scikit-image image name. Names, li
 hints are not part of it, so renaming an entry does not hide an overlap between splits.
 """
 
-import hashlib
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -42,7 +41,7 @@ from assets_manifest.package_images import SKIMAGE_PHOTOS
 from assets_manifest.params import canonical_json, check_params
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
-from dotsim.dataset import sha256_file
+from dotsim.file_io import sha256_bytes, sha256_file
 
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -247,7 +246,7 @@ def load_manifest(path: str | Path) -> Manifest:
     if duplicates:
         raise ManifestError(f"{path}: asset ids appear twice (entry names must be unique): {duplicates[:10]}")
     return Manifest(
-        path, hashlib.sha256(raw).hexdigest(), name, float(density), expanded["meshes"], expanded["textures"]
+        path, sha256_bytes(raw), name, float(density), expanded["meshes"], expanded["textures"]
     )
 
 

@@ -8,12 +8,13 @@ A manifest gives each parameter either a fixed value or a range to draw from per
                                                strings it knows in its defaults)
 """
 
-import hashlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from dotsim.file_io import sha256_bytes
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ def canonical_json(value) -> str:
 def spec_seed(spec: dict) -> int:
     """A 64-bit seed derived from a source spec, so any change of family, parameter or seed gives an
     independent random stream (two entries differing only in a parameter do not share draws)."""
-    return int(hashlib.sha256(canonical_json(spec).encode()).hexdigest()[:16], 16)
+    return int(sha256_bytes(canonical_json(spec).encode())[:16], 16)
 
 
 def _is_number(x) -> bool:

@@ -103,7 +103,7 @@ def main(argv=None) -> int:
         for index in range(n_scenes):
             frames = [synthetic_frame(rig, rng) for _ in range(4)]
             ds.write_scene(root, index, scene_meta(rig, index), frames, scenes_per_shard=args.scenes)
-        index = ds.finalize_dataset(root)
+        index = ds.seal_dataset(root).index
         size = sum(p.stat().st_size for p in root.rglob("*.exr")) / index["frame_count"] / 1e6
         print(f"wrote {n_scenes} scenes ({index['frame_count']} frames, {rig.camera.width} x "
               f"{rig.camera.height}, {size:.2f} MB/frame) in {time.perf_counter() - start:.1f} s")

@@ -15,7 +15,8 @@ from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
 from capture.frames import CaptureError, list_images, read_image
 from capture.import_frames import import_frames
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
-from dotsim.dataset import FormatError, atomic_write_bytes
+from dotsim.dataset import FormatError
+from dotsim.file_io import atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig import DEFAULT_PRESET, PRESETS, Rig, get_preset
 

@@ -30,7 +30,7 @@ import numpy as np
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError, check_size, list_images, pair_on_off, read_image
 from dotsim import __version__ as DOTSIM_VERSION
-from dotsim import dataset
+from dotsim import dataset, pattern_store
 from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
@@ -115,7 +115,8 @@ def _versions() -> dict:
 def scene_meta(pairs: list[FramePair], rig: Rig, split: str, settings: dict,
                pattern: dict | None) -> dict:
     """scene.json content for one captured scene (the writer adds format and frame fields).
-    pattern: dataset.pattern_entry of the stored pattern, or None when the sensor's pattern is not known."""
+    pattern: pattern_store.pattern_entry of the stored pattern, or None when the sensor's pattern is
+    not known."""
     return {
         "split": split,
         "source": "capture",
@@ -193,10 +194,10 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
     pattern_entry = None
     if pattern is not None:
         try:
-            dataset.store_pattern(out_dir, pattern)
+            pattern_store.store_pattern(out_dir, pattern)
         except dataset.FormatError as error:
             raise CaptureError(f"{error}; choose an empty --out") from None
-        pattern_entry = dataset.pattern_entry(pattern)
+        pattern_entry = pattern_store.pattern_entry(pattern)
     settings = {"white_level": pairs[0].white_level, "frames_per_scene": frames_per_scene,
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
                 "settings": capture_settings or {}}
@@ -214,6 +215,6 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
                             channels=CAPTURE_CHANNELS)
         written += 1
-    index = dataset.finalize_dataset(out_dir)
+    index = dataset.seal_dataset(out_dir).index
     return {"dataset": str(out_dir), "frames": len(pairs), "scenes": len(scenes), "written": written,
             "skipped": skipped, "index_scenes": index["scene_count"]}

@@ -5,6 +5,7 @@ import importlib
 import sys
 
 from dotsim import __version__
+from dotsim.file_io import DiskFullError
 
 # Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int`.
 SUBCOMMAND_MODULES = [
@@ -12,6 +13,7 @@ SUBCOMMAND_MODULES = [
     "assets_manifest.cli",
     "dotsim.show",
     "dotsim.pattern_cli",
+    "dotsim.dataset_cli",
     "trainer.cli",
     "capture.cli",
 ]
@@ -32,7 +34,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except DiskFullError as error:
+        # Any stage can run out of space; the message names the file and the space it needed, and
+        # the atomic writer left nothing half-written behind.
+        print(f"dotsim {args.command}: error: {error}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -13,14 +13,13 @@ cannot be recovered from colour without knowing how the colours were made. Alpha
 
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from dotsim.dataset import atomic_write_bytes
+from dotsim.file_io import atomic_write_bytes, sha256_bytes
 
 # Channel names an EXR's grey image may have, most specific first: dotsim frames and IR tools name
 # it ir/IR, OpenEXR's luminance images Y, RGB images repeat grey in R.
@@ -65,7 +64,7 @@ def read_grey_image(path: str | os.PathLike) -> GreyImage:
     """
     path = Path(path)
     if not path.is_file():
-        raise ImageError(f"{path}: no such file")
+        raise ImageError(f"{path}: {'is a folder, not a file' if path.is_dir() else 'no such file'}")
     try:
         data = path.read_bytes()
     except OSError as error:
@@ -87,7 +86,7 @@ def read_grey_image(path: str | os.PathLike) -> GreyImage:
         raise ImageError(f"{path}: expected a non-empty 2-D greyscale image, got shape {pixels.shape}")
     if pixels.dtype == np.float32 and not np.isfinite(pixels).all():
         raise ImageError(f"{path}: image contains {int((~np.isfinite(pixels)).sum())} NaN/inf pixels")
-    return GreyImage(path, np.ascontiguousarray(pixels), white, hashlib.sha256(data).hexdigest())
+    return GreyImage(path, np.ascontiguousarray(pixels), white, sha256_bytes(data))
 
 
 def _decode_raster(path: Path, data: bytes) -> np.ndarray:
@@ -124,7 +123,7 @@ WRITE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Encode an 8/16-bit grey or BGR image by the file suffix (.png, .jpg) and write it atomically
-    (dotsim.dataset.atomic_write_bytes), so a reader never sees half an image."""
+    (dotsim.file_io.atomic_write_bytes), so a reader never sees half an image."""
     import cv2
 
     path = Path(path)

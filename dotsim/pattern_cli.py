@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+from dotsim.file_io import atomic_write_json
 from dotsim.patterns import (
     DEFAULT_DENSITY,
     PatternError,
@@ -71,13 +70,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     stats.set_defaults(func=_stats)
 
 
-def _write_json_atomic(path: Path, data: dict) -> None:
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(handle, "w") as stream:
-        json.dump(data, stream, indent=2)
-    os.replace(temporary, path)
-
-
 def _make(args: argparse.Namespace) -> int:
     try:
         rig = get_preset(args.rig)
@@ -93,7 +85,7 @@ def _make(args: argparse.Namespace) -> int:
         return 2
     record = {"source": pattern.source, "sha256": pattern.sha256, "width": pattern.width,
               "height": pattern.height, "rig": rig.name, "scale": args.scale, "params": pattern.params}
-    _write_json_atomic(path.with_suffix(".json"), record)
+    atomic_write_json(path.with_suffix(".json"), record)
     print(f"wrote {path} ({pattern.width}x{pattern.height}, {len(pattern.centres)} dots, seed {args.seed}, "
           f"sha256 {pattern.sha256[:12]}) in {time.perf_counter() - start:.1f} s")
     return 0

@@ -9,7 +9,6 @@ save_png -> load_pattern unchanged, sha256 included.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 from dataclasses import dataclass, field
@@ -21,6 +20,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from dotsim import __version__
+from dotsim.file_io import sha256_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
 
 _LEVELS = 65535
@@ -78,7 +78,7 @@ class DotPattern:
     @property
     def sha256(self) -> str:
         """Checksum of the image's 16-bit levels (what save_png writes)."""
-        return hashlib.sha256(np.ascontiguousarray(_quantise(self.image)).tobytes()).hexdigest()
+        return sha256_bytes(np.ascontiguousarray(_quantise(self.image)).tobytes())
 
     def save_png(self, path: str | os.PathLike) -> Path:
         """Write the image as a 16-bit greyscale PNG, atomically (temporary file, then rename)."""

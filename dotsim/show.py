@@ -9,6 +9,7 @@ means no value there (no hit / invalid). numpy + OpenCV only.
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -188,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
         sheet, layout = contact_sheet(frames, title, args.tile_width, labels)
         out = write_image(args.output, sheet)
     except (ds.FormatError, ValueError) as e:
-        print(f"dotsim show: {e}")
+        print(f"dotsim show: error: {e}", file=sys.stderr)
         return 1
     print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): {len(frames)} frame(s) x "
           f"{len({c for _, c in layout.tiles})} pass(es)")

@@ -30,18 +30,17 @@ Config keys: docs/CONFIG.md.
 """
 
 
-def _non_negative(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+def _integer_at_least(low: int):
+    """An argparse type: an integer >= low; anything else is refused naming the value and the range."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < low:
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed: an integer >= {low}")
+        return value
+    return parse
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -54,14 +53,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
     parser.add_argument("--split", required=True, choices=("train", "test"),
                         help="asset split and clutter density to draw from")
-    parser.add_argument("--scenes", required=True, type=_positive, metavar="N", help="number of scenes")
-    parser.add_argument("--start", type=_non_negative, default=0, metavar="K",
+    parser.add_argument("--scenes", required=True, type=_integer_at_least(1), metavar="N",
+                        help="number of scenes")
+    parser.add_argument("--start", type=_integer_at_least(0), default=0, metavar="K",
                         help="index of the first scene (default 0); scene indices are global, so "
                              "ranges rendered on several machines merge into one dataset")
-    parser.add_argument("--workers", type=_positive, default=1, metavar="W",
+    parser.add_argument("--workers", type=_integer_at_least(1), default=1, metavar="W",
                         help="render processes on this machine (default 1); each holds one Blender "
                              "scene for all its scenes. Set [render] threads so W x threads fits the cores")
-    parser.add_argument("--seed", type=_non_negative, default=0, metavar="S",
+    parser.add_argument("--seed", type=_integer_at_least(0), default=0, metavar="S",
                         help="base seed (default 0): scene k uses SeedSequence((S, k))")
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
@@ -72,6 +72,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dotsim.dataset import FormatError
     from generator.config import ConfigError, load_config
     from generator.pipeline import generate, main_summary
 
@@ -83,6 +84,9 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"dotsim generate: error: {exc}", file=sys.stderr)
         return 2
+    except FormatError as exc:  # the dataset on disk: e.g. a damaged scene outside this run's range
+        print(f"dotsim generate: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
               file=sys.stderr)

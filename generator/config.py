@@ -229,7 +229,8 @@ def _check_cross_fields(config: Config) -> None:
             raise ConfigError(f"{src}: [pattern] path is empty but source = \"file\"; allowed: the path "
                               "of a pattern image (PNG or EXR), or source = \"procedural\"")
         if not Path(path).is_file():
-            raise ConfigError(f"{src}: [pattern] path = {path!r}: file not found; allowed: an existing "
+            problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
+            raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
     if config.assets.source == "cache":
         path = config.assets.cache_dir

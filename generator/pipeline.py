@@ -5,10 +5,12 @@ Blender executable, an existing dataset's config), then:
   1. gets the dataset folder ready (`prepare_run`): removes partial scenes left by a crashed run,
      writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
      textures it needs (generator/resources.py);
-  2. skips complete scenes (resume) and renders the others in W spawned worker processes
+  2. skips complete scenes (resume), removes damaged ones (a frame deleted after the fact) and
+     renders them with the others in W spawned worker processes
      (generator/render_scenes.py: sample, render, post-render, write each scene atomically; a
      failing scene is logged and the run goes on);
-  3. seals the dataset (dotsim.dataset.finalize_dataset) and returns a RunSummary.
+  3. seals the dataset (dotsim.dataset.seal_dataset: incremental, so every run seals, and a run
+     killed before its seal leaves nothing a rerun does not mend) and returns a RunSummary.
 Other front ends (a Ray task, a Slurm array task) call `prepare_run` once, then
 `render_scenes(job, indices)` on their shares, then seal the dataset.
 Scene k is sampled from (config, k, base seed) alone, so the output does not depend on W.
@@ -27,13 +29,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
-from dotsim.patterns import DotPattern, generate_dot_pattern, load_pattern
+from dotsim.file_io import json_bytes
+from dotsim.pattern_store import pattern_entry, store_pattern
 from generator.config import Config, ConfigError, check_output_dir
 from generator.render_scenes import LOG_DIR, RUN_IN_BLENDER, RenderJob, SceneResult, render_pool
 from generator.resources import config_pattern, split_assets
@@ -55,6 +57,7 @@ class RunSummary:
     seconds: float = 0.0
     worker_seconds: float = 0.0
     failed: list[int] = field(default_factory=list)
+    redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
 
     def line(self) -> str:
         per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
@@ -62,30 +65,12 @@ class RunSummary:
         scenes = "scene" if self.done == 1 else "scenes"
         text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
                 f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
+        if self.redone:
+            text += f"; {len(self.redone)} damaged scene(s) found and redone: {self.redone[:10]}"
         if self.failed:
             text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
                     f"tracebacks in {self.out / LOG_DIR}"
         return text
-
-
-def make_pattern(config: Config, width: int, height: int) -> DotPattern:
-    """The projector pattern of a config at the projector resolution (width x height px).
-
-    A pattern file of another size is resampled (area averaging when shrinking), so one captured
-    full-resolution pattern serves scaled-down rigs.
-    """
-    pc = config.pattern
-    if pc.source == "procedural":
-        return generate_dot_pattern(width, height, density=pc.density, min_spacing=pc.min_spacing,
-                                    dot_sigma=pc.dot_sigma, seed=pc.seed)
-    pattern = load_pattern(pc.path)
-    if pattern.image.shape == (height, width):
-        return pattern
-    shrinking = pattern.image.shape[1] > width
-    image = cv2.resize(pattern.image.astype(np.float32), (width, height),
-                       interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-    return DotPattern(image=np.clip(image, 0.0, 1.0), centres=None, source=pattern.source,
-                      params={**pattern.params, "resampled_from": list(pattern.image.shape[::-1])})
 
 
 def _run_record(config: Config, split: str, seed: int) -> dict:
@@ -170,15 +155,14 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     out.mkdir(parents=True, exist_ok=True)
     dataset.remove_partial_scenes(out)
     try:
-        pattern_file = dataset.store_pattern(out, pattern)
+        pattern_file = store_pattern(out, pattern)
     except dataset.FormatError as exc:
         raise ConfigError(f"{exc}; use a new --out directory for a different pattern") from None
     if not (out / RUN_FILE).exists():
-        record_bytes = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
-        dataset.write_dataset_file(out, RUN_FILE, record_bytes)
+        dataset.write_dataset_file(out, RUN_FILE, json_bytes(record))
     assets = cached or split_assets(config, split, out)
     return RenderJob(config, out, split, seed, assets.with_pattern(str(pattern_file), pattern.sha256),
-                     dataset.pattern_entry(pattern), software, blender)
+                     pattern_entry(pattern), software, blender)
 
 
 def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
@@ -200,7 +184,10 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard
     todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
-    summary = RunSummary(out=out, skipped=scenes - len(todo))
+    # A final scene folder only ever appears complete, so one that is not was damaged after the
+    # fact (a frame deleted, a bad copy): remove it and render it again.
+    damaged = [i for i in todo if dataset.remove_scene(out, i, spp)]
+    summary = RunSummary(out=out, skipped=scenes - len(todo), redone=damaged)
     batch = 1 if job.blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
     batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
@@ -221,10 +208,10 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
         render_pool(job, batches, min(workers, len(batches)), count)
     bar.close()
     summary.failed.sort()
-    # finalize re-hashes every file: skip it when nothing changed since the last sealed run.
-    changed = summary.done or not (out / dataset.INDEX_FILE).exists()
-    if changed and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
-        dataset.finalize_dataset(out)
+    # Always: a run killed after its last scene and before or during its seal left a stale seal,
+    # and sealing is incremental (unchanged shards cost a listing and their scene.json files).
+    if (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
+        dataset.seal_dataset(out)
     summary.seconds = time.perf_counter() - began
     return summary
 

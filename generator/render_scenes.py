@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import dataset
+from dotsim.file_io import DiskFullError, atomic_write_bytes
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
@@ -75,7 +76,7 @@ def render_scenes(job: RenderJob, indices: Iterable[int]) -> list[SceneResult]:
     session) and later calls reuse it, so call it in a process of its own (a pool worker, a Ray or
     Slurm task), not in one holding Blender data it needs. Complete scenes are rendered again: skip
     them with `dotsim.dataset.is_scene_complete`. Seal the dataset afterwards
-    (`dotsim.dataset.finalize_dataset`), once, when every front end is done.
+    (`dotsim.dataset.seal_dataset`; incremental, so sealing after every share is cheap).
     """
     indices = list(indices)
     if job.blender is not None:
@@ -94,9 +95,9 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
     """`render_scenes` of every batch in `workers` spawned processes; `on_results` gets each batch's
     results as they come (a worker that died reports its batch failed).
 
-    Ctrl-C cancels the batches not yet started and terminates the workers at once (the default
-    executor shutdown would render every queued scene first); the next run removes the scenes
-    they left half-written.
+    Ctrl-C, a full disk or any other error that stops the run cancels the batches not yet started
+    and terminates the workers at once (the default executor shutdown would render every queued
+    scene first); the next run removes the scenes they left half-written.
     """
     pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                   initializer=_init_worker, initargs=(job,))
@@ -105,13 +106,15 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
         for future in concurrent.futures.as_completed(futures):
             try:
                 results = future.result()
+            except DiskFullError:
+                raise
             except Exception as exc:  # a worker died (crash in Blender): its scenes failed
                 text = "".join(traceback.format_exception(exc))
                 results = [SceneResult(i, False, error=text) for i in futures[future]]
                 for result in results:
                     _log_failure(job, result.index, f"worker process failed:\n{text}")
             on_results(results)
-    except KeyboardInterrupt:
+    except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         for worker in multiprocessing.active_children():
             worker.terminate()
@@ -164,7 +167,7 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
 def _log_failure(job: RenderJob, index: int, text: str) -> None:
     log_dir = job.out / LOG_DIR
     log_dir.mkdir(exist_ok=True)
-    dataset.atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
+    atomic_write_bytes(log_dir / f"{dataset.scene_name(index)}.log", text.encode())
 
 
 def _clear_failure_log(job: RenderJob, index: int) -> None:
@@ -178,6 +181,8 @@ def _render_in_process(job: RenderJob, renderer, index: int) -> SceneResult:
         frames = _finish_scene(job, spec, renderer.render(spec))
         _clear_failure_log(job, index)
         return SceneResult(index, True, frames, time.perf_counter() - start)
+    except DiskFullError:
+        raise  # every later scene would fail too: stop the run (the caller reports it)
     except Exception:
         _log_failure(job, index, traceback.format_exc())
         return SceneResult(index, False, error=traceback.format_exc(limit=1))
@@ -209,6 +214,8 @@ def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult
                 _clear_failure_log(job, index)
                 results.append(SceneResult(index, True, frames,
                                            blender_share + time.perf_counter() - scene_start))
+            except DiskFullError:
+                raise
             except Exception:
                 _log_failure(job, index, traceback.format_exc())
                 results.append(SceneResult(index, False, error=traceback.format_exc(limit=1)))

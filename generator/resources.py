@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim import dataset
+from dotsim.file_io import atomic_write_bytes
+from dotsim.pattern_store import make_pattern
 from dotsim.patterns import DotPattern, PatternError
 from generator.config import Config, ConfigError
 from generator.sample_scene import MeshAsset, SceneResources, TextureAsset, build_rig
@@ -27,12 +28,9 @@ BUILTIN_TEXTURES_PER_FAMILY = 4
 def config_pattern(config: Config) -> DotPattern:
     """The projector pattern of a config at its rig's projector resolution; ConfigError naming the
     config's [pattern] section when it cannot be made (a missing or unreadable file)."""
-    # make_pattern lives with the run; imported here because the run imports this module.
-    from generator.pipeline import make_pattern
-
     rig = build_rig(config)
     try:
-        return make_pattern(config, rig.projector.width, rig.projector.height)
+        return make_pattern(config.pattern, rig.projector.width, rig.projector.height)
     except PatternError as exc:
         raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
 
@@ -56,7 +54,7 @@ def builtin_textures(folder: Path, split: str) -> tuple[TextureAsset, ...]:
             if not path.exists():
                 rng = np.random.default_rng((SPLITS.index(split), family_index, k))
                 image = family.make(sample_params({}, family.defaults, rng), rng)
-                dataset.atomic_write_bytes(path, png_bytes(texture_from_image(image)))
+                atomic_write_bytes(path, png_bytes(texture_from_image(image)))
             textures.append(TextureAsset(str(path)))
     return tuple(textures)
 

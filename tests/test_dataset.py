@@ -4,7 +4,6 @@ import hashlib
 import json
 import os
 
-import cv2
 import numpy as np
 import OpenEXR
 import pytest
@@ -57,7 +56,7 @@ def test_round_trip_every_channel_and_field(tmp_path):
     assert path == tmp_path / "shard_00001" / "scene_0000003"  # 3 // 2 scenes per shard
     assert sorted(p.name for p in path.iterdir()) == ["frame_0.exr", "frame_1.exr", "frame_2.exr",
                                                       "frame_3.exr", "scene.json"]
-    ds.finalize_dataset(tmp_path)
+    ds.seal_dataset(tmp_path)
     scene = ds.read_scene(path)
     expected_meta = make_meta(3)
     for key, value in expected_meta.items():
@@ -97,7 +96,7 @@ def test_index_and_shard_checksums_match_files(tmp_path):
     for i in range(5):
         write(tmp_path, i, split="test" if i == 4 else "train")
     (tmp_path / "pattern.png").write_bytes(b"not really a png")
-    index = ds.finalize_dataset(tmp_path)
+    index = ds.seal_dataset(tmp_path).index
     assert [s["name"] for s in index["shards"]] == ["shard_00000", "shard_00001", "shard_00002"]
     assert [s["scene_count"] for s in index["shards"]] == [2, 2, 1]
     assert index["scene_count"] == 5 and index["frame_count"] == 20
@@ -132,7 +131,7 @@ def test_leftover_temp_dir_is_ignored_and_removed(tmp_path):
     live = tmp_path / "shard_00000" / f".tmp-scene_0000002-{os.getppid()}"  # a running process
     live.mkdir()
     assert not ds.is_scene_complete(tmp_path, 1, scenes_per_shard=2)
-    index = ds.finalize_dataset(tmp_path)
+    index = ds.seal_dataset(tmp_path).index
     assert index["scene_count"] == 1
     assert [s.scene_index for s in ds.open_dataset(tmp_path).scenes] == [0]
     removed = ds.remove_partial_scenes(tmp_path)
@@ -147,7 +146,7 @@ def test_incomplete_scene_is_detected(tmp_path):
     (path / "frame_3.exr").unlink()
     assert not ds.is_scene_complete(tmp_path, 0, scenes_per_shard=2)
     with pytest.raises(ds.FormatError, match=r"frame_3\.exr: missing"):
-        ds.finalize_dataset(tmp_path)
+        ds.seal_dataset(tmp_path)
 
 
 def test_failed_write_leaves_nothing_and_rerun_succeeds(tmp_path):
@@ -156,8 +155,7 @@ def test_failed_write_leaves_nothing_and_rerun_succeeds(tmp_path):
     frames[2]["visibility"] = np.full((H, W), 2, np.uint8)
     with pytest.raises(ds.FormatError, match=r"scene 5 frame 2: mask channel 'visibility'"):
         ds.write_scene(tmp_path, 5, make_meta(5), frames, scenes_per_shard=2)
-    shard = tmp_path / "shard_00002"
-    assert list(shard.iterdir()) == []  # neither the scene nor its temp dir
+    assert list(tmp_path.iterdir()) == []  # frames are encoded (and checked) before anything is written
     frames[2]["visibility"] = frames[2]["visibility"] == 1
     ds.write_scene(tmp_path, 5, make_meta(5), frames, scenes_per_shard=2)
     assert ds.is_scene_complete(tmp_path, 5, scenes_per_shard=2)
@@ -212,20 +210,38 @@ def test_reader_refuses_shape_mismatch(tmp_path):
 
 def test_reader_refuses_flipped_byte(tmp_path):
     path, _ = write(tmp_path, 0)
-    ds.finalize_dataset(tmp_path)
+    ds.seal_dataset(tmp_path)
     frame = path / "frame_2.exr"
     data = bytearray(frame.read_bytes())
     data[len(data) // 2] ^= 0x01
     frame.write_bytes(bytes(data))
     with pytest.raises(ds.FormatError, match=r"frame_2\.exr: sha256 mismatch"):
         ds.read_scene(path)
-    with pytest.raises(ds.FormatError, match=r"frame_2\.exr: sha256 .* differs"):
-        ds.finalize_dataset(tmp_path)
+    # Sealing again does not re-read sealed frames (that is what makes it cheap); verify does.
+    assert [p.line() for p in ds.verify_dataset(tmp_path).problems] == [
+        f"{frame}: sha256 differs from the one scene.json recorded at write time (file changed or corrupt)"]
+    # A frame damaged between writing and its first seal is refused by the seal.
+    later, _ = write(tmp_path, 1)
+    (later / "frame_0.exr").write_bytes(b"\0" + (later / "frame_0.exr").read_bytes()[1:])
+    with pytest.raises(ds.FormatError, match=r"scene_0000001/frame_0\.exr: sha256 .* differs"):
+        ds.seal_dataset(tmp_path)
     # shard.json tampering is caught by open_dataset through index.json's checksum.
     shard = tmp_path / "shard_00000" / "shard.json"
     shard.write_text(shard.read_text().replace('"train"', '"test"'))
     with pytest.raises(ds.FormatError, match=r"shard\.json: sha256 differs"):
         ds.open_dataset(tmp_path)
+
+
+@pytest.mark.parametrize("cut", [0.5, 0.9])
+def test_truncated_frame_read_without_verify_names_the_file(tmp_path, cut):
+    path, _ = write(tmp_path, 0)
+    frame = path / "frame_1.exr"
+    data = frame.read_bytes()
+    frame.write_bytes(data[:int(len(data) * cut)])  # a copy that stopped early
+    with pytest.raises(ds.FormatError, match=r"frame_1\.exr: not a readable OpenEXR file"):
+        ds.read_frame(frame, verify=False)
+    with pytest.raises(ds.FormatError, match=r"frame_1\.exr: not a readable OpenEXR file"):
+        ds.read_scene(path, verify=False)
 
 
 def test_reader_refuses_unknown_major_version(tmp_path):
@@ -239,7 +255,7 @@ def test_reader_refuses_unknown_major_version(tmp_path):
     meta["format_version"] = "1.7"  # a newer minor version is read
     meta_file.write_text(json.dumps(meta))
     assert ds.read_scene(path).meta["format_version"] == "1.7"
-    ds.finalize_dataset(tmp_path)
+    ds.seal_dataset(tmp_path)
     index_file = tmp_path / "index.json"
     text = index_file.read_text()
     index_file.write_text(text.replace('"format_version": "1.0"', '"format_version": "3.1"'))
@@ -251,20 +267,20 @@ def test_missing_index_and_empty_dataset(tmp_path):
     with pytest.raises(ds.FormatError, match=r"index\.json: missing; the directory holds no dotsim"):
         ds.open_dataset(tmp_path)
     with pytest.raises(ds.FormatError, match=r"dataset\.json: missing.*holds no scenes"):
-        ds.finalize_dataset(tmp_path)
+        ds.seal_dataset(tmp_path)
     with pytest.raises(ds.FormatError, match="does not exist"):
         ds.open_dataset(tmp_path / "nope")
     write(tmp_path, 0)
-    with pytest.raises(ds.FormatError, match=r"index\.json: missing; it has scene shards: run finalize"):
+    with pytest.raises(ds.FormatError, match=r"index\.json: missing; it has scene shards: seal it with "):
         ds.open_dataset(tmp_path)
 
 
-def test_finalize_reruns_after_more_scenes(tmp_path):
+def test_seal_reruns_after_more_scenes(tmp_path):
     write(tmp_path, 0)
-    assert ds.finalize_dataset(tmp_path)["scene_count"] == 1
+    assert ds.seal_dataset(tmp_path).index["scene_count"] == 1
     write(tmp_path, 1)
     write(tmp_path, 2)
-    assert ds.finalize_dataset(tmp_path)["scene_count"] == 3
+    assert ds.seal_dataset(tmp_path).index["scene_count"] == 3
     assert len(ds.open_dataset(tmp_path)) == 3
 
 
@@ -276,25 +292,3 @@ def test_capture_scene_with_ir_only(tmp_path):
     assert [set(f) for f in scene.frames] == [{"ir"}] * 4
     with pytest.raises(ds.FormatError, match=r"\['depth'\] requested but the scene has \['ir'\]"):
         ds.read_frame(path / "frame_0.exr", channels=["depth"])
-
-
-def test_store_pattern_writes_once_and_refuses_another(tmp_path):
-    from dotsim.patterns import generate_dot_pattern
-
-    pattern = generate_dot_pattern(40, 30, n_dots=60, seed=1)
-    path = ds.store_pattern(tmp_path / "data", pattern)
-    assert path == tmp_path / "data" / ds.PATTERN_FILE
-    stored = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # decoded independently of load_pattern
-    assert stored.dtype == np.uint16
-    np.testing.assert_array_equal(stored, np.round(pattern.image.astype(np.float64) * 65535))
-    before = path.stat().st_mtime_ns
-    assert ds.store_pattern(tmp_path / "data", generate_dot_pattern(40, 30, n_dots=60, seed=1)) == path
-    assert path.stat().st_mtime_ns == before  # a rerun keeps the file
-    with pytest.raises(ds.FormatError, match=r"pattern.png: holds another pattern \(40x30"):
-        ds.store_pattern(tmp_path / "data", generate_dot_pattern(40, 30, n_dots=60, seed=2))
-    path.write_bytes(b"broken")
-    with pytest.raises(ds.FormatError, match="pattern.png: not a readable PNG image"):
-        ds.store_pattern(tmp_path / "data", pattern)
-    assert ds.pattern_entry(pattern) == {"source": "procedural", "sha256": pattern.sha256,
-                                         "file": "pattern.png", "width": 40, "height": 30,
-                                         "params": pattern.params}

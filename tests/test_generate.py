@@ -120,6 +120,43 @@ def test_unreadable_pattern_file_stops_before_writing(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("option", ["--scenes", "--start", "--workers", "--seed"])
+def test_integer_options_name_the_value_and_the_range(tmp_path, capsys, option):
+    args = ["--config", str(TINY), "--out", str(tmp_path / "out"), "--split", "train", "--scenes", "1"]
+    with pytest.raises(SystemExit) as exit_code:
+        run_cli(*args, option, "abc")
+    low = 1 if option in ("--scenes", "--workers") else 0
+    assert exit_code.value.code == 2
+    assert f"argument {option}: 'abc': allowed: an integer >= {low}" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def one_dot_png(folder: Path, value: int) -> str:
+    """A 51 x 51 8-bit PNG, black but for one pixel of `value`; returns its name."""
+    import cv2
+
+    image = np.zeros((51, 51), np.uint8)
+    image[10, 10] = value
+    assert cv2.imwrite(str(folder / f"dot_{value}.png"), image)
+    return f"dot_{value}.png"
+
+
+@pytest.mark.parametrize("make, expected", [
+    (lambda folder: (folder / "pattern.png").mkdir() or "pattern.png", "is a folder, not a file"),
+    (lambda folder: one_dot_png(folder, 1), "brightest pixel is 0.0039 of full scale (below 1/16)"),
+    (lambda folder: one_dot_png(folder, 255), "only 1 of 2601 pixels are above half the brightest value"),
+])
+def test_pattern_file_without_signal_stops_before_writing(tmp_path, capsys, make, expected):
+    name = make(tmp_path)
+    config = tmp_path / "c.toml"
+    config.write_text(f'[pattern]\nsource = "file"\npath = "{name}"\n')
+    out = tmp_path / "out"
+    assert run_cli("--config", str(config), "--out", str(out), "--split", "train", "--scenes", "1") == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and name in error and expected in error, error
+    assert not out.exists()
+
+
 def test_unwritable_output_stops_before_writing(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")
@@ -358,19 +395,3 @@ def test_failing_scenes_are_logged_and_the_run_goes_on(tmp_path, capsys):
     assert logs == [f"scene_000000{k}.log" for k in range(3)]
     assert "blender wrote no scene_0000001_raw.npz" in (out / LOG_DIR / logs[1]).read_text()
     assert not list(out.glob("shard_*/scene_*"))
-
-
-def test_pattern_file_is_resampled_to_the_projector(tmp_path):
-    from dotsim.patterns import generate_dot_pattern
-    from generator.pipeline import make_pattern
-
-    big = generate_dot_pattern(614, 614, density=0.01, seed=5)
-    big.save_png(tmp_path / "captured.png")
-    config = config_from_dict({"pattern": {"source": "file", "path": "captured.png"}}, base_dir=tmp_path)
-    pattern = make_pattern(config, 307, 307)
-    assert pattern.image.shape == (307, 307)
-    assert pattern.params["resampled_from"] == [614, 614]
-    # Area averaging keeps the mean brightness: the projector emits the same total light.
-    assert pattern.image.mean() == pytest.approx(big.image.mean(), rel=0.01)
-    same = make_pattern(config, 614, 614)
-    np.testing.assert_array_equal(same.image, big.image)

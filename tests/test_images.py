@@ -71,7 +71,7 @@ def test_bad_images_are_refused_naming_the_file(tmp_path):
             read_grey_image(path)
 
     refused(tmp_path / "missing.png", "missing.png: no such file")
-    refused(tmp_path, f"{tmp_path}: no such file")  # a folder is not an image file
+    refused(tmp_path, f"{tmp_path}: is a folder, not a file")
     (tmp_path / "empty.exr").write_bytes(b"")
     refused(tmp_path / "empty.exr", "empty.exr: file is empty")
     (tmp_path / "text.png").write_text("not a picture")

@@ -76,9 +76,11 @@ def test_show_frame_file_and_dataset_and_errors(tmp_path, capsys):
     assert run_cli(tmp_path, "--scene", 3, "-o", out) == 0
     assert "3 frame(s) x 8 pass(es)" in capsys.readouterr().out
     assert run_cli(tmp_path, "--scene", 7, "-o", out) == 1
-    assert "no scene 7; it has scenes 0..3 (2 in all)" in capsys.readouterr().out
+    assert "no scene 7; it has scenes 0..3 (2 in all)" in capsys.readouterr().err
     assert run_cli(tmp_path / "empty", "-o", out) == 1
-    assert "no such file or directory" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.startswith("dotsim show: error: ")
+    assert "no such file or directory" in captured.err
     assert run_cli(frame, "-o", tmp_path / "sheet.bmpx") == 1
     assert not list(tmp_path.glob(".tmp-*"))
 

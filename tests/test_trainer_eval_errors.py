@@ -109,7 +109,7 @@ def test_data_of_another_rig_or_resolution(tmp_path, run):
     cv2.imwrite(str(png), np.zeros((72, 97), np.uint16))
     with pytest.raises(DataError, match=r"small\.png: image is 97x72.*128x94"):
         infer(run["ckpt"], [png], tmp_path / "i", progress=False)
-    assert not (tmp_path / "i" / "small.exr").exists()
+    assert not (tmp_path / "i").exists()  # bad input: not even an empty output folder
 
 
 def test_resume_refuses_another_config_and_overwrite(run):
@@ -131,11 +131,19 @@ def test_not_a_checkpoint(tmp_path, run):
         infer(bad, [bad], tmp_path / "i", progress=False)
 
 
-def test_cli_reports_errors_in_one_line(tmp_path, capsys, run):
-    code = dotsim_main(["eval", "--checkpoint", str(tmp_path / "none.pt"), "--data", str(run["data"]),
-                        "--out", str(tmp_path / "e")])
-    out = capsys.readouterr().out
-    assert code == 1 and out.startswith("dotsim eval: ") and "none.pt: checkpoint not found" in out
+@pytest.mark.parametrize("command", ["train", "eval", "infer"])
+def test_cli_reports_errors_in_one_line_on_stderr(tmp_path, capsys, run, command):
+    args = {"train": ["--config", "configs/train_tiny.toml", "--data", str(tmp_path / "nodata"),
+                      "--out", str(tmp_path / "r")],
+            "eval": ["--checkpoint", str(tmp_path / "none.pt"), "--data", str(run["data"]),
+                     "--out", str(tmp_path / "e")],
+            "infer": ["--checkpoint", str(tmp_path / "none.pt"), str(tmp_path / "x.png"),
+                      "--out", str(tmp_path / "i")]}[command]
+    code = dotsim_main([command, *args])
+    captured = capsys.readouterr()
+    assert code == 1 and captured.out == ""
+    assert captured.err.startswith(f"dotsim {command}: error: ") and captured.err.count("\n") == 1
+    assert ("nodata" if command == "train" else "none.pt: checkpoint not found") in captured.err
 
 
 def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):

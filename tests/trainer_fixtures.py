@@ -5,7 +5,7 @@ exact plane per pixel). The IR image is the oracle's prediction of the projector
 (dotsim.oracle.expected_pattern_image, with cos/r^2 falloff and projector shadows) plus ambient light,
 Gaussian noise and 12-bit quantisation; visibility comes from an oracle flood pass (an all-white pattern)
 through dotsim.masks, GT column and disparity from dotsim.rig. Written with dotsim.dataset.write_scene
-and finalized, so the trainer reads it exactly as it reads generator output.
+and sealed, so the trainer reads it exactly as it reads generator output.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.dataset import finalize_dataset, pattern_path, write_scene
+from dotsim.dataset import pattern_path, seal_dataset, write_scene
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
@@ -62,7 +62,7 @@ def synthetic_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.ra
 
 def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale: float = TINY_SCALE,
                  seed: int = 0, test_scenes: int = 0, noise: float = 0.01) -> Path:
-    """Write `scenes` train scenes then `test_scenes` test scenes to root and finalize; returns root."""
+    """Write `scenes` train scenes then `test_scenes` test scenes to root and seal it; returns root."""
     root = Path(root)
     rig = get_preset("structure_core").scaled(scale)
     dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=seed)
@@ -81,5 +81,5 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
             "render": {"kind": "oracle (tests/trainer_fixtures.py)", "noise": noise},
         }
         write_scene(root, k, meta, frames, scenes_per_shard=3)
-    finalize_dataset(root)
+    seal_dataset(root)
     return root

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from dotsim.dataset import FormatError
 from trainer.config import ConfigError, load_config
@@ -15,7 +16,7 @@ def _guarded(run):
         try:
             run(args)
         except (ConfigError, DataError, FormatError, FloatingPointError) as e:
-            print(f"dotsim {args.command}: {e}")
+            print(f"dotsim {args.command}: error: {e}", file=sys.stderr)
             return 1
         return 0
     return wrapper

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from dotsim.dataset import atomic_write_bytes, pattern_path, read_frame
+from dotsim.dataset import pattern_path, read_frame
+from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth, reference_image

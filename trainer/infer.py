@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from dotsim.dataset import FormatError, atomic_write_bytes, read_frame
+from dotsim.dataset import FormatError, read_frame
+from dotsim.file_io import atomic_write_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.rig import Rig, backproject
 from dotsim.show import colourise
@@ -53,10 +54,10 @@ def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = path.with_name(f".tmp-{path.name}")
     pixels = {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}
-    OpenEXR.File(header, pixels).write(str(tmp))
-    tmp.replace(path)
+    stream = io.BytesIO()
+    OpenEXR.File(header, pixels).write(stream)
+    atomic_write_bytes(path, stream.getvalue())
 
 
 def ply_bytes(points: np.ndarray, grey: np.ndarray) -> bytes:
@@ -83,12 +84,12 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     ckpt, cfg, rig = load_checkpoint(checkpoint, device)
     model = build_model(cfg, rig).to(device)
     model.load_state_dict(ckpt["model"])
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
     names = [_output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     todo = list(zip(names, irs, strict=True))
     for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):

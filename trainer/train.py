@@ -8,7 +8,6 @@ deterministic, and a resumed run continues with the losses an unbroken run would
 from __future__ import annotations
 
 import math
-import os
 import random
 import time
 from dataclasses import replace
@@ -18,6 +17,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from dotsim.file_io import atomic_writer
 from dotsim.rig import Rig
 from trainer.config import Config, config_from_dict
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
@@ -66,9 +66,8 @@ def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int):
 
 
 def atomic_torch_save(obj, path: Path) -> None:
-    tmp = path.with_name(f".tmp-{path.name}-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_writer(path) as stream:
+        torch.save(obj, stream)
 
 
 def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:

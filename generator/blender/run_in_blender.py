@@ -4,10 +4,11 @@
         SPEC.json [SPEC.json ...] --out DIR
     python generator/blender/run_in_blender.py SPEC.json [...] --out DIR      (bpy from pip)
 
-For each SPEC.json it writes DIR/<SPEC stem>_raw.npz (atomically: temp name, then rename) holding
+For each SPEC.json it writes DIR/<SPEC stem>_raw.npz (atomically, dotsim.file_io) holding
 float32 arrays PASS_K for PASS in projector, flood, ambient, depth and frame K = 0.. (one per pose).
 Blender's own Python has only bpy, numpy and the standard library, so this script and everything
-it imports (generator/blender/) use nothing else; it puts the repository root on sys.path itself.
+it imports (generator/blender/, dotsim.file_io) use nothing else; it puts the repository root on
+sys.path itself.
 A spec that fails is reported on stderr and the others still render; the exit code is 1 if any
 failed.
 """
@@ -16,9 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -40,24 +39,13 @@ def _arguments(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def write_npz_atomic(path: Path, arrays: dict) -> None:
-    """np.savez to a temp file in the same folder, then rename: readers never see half a file."""
-    import numpy as np
-
-    handle, temp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            np.savez(stream, **arrays)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
-
-
 def main(argv: list[str]) -> int:
     args = _arguments(argv)
     if str(REPO_ROOT) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT))
+    import numpy as np
+
+    from dotsim.file_io import atomic_writer
     from generator.blender.render import SceneRenderer
     from generator.scene_spec import SceneSpec
 
@@ -71,7 +59,8 @@ def main(argv: list[str]) -> int:
                 spec = SceneSpec.from_dict(json.loads(spec_path.read_text()))
                 frames = renderer.render(spec)
                 arrays = {f"{name}_{k}": frame[name] for k, frame in enumerate(frames) for name in frame}
-                write_npz_atomic(args.out / f"{spec_path.stem}_raw.npz", arrays)
+                with atomic_writer(args.out / f"{spec_path.stem}_raw.npz") as stream:
+                    np.savez(stream, **arrays)
                 print(f"rendered {spec_path} ({len(frames)} frames)", flush=True)
             except Exception:
                 failures += 1

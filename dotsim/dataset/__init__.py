@@ -1,0 +1,104 @@
+"""The dotsim dataset format: writer, reader, shards, checksums (specified in docs/FORMAT.md).
+
+Layout::
+
+    DATASET/index.json                      written by seal_dataset (shards, counts, checksums)
+    DATASET/dataset.json                    layout (scenes_per_shard), written with the first scene
+    DATASET/<other files>                   dataset-level files, e.g. pattern.png (write_dataset_file)
+    DATASET/shard_00000/shard.json          written by seal_dataset (sha256 of every file)
+    DATASET/shard_00000/scene_0000000/scene.json      metadata, written last (lists frame sha256)
+    DATASET/shard_00000/scene_0000000/frame_0.exr     one EXR per frame, channels FRAME_CHANNELS
+
+Integrity is a chain: index.json holds the sha256 of every shard.json, shard.json the sha256 of
+every file of its scenes, scene.json the sha256 of its frames. Every write goes to a temporary
+name (``.tmp-...-<pid>``, dotsim.file_io) and is renamed into place, so a reader never sees half
+a file or half a scene; a rerun tells complete scenes (the final directory exists) from leftovers.
+
+Modules, one idea each (this package re-exports their public names):
+
+- layout: names and paths, FormatError, the format version, dataset.json, listing shards/scenes
+- frames: the EXR frame codec and FRAME_CHANNELS
+- scene_meta: scene.json's required keys and its validation
+- writer: write_scene, write_dataset_file, and resume (is_scene_complete, remove_partial_scenes,
+  remove_scene)
+- seal: seal_dataset (shard.json, index.json), incremental, rerunnable at any time
+- reader: open_dataset, read_scene, read_frame, dataset_summary
+- verify: verify_dataset (every checksum, the seal against the disk) and repair_dataset
+
+The dataset's pattern file (store_pattern, pattern_entry) lives in dotsim.pattern_store.
+"""
+
+from dotsim.dataset.frames import (
+    EXR_COMPRESSION,
+    FRAME_CHANNELS,
+    MASK_CHANNELS,
+    decode_frame,
+    encode_frame,
+    write_frame_file,
+)
+from dotsim.dataset.layout import (
+    DEFAULT_SCENES_PER_SHARD,
+    FORMAT_VERSION,
+    INDEX_FILE,
+    LAYOUT_FILE,
+    PATTERN_FILE,
+    SCENE_FILE,
+    SHARD_FILE,
+    FormatError,
+    check_format_version,
+    complete_scenes,
+    frame_name,
+    pattern_path,
+    read_layout,
+    scene_dir,
+    scene_name,
+    shard_name,
+)
+from dotsim.dataset.reader import (
+    Dataset,
+    Scene,
+    SceneRef,
+    dataset_summary,
+    open_dataset,
+    read_frame,
+    read_scene,
+    read_scene_meta,
+)
+from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size, parse_scene_meta
+from dotsim.dataset.seal import SealResult, finalize_dataset, seal_dataset
+from dotsim.dataset.verify import Problem, RepairResult, VerifyReport, repair_dataset, verify_dataset
+from dotsim.dataset.writer import (
+    is_scene_complete,
+    leftovers,
+    remove_partial_scenes,
+    remove_scene,
+    write_dataset_file,
+    write_scene,
+)
+
+# Writing and hashing live in dotsim.file_io; these names stay importable from here for code
+# written against the single-module dotsim.dataset.
+from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, sha256_bytes, sha256_file
+
+
+def __getattr__(name: str):
+    # store_pattern / pattern_entry moved to dotsim.pattern_store; imported on first use because it
+    # needs OpenCV and SciPy, which readers of a dataset do not.
+    if name in ("store_pattern", "pattern_entry"):
+        from dotsim import pattern_store
+
+        return getattr(pattern_store, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = [
+    "DEFAULT_SCENES_PER_SHARD", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS", "INDEX_FILE",
+    "LAYOUT_FILE", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE", "SHARD_FILE",
+    "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "FormatError", "Problem", "RepairResult", "Scene",
+    "SceneRef", "SealResult", "VerifyReport", "atomic_write_bytes", "camera_size", "check_format_version",
+    "complete_scenes", "dataset_summary", "decode_frame", "encode_frame", "finalize_dataset", "frame_name",
+    "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta", "pattern_path", "read_frame",
+    "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes", "remove_scene",
+    "repair_dataset", "scene_dir", "scene_name", "seal_dataset", "sha256_bytes", "sha256_file",
+    "shard_name", "verify_dataset", "write_dataset_file", "write_frame_file", "write_scene",
+]

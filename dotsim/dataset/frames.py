@@ -1,0 +1,161 @@
+"""Frame files: one single-part scanline OpenEXR per frame, one channel per stored pass.
+
+FRAME_CHANNELS gives each channel's stored dtype (why each: docs/FORMAT.md). write_frame_file
+validates and converts a frame dict and writes it; decode_frame checks a file's channels, shapes
+and pixel types and returns them.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_version
+from dotsim.file_io import atomic_write_bytes, sha256_bytes
+
+# Lossless; chosen over PIZ by bench/read_shards.py --compression (numbers in docs/FORMAT.md).
+EXR_COMPRESSION = "ZIP_COMPRESSION"
+
+# Stored dtype per channel (what read_frame returns). Why each was chosen: docs/FORMAT.md.
+# Masks are uint8 in memory and UINT (32-bit) in the EXR: EXR has no 8-bit pixel type.
+FRAME_CHANNELS: dict[str, np.dtype] = {
+    "ir": np.dtype(np.float16),
+    "ambient": np.dtype(np.float16),
+    "flood": np.dtype(np.float16),
+    "depth": np.dtype(np.float32),
+    "visibility": np.dtype(np.uint8),
+    "edge": np.dtype(np.uint8),
+    "projector_column": np.dtype(np.float32),
+    "disparity": np.dtype(np.float32),
+}
+MASK_CHANNELS = ("visibility", "edge")
+
+
+def _to_stored(name: str, array, where: str) -> np.ndarray:
+    """Convert a caller's array to the stored dtype of channel `name`, refusing lossy surprises."""
+    a = np.asarray(array)
+    dtype = FRAME_CHANNELS[name]
+    if a.ndim != 2:
+        raise FormatError(f"{where}: channel {name!r} must be 2-D (H, W), found shape {a.shape}")
+    if name in MASK_CHANNELS:
+        if a.dtype == bool:
+            return a.astype(np.uint32)
+        if not np.issubdtype(a.dtype, np.integer) or not np.isin(a, (0, 1)).all():
+            raise FormatError(f"{where}: mask channel {name!r} must be bool or integers 0/1, "
+                              f"found dtype {a.dtype} with values outside {{0, 1}}")
+        return a.astype(np.uint32)
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+        raise FormatError(f"{where}: channel {name!r} must be numeric, found dtype {a.dtype}")
+    with np.errstate(over="ignore"):  # overflow is reported below, naming the channel
+        stored = a.astype(dtype)
+    overflow = np.isfinite(a) & ~np.isfinite(stored)
+    if overflow.any():
+        raise FormatError(f"{where}: channel {name!r} has {int(overflow.sum())} finite values beyond "
+                          f"the {dtype} range (max {float(np.nanmax(np.abs(a)))}; {dtype} max "
+                          f"{float(np.finfo(dtype).max)})")
+    if name == "depth":
+        bad = np.isnan(stored) | (stored <= 0)
+        if bad.any():
+            raise FormatError(f"{where}: depth must be > 0 metres or +inf (no hit); {int(bad.sum())} "
+                              f"pixels are NaN or <= 0")
+    return stored
+
+
+def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int], where: str) -> dict:
+    """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}."""
+    missing = [c for c in channels if c not in frame]
+    unknown = [c for c in frame if c not in FRAME_CHANNELS]
+    if missing:
+        raise FormatError(f"{where}: missing channel(s) {missing}; required: {list(channels)}")
+    if unknown:
+        raise FormatError(f"{where}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
+    extra = [c for c in frame if c not in channels]
+    if extra:
+        raise FormatError(f"{where}: channel(s) {extra} not in this scene's channel list {list(channels)}")
+    pixels = {}
+    for name in channels:
+        stored = _to_stored(name, frame[name], where)
+        if stored.shape != shape:
+            raise FormatError(f"{where}: channel {name!r} has shape {stored.shape}, the rig camera is "
+                              f"{shape} (height, width)")
+        pixels[name] = np.ascontiguousarray(stored)
+    return pixels
+
+
+def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] | None = None,
+                 compression: str = EXR_COMPRESSION, where: str = "frame") -> bytes:
+    """The bytes of one frame EXR (validated and converted to FRAME_CHANNELS dtypes first).
+
+    channels: the channel set the frame must carry (default all of FRAME_CHANNELS); compression:
+    an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
+    """
+    import OpenEXR
+
+    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
+    pixels = _frame_pixels(frame, channels, shape, where)
+    header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
+              "dotsim_format_version": FORMAT_VERSION}
+    stream = io.BytesIO()
+    OpenEXR.File(header, pixels).write(stream)
+    return stream.getvalue()
+
+
+def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int],
+                     channels: tuple[str, ...] | None = None, compression: str = EXR_COMPRESSION,
+                     where: str = "frame") -> str:
+    """Write one frame EXR at `path` atomically (encode_frame); return its sha256."""
+    data = encode_frame(frame, shape, channels, compression, where)
+    atomic_write_bytes(path, data)
+    return sha256_bytes(data)
+
+
+def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str, np.ndarray]:
+    """Decode the bytes of frame file `path` -> {channel: array in its FRAME_CHANNELS dtype}.
+
+    channels: the ones to return, all required (None: every dotsim channel in the file); shape:
+    (height, width) every channel must have (None: all of one shape). FormatError naming the file.
+    """
+    import OpenEXR
+
+    try:
+        exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+        # A truncated file opens with no parts; header() then raises a ValueError naming no file.
+        header, stored = exr.header(), exr.channels()
+    except Exception as e:  # OpenEXR raises plain RuntimeError/ValueError for corrupt files
+        raise FormatError(f"{path}: not a readable OpenEXR file ({e})") from None
+    version = header.get("dotsim_format_version")
+    if version is not None:
+        check_format_version(version, path)
+    source = "height, width of the rig camera in scene.json"
+    if channels is None:
+        channels = [c for c in FRAME_CHANNELS if c in stored]
+        if not channels:
+            raise FormatError(f"{path}: no dotsim channel found (has {sorted(stored)}; "
+                              f"known: {list(FRAME_CHANNELS)})")
+    missing = [c for c in channels if c not in stored]
+    if missing:
+        raise FormatError(f"{path}: missing channel(s) {missing}; file has {sorted(stored)}")
+    out = {}
+    for name in channels:
+        if name not in FRAME_CHANNELS:
+            raise FormatError(f"{path}: unknown channel {name!r}; known: {list(FRAME_CHANNELS)}")
+        a = stored[name].pixels
+        if shape is None:
+            shape, source = a.shape, f"the shape of channel {name!r}"
+        if a.shape != tuple(shape):
+            raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected {tuple(shape)} "
+                              f"({source})")
+        want = FRAME_CHANNELS[name]
+        if name in MASK_CHANNELS:
+            if a.dtype != np.uint32:
+                raise FormatError(f"{path}: mask channel {name!r} stored as {a.dtype}, expected UINT")
+            if a.max(initial=0) > 1:
+                raise FormatError(f"{path}: mask channel {name!r} has values other than 0/1")
+            a = a.astype(np.uint8)
+        elif a.dtype != want:
+            raise FormatError(f"{path}: channel {name!r} stored as {a.dtype}, expected {want}")
+        out[name] = a
+    return out

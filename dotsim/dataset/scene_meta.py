@@ -1,0 +1,46 @@
+"""scene.json: the keys a caller must give, the keys the writer adds, and their validation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from dotsim.dataset.frames import FRAME_CHANNELS
+from dotsim.dataset.layout import FormatError, check_format_version, load_json, require
+
+# Scene meta keys the writer requires from the caller; the writer adds format_version,
+# dotsim_version, scene_index, frame_count, channels and frames itself.
+REQUIRED_META_KEYS = ("split", "rig", "pattern", "poses")
+WRITER_META_KEYS = ("format_version", "dotsim_version", "scene_index", "frame_count", "channels", "frames")
+
+
+def camera_size(meta: dict, where="scene meta") -> tuple[int, int]:
+    """(height, width) of the camera image from a scene's rig dict (Rig.to_dict())."""
+    try:
+        cam = meta["rig"]["camera"]
+        h, w = cam["height"], cam["width"]
+    except (KeyError, TypeError):
+        raise FormatError(f"{where}: rig.camera.width/height missing") from None
+    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
+        raise FormatError(f"{where}: rig.camera size must be positive integers, found {w} x {h}")
+    return h, w
+
+
+def parse_scene_meta(path: Path, data: bytes) -> dict:
+    """Validate scene.json bytes: JSON object, known major version, every required key, the
+    channel list, the frame list, the rig camera size. Returns the dict."""
+    meta = load_json(path, data)
+    check_format_version(meta.get("format_version"), path)
+    for key in REQUIRED_META_KEYS + WRITER_META_KEYS:
+        if key not in meta:
+            raise FormatError(f"{path}: missing key {key!r}")
+    channels = require(meta, "channels", dict, path)
+    unknown = [c for c in channels if c not in FRAME_CHANNELS]
+    if unknown:
+        raise FormatError(f"{path}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
+    frames = require(meta, "frames", list, path)
+    if len(frames) != require(meta, "frame_count", int, path) or not all(
+            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
+            for e in frames):
+        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file, sha256}}")
+    camera_size(meta, path)
+    return meta

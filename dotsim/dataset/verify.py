@@ -1,0 +1,221 @@
+"""Checking a whole dataset against its checksums (`dotsim verify`), and repairing it so that a
+rerun of the generator redoes exactly the damaged scenes.
+
+verify_dataset reads every file: each frame against the sha256 its scene.json recorded at write
+time, each scene against its shard.json, each shard.json and dataset-level file against
+index.json, and it compares the seal with the scene folders on disk. Each problem names a file.
+repair_dataset removes damaged scenes and leftovers of crashed writers and seals again.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dotsim.dataset.layout import (
+    INDEX_FILE,
+    SCENE_FILE,
+    SHARD_FILE,
+    FormatError,
+    check_format_version,
+    load_json,
+    read_layout,
+    scene_dirs,
+    shard_dirs,
+    shard_name,
+)
+from dotsim.dataset.scene_meta import parse_scene_meta
+from dotsim.dataset.seal import SealResult, seal_dataset
+from dotsim.dataset.writer import leftovers, remove_partial_scenes, remove_scene
+from dotsim.file_io import sha256_bytes, sha256_file
+
+# Kinds of problem: a damaged scene (repair removes it; the generator writes it again), a seal
+# that is not true to the disk (repair seals again), a dataset-level file that no longer matches
+# index.json (repair cannot know the right bytes; sealing would bless the wrong ones).
+SCENE, SEAL, FILE = "scene", "seal", "file"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong, naming its file; kind is SCENE, SEAL or FILE, scene_index the scene a
+    SCENE problem damages."""
+
+    path: Path
+    what: str
+    kind: str = SEAL
+    scene_index: int | None = None
+
+    def line(self) -> str:
+        return f"{self.path}: {self.what}"
+
+
+@dataclass
+class VerifyReport:
+    """Outcome of verify_dataset: the problems found and what was checked."""
+
+    root: Path
+    problems: list[Problem] = field(default_factory=list)
+    scenes: int = 0
+    frames: int = 0
+    absent: list[int] = field(default_factory=list)  # indices below the highest with no scene folder
+
+    @property
+    def damaged_scenes(self) -> list[int]:
+        return sorted({p.scene_index for p in self.problems if p.kind == SCENE})
+
+    def of_kind(self, kind: str) -> list[Problem]:
+        return [p for p in self.problems if p.kind == kind]
+
+    def add(self, path: Path, what: str, kind: str = SEAL, scene_index: int | None = None) -> None:
+        self.problems.append(Problem(path, what, kind, scene_index))
+
+    def line(self) -> str:
+        checked = f"{self.root}: {self.scenes} scenes, {self.frames} frames checked"
+        if not self.problems:
+            return f"{checked}: no problems"
+        damaged = self.damaged_scenes
+        scenes = f" ({len(damaged)} damaged scene(s): {format_indices(damaged)})" if damaged else ""
+        return f"{checked}: {len(self.problems)} problem(s){scenes}"
+
+
+def format_indices(indices: list[int], most: int = 20) -> str:
+    """Scene indices for a message: the first `most`, then how many in all."""
+    text = ", ".join(map(str, indices[:most]))
+    return text + (f" ... ({len(indices)} in all)" if len(indices) > most else "")
+
+
+def _check_scene(report: VerifyReport, index: int, sdir: Path, sealed: dict | None) -> None:
+    """Check one scene folder: scene.json valid, every frame present and matching scene.json, and
+    (when shard.json lists it) every file matching shard.json."""
+    path = sdir / SCENE_FILE
+    try:
+        scene_bytes = path.read_bytes()
+        meta = parse_scene_meta(path, scene_bytes)
+    except FileNotFoundError:
+        report.add(path, "missing (the scene folder is damaged)", SCENE, index)
+        return
+    except FormatError as error:
+        report.add(path, str(error).removeprefix(f"{path}: "), SCENE, index)
+        return
+    report.scenes += 1
+    damaged = False
+    for entry in meta["frames"]:
+        frame = sdir / entry["file"]
+        if not frame.is_file():
+            report.add(frame, f"missing (listed in {SCENE_FILE})", SCENE, index)
+            damaged = True
+            continue
+        report.frames += 1
+        if sha256_file(frame) != entry["sha256"]:
+            report.add(frame, f"sha256 differs from the one {SCENE_FILE} recorded at write time "
+                              f"(file changed or corrupt)", SCENE, index)
+            damaged = True
+    if damaged or sealed is None:
+        return
+    if not sealed:
+        report.add(sdir, f"complete but not sealed (not in {sdir.parent / SHARD_FILE})")
+        return
+    on_disk = {SCENE_FILE: sha256_bytes(scene_bytes)} | {e["file"]: e["sha256"] for e in meta["frames"]}
+    if sealed.get("files") != on_disk:
+        report.add(sdir, f"differs from its entry in {sdir.parent / SHARD_FILE} (rewritten after sealing)")
+
+
+def _sealed_shards(report: VerifyReport, root: Path) -> dict[str, dict[str, dict] | None]:
+    """shard name -> {scene name -> shard.json entry} for the shards index.json lists, None for a
+    listed shard whose shard.json is missing or does not match (its scenes are not checked against
+    it); problems for the index, its shards and the dataset-level files."""
+    index_path = root / INDEX_FILE
+    try:
+        index = load_json(index_path)
+        check_format_version(index.get("format_version"), index_path)
+    except FormatError as error:
+        hint = "" if index_path.exists() else " (the dataset is not sealed)"
+        report.add(index_path, str(error).removeprefix(f"{index_path}: ") + hint)
+        return {}
+    files = index.get("files", {})
+    for name, sha in files.items():
+        path = root / name
+        if not path.is_file():
+            report.add(path, f"missing (listed in {INDEX_FILE})")
+        elif sha256_file(path) != sha:
+            report.add(path, f"sha256 differs from the one in {INDEX_FILE} (file changed or corrupt; "
+                             f"restore it, or delete it if `dotsim generate` writes it)", FILE)
+    for path in sorted(root.iterdir()):
+        if path.is_file() and path.name not in files and path.name != INDEX_FILE \
+                and not path.name.startswith("."):
+            report.add(path, f"not listed in {INDEX_FILE} (written after the seal)")
+    sealed: dict[str, dict[str, dict] | None] = {}
+    for entry in index.get("shards", []):
+        path = root / entry["name"] / SHARD_FILE
+        sealed[entry["name"]] = None
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            report.add(path, f"missing (listed in {INDEX_FILE})")
+            continue
+        if sha256_bytes(data) != entry["sha256"]:
+            report.add(path, f"sha256 differs from the one in {INDEX_FILE} (a seal was interrupted, "
+                             f"or the file changed)")
+            continue
+        try:
+            sealed[entry["name"]] = {s["name"]: s for s in load_json(path, data)["scenes"]}
+        except (FormatError, KeyError, TypeError):
+            report.add(path, "not a valid shard.json")
+    return sealed
+
+
+def verify_dataset(dataset_dir: str | os.PathLike) -> VerifyReport:
+    """Check completeness and every checksum of a dataset; returns the problems, each naming a file.
+
+    Problems inside a scene (scene.json missing or invalid, a frame missing or not matching the
+    sha256 scene.json recorded) mark the scene damaged. Problems of the seal (index.json,
+    shard.json, scenes written or removed after sealing) are mended by sealing again.
+    """
+    root = Path(dataset_dir)
+    report = VerifyReport(root)
+    if not root.is_dir():
+        raise FormatError(f"{root}: dataset directory does not exist")
+    scenes_per_shard = read_layout(root)
+    for path in leftovers(root):
+        report.add(path, "unfinished write left by a crashed writer")
+    sealed = _sealed_shards(report, root)
+    present = set()
+    for shard_index, shard in shard_dirs(root):
+        listed = sealed.get(shard.name, {})
+        listed = None if listed is None else dict(listed)
+        for index, sdir in scene_dirs(shard):
+            present.add(index)
+            if index // scenes_per_shard != shard_index:
+                report.add(sdir, f"scene {index} belongs in {shard_name(index // scenes_per_shard)} "
+                                 f"(scenes_per_shard={scenes_per_shard})", SCENE, index)
+                continue
+            _check_scene(report, index, sdir, None if listed is None else listed.pop(sdir.name, {}))
+        for name, entry in (listed or {}).items():
+            report.add(shard / name, f"missing (listed in {shard / SHARD_FILE}); sealing again drops it",
+                       SEAL, entry.get("scene_index"))
+    if present:
+        report.absent = sorted(set(range(max(present) + 1)) - present)
+    return report
+
+
+@dataclass
+class RepairResult:
+    """What repair_dataset did: the scenes it removed (the generator writes them again), the
+    leftovers it deleted, and the seal it wrote (None when a dataset-level file no longer matches
+    index.json: sealing would record its wrong bytes as right)."""
+
+    removed_scenes: list[int]
+    removed_leftovers: list[Path]
+    seal: SealResult | None
+
+
+def repair_dataset(report: VerifyReport) -> RepairResult:
+    """Remove the damaged scenes and the leftovers of crashed writers a verify_dataset report
+    found, and seal again, so that rerunning the same `dotsim generate` command writes exactly
+    the removed scenes. A dataset-level file that no longer matches index.json stops the seal."""
+    root = report.root
+    scenes_per_shard = read_layout(root)
+    removed = [index for index in report.damaged_scenes if remove_scene(root, index, scenes_per_shard)]
+    dead_leftovers = remove_partial_scenes(root)
+    return RepairResult(removed, dead_leftovers, None if report.of_kind(FILE) else seal_dataset(root))

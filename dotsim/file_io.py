@@ -1,0 +1,150 @@
+"""Writing files so that readers see all or nothing, and sha256 checksums of bytes and files.
+
+Every file dotsim writes goes through `atomic_writer`: the bytes go to ``.tmp-<name>-<pid>``
+beside the final name, are flushed and fsync'ed, and the temporary file is renamed into place
+(``os.replace``, atomic on POSIX), so a reader or a crash never leaves half a file under the
+final name. A write that fails removes its temporary file; one that runs out of space raises
+DiskFullError naming the file and the space it needed.
+
+Standard library only, so Blender's own Python (generator/blender/run_in_blender.py) imports it
+as well as the rest of dotsim.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+from typing import BinaryIO
+
+TMP_PREFIX = ".tmp-"
+# Both mean "no room": a full filesystem, or the user's quota on it.
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+class DiskFullError(OSError):
+    """A write ran out of space; the message names the file, the space it needed and the free space.
+
+    An OSError with errno ENOSPC whose str() is the message alone (one line for a CLI to print);
+    it survives pickling, so a worker process can raise it to its parent.
+    """
+
+    def __init__(self, message: str):
+        super().__init__(errno.ENOSPC, message)
+
+    def __str__(self) -> str:
+        return self.strerror
+
+    def __reduce__(self):
+        return type(self), (self.strerror,)
+
+
+def temporary_name(final_name: str) -> str:
+    """Name of the temporary sibling a write of `final_name` uses: ``.tmp-<final_name>-<pid>``.
+
+    The pid suffix lets a resume tell leftovers of dead writers from files a live one still writes.
+
+    Examples
+    --------
+    >>> temporary_name("index.json").startswith(".tmp-index.json-")
+    True
+    """
+    return f"{TMP_PREFIX}{final_name}-{os.getpid()}"
+
+
+def _size_text(n: int) -> str:
+    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} bytes"
+
+
+def disk_full_error(path: str | os.PathLike, needed: int, exact: bool = True) -> DiskFullError:
+    """The DiskFullError for a write of `needed` bytes to `path` (`exact` False: at least that many)."""
+    path = Path(path)
+    try:
+        free = f"{_size_text(shutil.disk_usage(path.parent).free)} free"
+    except OSError:
+        free = "free space unknown"
+    amount = _size_text(needed) if exact else f"more than {_size_text(needed)}"
+    return DiskFullError(f"{path}: no space left on device: writing it needs {amount}, {free} on "
+                         f"{path.parent}; free some space and rerun")
+
+
+def is_disk_full(error: BaseException) -> bool:
+    """True for an OSError meaning no space (ENOSPC, or EDQUOT: the quota is used up)."""
+    return isinstance(error, OSError) and error.errno in _NO_SPACE
+
+
+@contextlib.contextmanager
+def atomic_writer(path: str | os.PathLike, size_hint: int = 0) -> Iterator[BinaryIO]:
+    """Open a binary stream that becomes `path` only when the ``with`` block ends without error.
+
+    size_hint: bytes the caller means to write, named in the DiskFullError when space runs out
+    (otherwise the bytes written so far are named).
+    """
+    path = Path(path)
+    tmp = path.with_name(temporary_name(path.name))
+    try:
+        with open(tmp, "wb") as stream:
+            yield stream
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(tmp, path)
+    except BaseException as error:
+        written = tmp.stat().st_size if tmp.exists() else 0
+        tmp.unlink(missing_ok=True)
+        if is_disk_full(error) and not isinstance(error, DiskFullError):
+            raise disk_full_error(path, max(size_hint, written), exact=size_hint > 0) from None
+        raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` to `path` atomically (see atomic_writer); returns the path."""
+    path = Path(path)
+    with atomic_writer(path, size_hint=len(data)) as stream:
+        stream.write(data)
+    return path
+
+
+def json_bytes(obj) -> bytes:
+    """Canonical JSON for files dotsim writes: sorted keys, 2-space indent, final newline.
+
+    NaN and inf are refused (ValueError): they are not JSON and other readers reject them.
+
+    Examples
+    --------
+    >>> json_bytes({"b": 1, "a": [1.5]})
+    b'{\\n  "a": [\\n    1.5\\n  ],\\n  "b": 1\\n}\\n'
+    """
+    return (json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n").encode()
+
+
+def atomic_write_json(path: str | os.PathLike, obj) -> Path:
+    """Write `obj` as canonical JSON (json_bytes) to `path` atomically; returns the path."""
+    return atomic_write_bytes(path, json_bytes(obj))
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex sha256 of `data`.
+
+    Examples
+    --------
+    >>> sha256_bytes(b"")[:16]
+    'e3b0c44298fc1c14'
+    """
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """Hex sha256 of a file's bytes, read in 1 MB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

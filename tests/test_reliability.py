@@ -1,0 +1,250 @@
+"""A rerun mends what a crash or damage left (real Cycles renders at tiny size), `dotsim verify`
+and `--repair`, and a full disk (a real, tiny tmpfs when this runs as root; an ENOSPC raised at
+fsync otherwise) reported in one line that names the file, leaving nothing half-written."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dotsim import dataset, file_io
+from dotsim.cli import main as dotsim_main
+from dotsim.dataset.layout import record_layout
+from dotsim.dataset.seal import seal_shard
+from generator.config import load_config
+from generator.pipeline import generate
+from generator.render_scenes import LOG_DIR
+from generator.resources import TEXTURE_DIR
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "configs" / "tiny.toml"
+SCENES = 6  # three shards of two scenes (configs/tiny.toml)
+
+
+def frame_sums(root: Path) -> dict[str, str]:
+    """sha256 of every frame file, by path relative to the dataset (computed with hashlib)."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.glob("shard_*/scene_*/frame_*.exr"))}
+
+
+def leftovers(root: Path) -> list[Path]:
+    return sorted(root.rglob(".tmp-*"))
+
+
+@pytest.fixture(scope="module")
+def sealed(tmp_path_factory):
+    """SCENES tiny scenes rendered and sealed once; tests work on copies."""
+    out = tmp_path_factory.mktemp("reliability") / "base"
+    summary = generate(load_config(TINY), out, "train", SCENES, seed=3, progress=False)
+    assert summary.done == SCENES and not summary.failed
+    return out
+
+
+def rerun(out: Path, scenes: int = SCENES):
+    return generate(load_config(TINY), out, "train", scenes, seed=3, progress=False)
+
+
+def test_rerun_reseals_after_a_kill_between_the_last_scene_and_the_seal(sealed, tmp_path):
+    """The state a kill leaves while extending a sealed dataset 3 -> 6 scenes: every scene written,
+    index.json still the old seal, and one shard.json already rewritten (killed mid-seal)."""
+    out = tmp_path / "extended"
+    shutil.copytree(sealed, out)
+    moved = [dataset.scene_dir(out, index, 2) for index in (3, 4, 5)]
+    for scene in moved:
+        scene.rename(tmp_path / scene.name)
+    dataset.seal_dataset(out)  # the seal of the first 3 scenes
+    for scene in moved:
+        (tmp_path / scene.name).rename(scene)
+    assert dataset.open_dataset(out).index["scene_count"] == 3
+    seal_shard(out / "shard_00001", 1, 2)  # shard.json written, index.json not: the kill
+    with pytest.raises(dataset.FormatError, match=r"shard_00001/shard\.json: sha256 differs"):
+        dataset.open_dataset(out)
+    summary = rerun(out)
+    assert (summary.done, summary.skipped, summary.failed) == (0, SCENES, [])
+    data = dataset.open_dataset(out, verify=True)
+    assert [s.scene_index for s in data.scenes] == list(range(SCENES))
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+    assert not dataset.verify_dataset(out).problems
+
+
+def test_rerun_redoes_a_damaged_complete_scene(sealed, tmp_path):
+    out = tmp_path / "damaged"
+    shutil.copytree(sealed, out)
+    (out / "shard_00001" / "scene_0000003" / "frame_2.exr").unlink()  # e.g. a bad copy
+    summary = rerun(out)
+    assert (summary.done, summary.skipped, summary.failed, summary.redone) == (1, SCENES - 1, [], [3])
+    assert "1 damaged scene(s) found and redone: [3]" in summary.line()
+    assert frame_sums(out) == frame_sums(sealed)  # byte-identical to the first rendering
+    assert not dataset.verify_dataset(out).problems
+    assert not leftovers(out)
+
+
+def test_verify_lists_damage_by_file_and_repair_makes_the_rerun_redo_exactly_it(sealed, tmp_path, capsys):
+    out = tmp_path / "copied"
+    shutil.copytree(sealed, out)
+    shard0, shard2 = out / "shard_00000", out / "shard_00002"
+    (shard0 / "scene_0000001" / "frame_0.exr").unlink()
+    corrupt = shard2 / "scene_0000004" / "frame_3.exr"
+    data = bytearray(corrupt.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    corrupt.write_bytes(bytes(data))
+    (out / "shard_00001" / "scene_0000002" / "scene.json").write_text("{ not json")
+    stale = shard2 / ".tmp-scene_0000005-999999999"  # a crashed writer's leftover (no such pid)
+    stale.mkdir()
+    assert dotsim_main(["verify", str(out)]) == 1
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    assert f"{shard0 / 'scene_0000001' / 'frame_0.exr'}: missing (listed in scene.json)" in lines
+    assert f"{corrupt}: sha256 differs from the one scene.json recorded at write time (file changed " \
+           f"or corrupt)" in lines
+    assert any(line.startswith(f"{out / 'shard_00001' / 'scene_0000002' / 'scene.json'}: not valid JSON")
+               for line in lines)
+    assert f"{stale}: unfinished write left by a crashed writer" in lines
+    assert "4 problem(s) (3 damaged scene(s): 1, 2, 4)" in captured.err
+    assert dotsim_main(["verify", str(out), "--repair"]) == 0
+    captured = capsys.readouterr()
+    assert "repair: removed 3 damaged scene(s) and 1 leftover(s)" in captured.out
+    assert "render scenes 1, 2, 4 again" in captured.out
+    assert [s.scene_index for s in dataset.open_dataset(out).scenes] == [0, 3, 5]
+    summary = rerun(out)
+    assert (summary.done, summary.skipped, summary.failed) == (3, SCENES - 3, [])
+    assert frame_sums(out) == frame_sums(sealed)
+    assert dotsim_main(["verify", str(out)]) == 0
+    assert "no problems" in capsys.readouterr().out
+
+
+def test_verify_names_a_stale_seal_and_seal_mends_it(sealed, tmp_path, capsys):
+    out = tmp_path / "stale"
+    shutil.copytree(sealed, out)
+    scene = out / "shard_00002" / "scene_0000005"
+    scene.rename(tmp_path / "aside")
+    assert dotsim_main(["verify", str(out)]) == 1
+    assert f"{scene}: missing (listed in {scene.parent / 'shard.json'}); sealing again drops it" \
+        in capsys.readouterr().out
+    assert dotsim_main(["seal", str(out)]) == 0
+    assert "sealed 5 scenes (20 frames) in 3 shard(s): 1 shard.json written, 0 scenes hashed" \
+        in capsys.readouterr().out
+    (tmp_path / "aside").rename(scene)
+    assert dotsim_main(["verify", str(out)]) == 1
+    assert f"{scene}: complete but not sealed" in capsys.readouterr().out
+    assert dotsim_main(["seal", str(out)]) == 0
+    assert "1 scenes hashed" in capsys.readouterr().out
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+# ----------------------------------------------------------------------------- a full disk
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A real 8 MB tmpfs mounted at tmp_path / "disk" (root only), unmounted afterwards."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root; the fsync-level ENOSPC test still runs")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+def fill(disk: Path) -> None:
+    """Fill the filesystem until a write fails with ENOSPC (a real full disk)."""
+    with open(disk / "filler", "wb") as stream:
+        try:
+            while True:
+                stream.write(b"\0" * 65536)
+                stream.flush()
+        except OSError as error:
+            assert error.errno == errno.ENOSPC
+    with pytest.raises(OSError):
+        (disk / "probe").write_bytes(b"x")
+    (disk / "probe").unlink(missing_ok=True)
+
+
+def assert_one_line_naming(err: str, path: Path) -> None:
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"{path}: no space left on device: writing it needs" in err and "free on" in err, err
+
+
+def test_full_disk_while_writing_the_builtin_textures(sealed, small_disk, capsys):
+    out = small_disk / "out"
+    out.mkdir()
+    for name in ("pattern.png", "generate.json"):
+        shutil.copy(sealed / name, out / name)
+    fill(small_disk)
+    assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
+                        "--scenes", "1", "--seed", "3", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert_one_line_naming(err, out / TEXTURE_DIR / sorted((sealed / TEXTURE_DIR).iterdir())[0].name)
+    assert not leftovers(small_disk)
+
+
+def test_full_disk_while_writing_a_failure_log(sealed, small_disk, capsys):
+    out = small_disk / "out"
+    shutil.copytree(sealed, out, ignore=shutil.ignore_patterns("shard_*", "index.json", "dataset.json"))
+    fill(small_disk)
+    # /bin/false renders nothing, so the scene fails and its log is written: the disk is full.
+    assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
+                        "--scenes", "1", "--seed", "3", "--no-progress", "--blender", "/bin/false"]) == 1
+    assert_one_line_naming(capsys.readouterr().err, out / LOG_DIR / "scene_0000000.log")
+    assert not leftovers(small_disk)
+
+
+def test_full_disk_while_writing_a_scene(sealed, small_disk, capsys):
+    out = small_disk / "out"
+    shutil.copytree(sealed, out, ignore=shutil.ignore_patterns("shard_*", "index.json"))
+    fill(small_disk)
+    assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
+                        "--scenes", "1", "--seed", "3", "--no-progress"]) == 1
+    assert_one_line_naming(capsys.readouterr().err, out / "shard_00000" / "scene_0000000")
+    assert not leftovers(small_disk) and not list(out.glob("shard_*/scene_*"))
+
+
+def test_full_disk_while_sealing(sealed, small_disk, capsys):
+    out = small_disk / "out"
+    shutil.copytree(sealed, out, ignore=shutil.ignore_patterns("index.json"))
+    fill(small_disk)
+    assert dotsim_main(["seal", str(out)]) == 1
+    assert_one_line_naming(capsys.readouterr().err, out / "index.json")
+    assert not leftovers(small_disk)
+    (small_disk / "filler").unlink()
+    assert dotsim_main(["seal", str(out)]) == 0
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+def test_enospc_at_fsync_names_the_file_and_leaves_nothing(tmp_path, monkeypatch):
+    """Where no tmpfs can be mounted: the OS reporting ENOSPC when the data reaches the disk."""
+    def no_space(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    record_layout(tmp_path, 2)  # dataset.json, written before the disk "fills"
+    monkeypatch.setattr(file_io.os, "fsync", no_space)
+    target = tmp_path / "index.json"
+    with pytest.raises(file_io.DiskFullError) as caught:
+        file_io.atomic_write_bytes(target, b"x" * 3000)
+    assert str(caught.value).startswith(f"{target}: no space left on device: writing it needs 2.9 kB, ")
+    assert caught.value.errno == errno.ENOSPC
+    assert [p.name for p in tmp_path.iterdir()] == ["dataset.json"]
+    with pytest.raises(file_io.DiskFullError, match=r"scene_0000000: no space left on device"):
+        dataset.write_scene(tmp_path, 0, *_tiny_scene())
+    assert not leftovers(tmp_path) and not list(tmp_path.glob("shard_*/scene_*"))
+
+
+def _tiny_scene():
+    from dotsim.rig import get_preset
+
+    rig = get_preset("structure_core").scaled(0.025)
+    h, w = rig.camera.height, rig.camera.width
+    frame = {"ir": np.zeros((h, w)), "depth": np.ones((h, w), np.float32)}
+    meta = {"split": "train", "rig": rig.to_dict(), "pattern": {}, "poses": [None]}
+    return meta, [frame], 2, ("ir", "depth")
