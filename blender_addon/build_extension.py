@@ -44,15 +44,22 @@ PREVIEW_DISTRIBUTIONS = (
     "tqdm",  # generator.pipeline
     "trimesh", "manifold3d", "networkx", "pillow",  # assets_manifest (imported with its package)
 )
-# pip's --platform tag for each Blender platform (pip also accepts older manylinux/macOS tags).
-# Blender 4.2 needs glibc 2.28 on Linux and macOS 11.2.
+# pip's --platform tags for each Blender platform. pip expands a macOS tag to older macOS versions
+# but not a manylinux tag to older glibc versions, so those are listed (Blender 4.2 needs glibc
+# 2.28). macOS 14 is the newest a wheel may require (OpenCV 4.11's need macOS 13).
+
+
+def _manylinux(machine: str) -> tuple[str, ...]:
+    return (*(f"manylinux_2_{minor}_{machine}" for minor in range(28, 16, -1)), f"manylinux2014_{machine}")
+
+
 PIP_PLATFORMS = {
-    "linux-x64": "manylinux_2_28_x86_64",
-    "linux-arm64": "manylinux_2_28_aarch64",
-    "macos-arm64": "macosx_11_0_arm64",
-    "macos-x64": "macosx_11_0_x86_64",
-    "windows-x64": "win_amd64",
-    "windows-arm64": "win_arm64",
+    "linux-x64": _manylinux("x86_64"),
+    "linux-arm64": _manylinux("aarch64"),
+    "macos-arm64": ("macosx_14_0_arm64",),
+    "macos-x64": ("macosx_14_0_x86_64",),
+    "windows-x64": ("win_amd64",),
+    "windows-arm64": ("win_arm64",),
 }
 
 
@@ -105,7 +112,8 @@ def download_wheels(requirements: list[str], platform: str, cache: Path) -> list
         if (wheel := _cached_wheel(folder, requirement)) is None:
             command = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
                        "--python-version", BLENDER_PYTHON, "--implementation", "cp",
-                       "--platform", PIP_PLATFORMS[platform], "--dest", str(folder), requirement]
+                       *(f"--platform={tag}" for tag in PIP_PLATFORMS[platform]), "--dest", str(folder),
+                       requirement]
             result = subprocess.run(command, capture_output=True, text=True)
             wheel = _cached_wheel(folder, requirement)
             if result.returncode != 0 or wheel is None:
