@@ -133,7 +133,7 @@ def _record_hash(data: bytes) -> str:
 def wheel_from_installed(name: str, out_dir: Path) -> Path:
     """A wheel of distribution `name` packed from its files installed in this Python (the files its
     RECORD lists inside site-packages; scripts and compiled caches left out), named with the tags of
-    its WHEEL file. Stored uncompressed: the extension zip stores wheels as they are."""
+    its WHEEL file. Deflated at level 1, the fastest: the linux-x64 zip shrinks from 320 to 123 MiB."""
     dist = importlib.metadata.distribution(name)
     tags = [line.split(":", 1)[1].strip() for line in (dist.read_text("WHEEL") or "").splitlines()
             if line.startswith("Tag:")]
@@ -149,7 +149,7 @@ def wheel_from_installed(name: str, out_dir: Path) -> Path:
                    and not str(f).endswith(("RECORD", "INSTALLER", "REQUESTED", "direct_url.json")))
     temporary = wheel.with_name(f".{wheel.name}.{os.getpid()}")
     record = []
-    with zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
+    with zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
         for relative in files:
             data = Path(dist.locate_file(relative)).read_bytes()
             archive.writestr(relative, data)
