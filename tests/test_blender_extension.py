@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT, generate_scene
 
 from blender_addon.build_extension import (
     PREVIEW_DISTRIBUTIONS,
@@ -32,15 +33,11 @@ from blender_addon.build_extension import (
     project_version,
     this_platform,
 )
-from dotsim.dataset import open_dataset
-from generator.config import load_config
-from generator.pipeline import generate
 
 pytest.importorskip("bpy")
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIG = REPO / "configs" / "tiny.toml"
-SCENE_INDEX, BASE_SEED, SPLIT, FRAME = 1, 7, "train", 2
+FRAME = 2
 
 
 @pytest.fixture(scope="module")
@@ -52,12 +49,8 @@ def extension_zip(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def dataset_scene(tmp_path_factory):
-    """(dataset dir, frames) of the scene as `dotsim generate` writes it."""
-    out = tmp_path_factory.mktemp("extension_dataset") / "dataset"
-    summary = generate(load_config(CONFIG), out, SPLIT, scenes=1, start=SCENE_INDEX, seed=BASE_SEED,
-                       progress=False)
-    assert summary.done == 1, summary.line()
-    return out, open_dataset(out).read_scene(0).frames
+    """(dataset dir, scene meta, frames) of the scene as `dotsim generate` writes it."""
+    return generate_scene(tmp_path_factory.mktemp("extension_dataset") / "dataset")
 
 
 def _distribution_key(name: str) -> str:
@@ -152,7 +145,7 @@ def test_preview_through_installed_extension_is_the_dataset_frame(session, datas
     assert session["build_scene"]["result"] == ["FINISHED"], session["build_scene"]
     assert session["preview_frame"]["result"] == ["FINISHED"], session["preview_frame"]
     assert f"frame {FRAME} of scene {SCENE_INDEX}" in session["preview_frame"]["status"]
-    frame = dataset_scene[1][FRAME]
+    frame = dataset_scene[2][FRAME]
     ir, depth = session["images"]["ir"], session["images"]["depth"]
     assert ir.shape == frame["ir"].shape and ir.std() > 0.01
     # Equal up to the dataset's float16 storage of IR (half a step near 0.5 is 2.4e-4).
