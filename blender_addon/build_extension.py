@@ -162,6 +162,9 @@ def wheel_from_installed(name: str, out_dir: Path) -> Path:
 
 def dotsim_wheel(out_dir: Path) -> Path:
     """dotsim's own wheel, built from this checkout with the installed setuptools (no download)."""
+    # setuptools copies the packages into build/lib and packs all it finds there: clear it, or a
+    # module deleted from the checkout since the last build would still be shipped.
+    shutil.rmtree(REPO / "build" / "lib", ignore_errors=True)
     result = subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps",
                              "--no-build-isolation", "--wheel-dir", str(out_dir), str(REPO)],
                             capture_output=True, text=True)
