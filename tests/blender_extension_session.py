@@ -3,7 +3,8 @@ tests/test_blender_extension.py in a Python that sees only bpy and what Blender 
 
 Usage: python -S -P blender_extension_session.py PARAMS.json. Installs the zip into the user
 extension repository (the caller points BLENDER_USER_RESOURCES at a temporary folder), drives the
-panel's operators, uninstalls the extension and writes what it saw to PARAMS["out"] (JSON) and the
+panel's operators, uninstalls the extension, installs and removes it once more with the
+command-line handler, and writes what it saw to PARAMS["out"] (JSON) and the
 preview images to PARAMS["images"] (npz). Checks are the caller's: this only records.
 """
 
@@ -90,6 +91,16 @@ def main(params: dict) -> dict:
     seen["left_after_uninstall"] = sorted(p.name for p in site_packages.glob("*"))
     seen["extension_dir_after_uninstall"] = os.path.exists(
         bpy.utils.user_resource("EXTENSIONS", path="user_default/dotsim"))
+
+    # The handler `blender --command extension ...` runs, with the arguments docs/ADDON.md gives.
+    from bl_pkg.bl_extension_cli import cli_extension_handler
+
+    seen["command_line"] = {
+        "install_file": cli_extension_handler(["install-file", "-r", "user_default", "-e", zip_path]),
+        "enabled_after_install": ADDON in bpy.context.preferences.addons,
+        "remove": cli_extension_handler(["remove", "user_default.dotsim"]),
+        "enabled_after_remove": ADDON in bpy.context.preferences.addons,
+    }
     return seen
 
 

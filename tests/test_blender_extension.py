@@ -178,6 +178,11 @@ def test_uninstall_removes_the_extension_and_its_wheels(session):
     assert not [name for name in left if name.startswith(("dotsim", "generator", "cv2"))], left
 
 
+def test_command_line_installs_and_removes_it(session):
+    assert session["command_line"] == {"install_file": 0, "enabled_after_install": True, "remove": 0,
+                                       "enabled_after_remove": False}
+
+
 def test_unknown_platform_or_foreign_venv_build_is_refused(tmp_path, capsys):
     with pytest.raises(ExtensionBuildError, match="platform beos-x64: allowed: linux-x64"):
         build_extension(tmp_path, ["beos-x64"])
