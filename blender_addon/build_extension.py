@@ -75,10 +75,9 @@ def project_version(pyproject: Path = REPO / "pyproject.toml") -> str:
 
 def this_platform() -> str:
     """This machine's platform in Blender's spelling (linux-x64, macos-arm64, windows-x64, ...)."""
-    system, _, machine = sysconfig.get_platform().replace("win-amd64", "windows-x86_64").partition("-")
-    system = {"macosx": "macos", "win32": "windows"}.get(system, system)
-    if system == "macos":
-        machine = machine.rpartition("-")[2]  # "11.0-arm64"
+    system, _, machine = sysconfig.get_platform().partition("-")  # linux-x86_64, macosx-11.0-arm64, win-amd64
+    system = {"macosx": "macos", "win": "windows"}.get(system, system)
+    machine = machine.rpartition("-")[2]
     return f"{system}-{ {'x86_64': 'x64', 'amd64': 'x64', 'aarch64': 'arm64'}.get(machine, machine)}"
 
 

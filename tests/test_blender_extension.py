@@ -29,7 +29,9 @@ from blender_addon.build_extension import (
     PREVIEW_DISTRIBUTIONS,
     ExtensionBuildError,
     build_extension,
+    download_wheels,
     main,
+    pinned_requirements,
     project_version,
     this_platform,
 )
@@ -190,3 +192,31 @@ def test_unknown_platform_or_foreign_venv_build_is_refused(tmp_path, capsys):
     assert main(["--from-venv", "--platform", other, "--out", str(tmp_path)]) == 1
     assert f"--from-venv builds only this machine's platform ({this_platform()})" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("python_platform, blender_platform", [
+    ("linux-x86_64", "linux-x64"), ("linux-aarch64", "linux-arm64"), ("macosx-11.0-arm64", "macos-arm64"),
+    ("macosx-10.9-x86_64", "macos-x64"), ("win-amd64", "windows-x64"), ("win-arm64", "windows-arm64"),
+])
+def test_this_platform_in_blenders_spelling(monkeypatch, python_platform, blender_platform):
+    monkeypatch.setattr("sysconfig.get_platform", lambda: python_platform)
+    assert this_platform() == blender_platform
+
+
+def test_cached_wheels_are_not_downloaded_again(tmp_path, monkeypatch):
+    requirements = pinned_requirements()
+    folder = tmp_path / "macos-arm64"
+    folder.mkdir()
+    expected = []
+    for requirement in requirements:
+        name, _, version = requirement.partition("==")
+        wheel = folder / f"{re.sub(r'[-_.]+', '_', name)}-{version}-cp311-cp311-macosx_11_0_arm64.whl"
+        wheel.write_bytes(b"")
+        expected.append(wheel)
+    (folder / "scipy-0.1-cp311-cp311-macosx_11_0_arm64.whl").write_bytes(b"")  # another version
+
+    def no_pip(*args, **kwargs):
+        raise AssertionError(f"pip ran: {args}")
+
+    monkeypatch.setattr("subprocess.run", no_pip)
+    assert download_wheels(requirements, "macos-arm64", tmp_path) == expected
