@@ -66,4 +66,4 @@ addon: setup
 	$(BIN)/python -m blender_addon.build_extension $(PLATFORMS)
 
 clean:
-	rm -rf $(OUT) $(VENV) *.egg-info
+	rm -rf $(OUT) $(VENV) *.egg-info build dist
