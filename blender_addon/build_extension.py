@@ -44,15 +44,15 @@ PREVIEW_DISTRIBUTIONS = (
     "tqdm",  # generator.pipeline
     "trimesh", "manifold3d", "networkx", "pillow",  # assets_manifest (imported with its package)
 )
-# pip's --platform tags for each Blender platform. pip expands a macOS tag to older macOS versions
-# but not a manylinux tag to older glibc versions, so those are listed (Blender 4.2 needs glibc
-# 2.28). macOS 14 is the newest a wheel may require (OpenCV 4.11's need macOS 13).
 
 
 def _manylinux(machine: str) -> tuple[str, ...]:
     return (*(f"manylinux_2_{minor}_{machine}" for minor in range(28, 16, -1)), f"manylinux2014_{machine}")
 
 
+# pip's --platform tags for each Blender platform. pip expands a macOS tag to older macOS versions
+# but not a manylinux tag to older glibc versions, so those are listed (Blender 4.2 needs glibc
+# 2.28). macOS 14 is the newest a wheel may require (OpenCV 4.11's need macOS 13).
 PIP_PLATFORMS = {
     "linux-x64": _manylinux("x86_64"),
     "linux-arm64": _manylinux("aarch64"),
