@@ -13,7 +13,7 @@ WORKERS ?= 1
 DATA ?= $(OUT)/dataset
 TEST_DATA ?= $(OUT)/testset
 
-.PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval clean
+.PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval addon clean
 
 $(BIN)/dotsim: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -59,5 +59,11 @@ train: setup
 eval: testset
 	$(BIN)/dotsim eval --checkpoint $(RUN)/checkpoint.pt --data $(TEST_DATA) --out $(RUN)/eval
 
+# The Blender extension: dist/dotsim-<version>-<platform>.zip per platform PyPI has wheels for
+# (downloaded once into build/addon_wheels/); `make addon PLATFORMS="--platform linux-x64"` for one.
+PLATFORMS ?=
+addon: setup
+	$(BIN)/python -m blender_addon.build_extension $(PLATFORMS)
+
 clean:
-	rm -rf $(OUT) $(VENV) *.egg-info
+	rm -rf $(OUT) $(VENV) *.egg-info build dist

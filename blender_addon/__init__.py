@@ -7,19 +7,11 @@ into the "dotsim preview" (IR) and "dotsim preview depth" images, and writes the
 into the "dotsim spec" text. Installing and using it: docs/ADDON.md.
 
 Modules: scene_source (no bpy: sampling and preview images), operators, properties, panel.
+build_extension (no bpy) packs them with blender_manifest.template.toml and the wheels they need
+into a Blender extension zip (`make addon`); the manifest, not this package, names the add-on.
 """
 
 from __future__ import annotations
-
-bl_info = {
-    "name": "dotsim scene preview",
-    "author": "dotsim",
-    "version": (0, 1, 0),
-    "blender": (4, 2, 0),
-    "location": "3D Viewport > Sidebar > dotsim",
-    "description": "Build and render dotsim generator scenes (structured-light training data) for a look",
-    "category": "Render",
-}
 
 
 def _classes():
@@ -31,15 +23,12 @@ def _classes():
 def register() -> None:
     import bpy
 
-    from .properties import DotsimSettings, add_python_paths, close_session_before_load
+    from .properties import DotsimSettings, close_session_before_load
 
     for cls in _classes():
         bpy.utils.register_class(cls)
     bpy.types.WindowManager.dotsim = bpy.props.PointerProperty(type=DotsimSettings)
     bpy.app.handlers.load_pre.append(close_session_before_load)
-    preferences = bpy.context.preferences.addons.get(__package__)
-    if preferences is not None:
-        add_python_paths(preferences.preferences.python_paths)
 
 
 def unregister() -> None:

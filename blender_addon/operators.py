@@ -10,15 +10,18 @@ is given, which must not overwrite the user's scenes. One renderer lives for the
 reused for every build, as a render worker reuses it for every scene.
 
 The generator (and scene_source, which imports it) is imported only when an operator runs, so the
-add-on registers even in a Blender whose Python cannot import dotsim yet; the operator then says
-how to fix that.
+add-on registers even in a Blender whose Python cannot import dotsim (an extension zip built for
+another platform); the operator then says how to fix that. In the extension, dotsim and its
+dependencies come from the wheels Blender unpacked on install (build_extension.py).
 """
 
 from __future__ import annotations
 
 import json
+import sys
 import tempfile
 import time
+import traceback
 from pathlib import Path
 
 import bpy
@@ -28,9 +31,8 @@ PREVIEW_SCENE = "dotsim preview"
 IR_IMAGE = "dotsim preview"
 DEPTH_IMAGE = "dotsim preview depth"
 SPEC_TEXT = "dotsim spec"
-SETUP_HINT = ("dotsim's generator cannot be imported by this Blender's Python ({error}); add the dotsim "
-              "checkout and a site-packages folder holding its dependencies in the add-on's preferences "
-              "(docs/ADDON.md)")
+SETUP_HINT = ("dotsim's generator cannot be imported by this Blender's Python ({error}); install the "
+              "dotsim extension zip built for this platform (`make addon`, docs/ADDON.md)")
 
 
 class PreviewSession:
@@ -147,13 +149,18 @@ class _DotsimOperator(bpy.types.Operator):
             return self._fail(settings, SETUP_HINT.format(error=error))
         except (ValueError, OSError, RuntimeError) as error:  # ConfigError is a ValueError
             return self._fail(settings, str(error))
+        except Exception as error:  # a bug: one line in the status bar, the traceback in the console only
+            traceback.print_exc()
+            return self._fail(settings, f"internal error {type(error).__name__}: {error} (traceback in the "
+                                        "console)")
         settings.status = message
         self.report({"INFO"}, message)
         return {"FINISHED"}
 
     def _fail(self, settings, message: str):
         settings.status = f"error: {message}"
-        self.report({"ERROR"}, message)
+        self.report({"ERROR"}, message)  # the status bar (and stdout in background mode)
+        print(f"dotsim: error: {message}", file=sys.stderr)  # the console of an interactive Blender too
         return {"CANCELLED"}
 
 

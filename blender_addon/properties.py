@@ -1,13 +1,10 @@
-"""The add-on's settings (WindowManager.dotsim), preferences and file-load handler.
+"""The add-on's settings (WindowManager.dotsim) and file-load handler.
 
 The settings live on the window manager, not on a scene: "Build scene" switches the window to the
 "dotsim preview" scene, and the panel must show the same settings there as in the user's scene.
 """
 
 from __future__ import annotations
-
-import os
-import sys
 
 import bpy
 from bpy.app.handlers import persistent
@@ -36,33 +33,10 @@ class DotsimSettings(bpy.types.PropertyGroup):
     status: bpy.props.StringProperty(name="Status", description="Outcome of the last dotsim operator")
 
 
-class DotsimPreferences(bpy.types.AddonPreferences):
-    """Where Blender's Python finds dotsim and its dependencies (not needed with bpy as a module)."""
-
-    bl_idname = __package__
-    python_paths: bpy.props.StringProperty(
-        name="Python paths",
-        description=f"Folders added to sys.path, separated by '{os.pathsep}': the dotsim checkout and a "
-                    "site-packages folder with its dependencies (docs/ADDON.md)",
-        update=lambda self, context: add_python_paths(self.python_paths))
-
-    def draw(self, context):
-        self.layout.prop(self, "python_paths")
-
-
-def add_python_paths(paths: str) -> None:
-    """Append the existing folders of an os.pathsep-separated list to sys.path (after Blender's own
-    modules, so its bundled packages keep precedence)."""
-    for folder in paths.split(os.pathsep):
-        folder = folder.strip()
-        if folder and os.path.isdir(folder) and folder not in sys.path:
-            sys.path.append(folder)
-
-
 @persistent
 def close_session_before_load(*_args) -> None:
     """A loaded file frees the preview scene's data; release the renderer while it still exists."""
     SESSION.close()
 
 
-CLASSES = (DotsimSettings, DotsimPreferences)
+CLASSES = (DotsimSettings,)

@@ -11,22 +11,16 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-from dotsim.dataset import open_dataset
-from generator.config import load_config
-from generator.pipeline import generate
+from generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT, generate_scene
 
 bpy = pytest.importorskip("bpy")
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 
 import blender_addon  # noqa: E402  (needs bpy)
 
-CONFIG = Path(__file__).resolve().parents[1] / "configs" / "tiny.toml"
-SCENE_INDEX, BASE_SEED, SPLIT = 1, 7, "train"
 # A Blender camera looks down its local -Z with +Y up; OpenCV's looks down +z with y down. The same
 # camera's Blender object matrix is therefore its OpenCV pose with the y and z columns negated.
 OPENCV_TO_BLENDER = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -35,12 +29,7 @@ OPENCV_TO_BLENDER = np.diag([1.0, -1.0, -1.0, 1.0])
 @pytest.fixture(scope="module")
 def dataset_scene(tmp_path_factory):
     """(dataset dir, scene meta, frames) of the scene as `dotsim generate` writes it."""
-    out = tmp_path_factory.mktemp("addon") / "dataset"
-    summary = generate(load_config(CONFIG), out, SPLIT, scenes=1, start=SCENE_INDEX, seed=BASE_SEED,
-                       progress=False)
-    assert summary.done == 1, summary.line()
-    scene = open_dataset(out).read_scene(0)
-    return out, scene.meta, scene.frames
+    return generate_scene(tmp_path_factory.mktemp("addon") / "dataset")
 
 
 @pytest.fixture(scope="module")
