@@ -41,7 +41,6 @@ PREVIEW_DISTRIBUTIONS = (
     "opencv-contrib-python-headless",  # dotsim.pattern_store: pattern resizing
     "scipy",  # dotsim.patterns, generator.scene_spec, procedural textures
     "scikit-image", "lazy-loader", "packaging",  # procedural textures (resize)
-    "tqdm",  # generator.pipeline
     "trimesh", "manifold3d", "networkx", "pillow",  # assets_manifest (imported with its package)
 )
 
