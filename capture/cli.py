@@ -18,28 +18,26 @@ from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, ext
 from dotsim.dataset import FormatError, atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig import DEFAULT_PRESET, PRESETS, Rig, get_preset
+from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, load_rig_file
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
 
 def load_rig(spec: str, scale: float = 1.0) -> Rig:
-    """A rig preset by name, or a calibrated rig from a JSON file (Rig.to_dict() layout); then scaled.
-
-    Raises CaptureError naming the file or listing the presets.
+    """A rig preset by name, or a rig file (dotsim.rig_files: dotsim rig JSON or an OpenCV
+    FileStorage calibration); then scaled. Raises CaptureError naming the file or listing the presets.
     """
     if spec in PRESETS:
         rig = get_preset(spec)
-    elif spec.endswith(".json"):
+    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
         try:
-            rig = Rig.from_dict(json.loads(Path(spec).read_text()))
-        except OSError as error:
-            raise CaptureError(f"--rig {spec}: cannot read ({error.strerror})") from None
-        except ValueError as error:  # bad JSON or a bad rig field (JSONDecodeError is a ValueError)
-            raise CaptureError(f"--rig {spec}: not a rig ({error})") from None
+            rig = load_rig_file(spec)
+        except RigFileError as error:
+            raise CaptureError(f"--rig {error}") from None
     else:
         raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}) "
-                           f"nor a .json rig file")
+                           f"nor a rig file ({', '.join(RIG_FILE_SUFFIXES)})")
     if scale != 1.0:
         try:
             rig = rig.scaled(scale)
@@ -51,8 +49,9 @@ def load_rig(spec: str, scale: float = 1.0) -> Rig:
 def _rig_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", default=DEFAULT_PRESET,
                         help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}) or a "
-                        "calibrated rig as a JSON file in Rig.to_dict() layout; the frames must have its "
-                        "camera resolution")
+                        "rig file: dotsim rig JSON (Rig.to_dict(), scene.json, `dotsim capture info`) or an "
+                        "OpenCV FileStorage calibration (docs/GEOMETRY.md); the frames must have its camera "
+                        "resolution")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")

@@ -102,7 +102,8 @@ def make_pattern(config: Config, width: int, height: int) -> DotPattern:
     """The projector pattern of a config at the projector resolution (width x height px).
 
     A pattern file of another size is resampled (area averaging when shrinking), so one captured
-    full-resolution pattern serves scaled-down rigs.
+    full-resolution pattern serves scaled-down rigs; one of another aspect ratio (more than a pixel
+    off after scaling) does not fit the projector and raises PatternError.
     """
     pc = config.pattern
     if pc.source == "procedural":
@@ -111,6 +112,10 @@ def make_pattern(config: Config, width: int, height: int) -> DotPattern:
     pattern = load_pattern(pc.path)
     if pattern.image.shape == (height, width):
         return pattern
+    if abs(pattern.width * height / pattern.height - width) > 1.0:
+        raise PatternError(f"{pattern.source}: pattern is {pattern.width}x{pattern.height} px, which does not "
+                           f"fit the rig's projector of {width}x{height} px (another aspect ratio); allowed: "
+                           f"a pattern of the projector's size, or scaled with the same aspect ratio")
     shrinking = pattern.image.shape[1] > width
     image = cv2.resize(pattern.image.astype(np.float32), (width, height),
                        interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

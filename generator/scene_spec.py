@@ -15,12 +15,13 @@ local xy plane with its normal along local +z. Rotations are Blender XYZ Euler a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dotsim.rig import Rig, get_preset
+from dotsim.rig import Rig
+from dotsim.rig_files import configured_rig
 from generator.config import Config
 
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
@@ -53,12 +54,8 @@ def scene_seed(base_seed: int, scene_index: int) -> int:
 
 
 def build_rig(config: Config) -> Rig:
-    """The rig of a config: the preset, its overrides, scaled to the render resolution."""
-    rig = get_preset(config.rig.preset)
-    if config.rig.baseline != 0.0:
-        rig = replace(rig, projector_translation=(config.rig.baseline, *rig.projector_translation[1:]))
-    rig = replace(rig, max_depth=config.rig.max_depth)
-    return rig.scaled(config.rig.scale) if config.rig.scale != 1.0 else rig
+    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution."""
+    return configured_rig(config.rig, f"{config.source}: [rig]")
 
 
 @dataclass(frozen=True)
