@@ -51,7 +51,12 @@ FRAME_CHANNELS: dict[str, np.dtype] = {
     "edge": np.dtype(np.uint8),
     "projector_column": np.dtype(np.float32),
     "disparity": np.dtype(np.float32),
+    # A real sensor's own depth (metres, nan = no reading), stored beside recordings: the sensor's
+    # estimate, never ground truth (which is "depth").
+    "device_depth": np.dtype(np.float32),
 }
+# What the generator renders: every channel but the sensor's own depth; the writer's default.
+RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
 MASK_CHANNELS = ("visibility", "edge")
 # Scene meta keys the writer requires from the caller; the writer adds format_version,
 # dotsim_version, scene_index, frame_count, channels and frames itself.
@@ -285,7 +290,7 @@ def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int
     """
     import OpenEXR
 
-    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
+    channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     pixels = _frame_pixels(frame, channels, shape, where)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               "dotsim_format_version": FORMAT_VERSION}
@@ -374,8 +379,8 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     is the required frame shape; "poses" has one 4x4 world_from_camera per frame). The writer adds
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
     frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
-    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default: all of
-    FRAME_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
+    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default:
+    RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
     ``.tmp-*`` dir that remove_partial_scenes deletes.
     """
@@ -386,7 +391,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     if not isinstance(scenes_per_shard, int) or scenes_per_shard < 1:
         raise FormatError(f"scenes_per_shard must be a positive integer, found {scenes_per_shard!r}")
     where = f"scene {scene_index}"
-    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
+    channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     if "ir" not in channels or any(c not in FRAME_CHANNELS for c in channels):
         raise FormatError(f"{where}: channels {list(channels)} must include 'ir' and be among "
                           f"{list(FRAME_CHANNELS)}")

@@ -124,6 +124,18 @@ def _explicit_intrinsics(settings, role: str, kept: Intrinsics, where: str) -> I
     return Intrinsics(**values)
 
 
+def device_rig(name: str, camera: Intrinsics, projector_translation, second_camera_translation=None,
+               max_depth: float = 20.0) -> Rig:
+    """The rig of a sensor that reports its IR camera but not its projector's optics (RealSense,
+    OpenNI2): the projector is drawn as the presets' are (2 projector px per camera px, a field 25%
+    wider than the camera's, centred) at `projector_translation` (m, camera frame), unrotated.
+    """
+    projector = Intrinsics.centred(2 * round(1.25 * camera.width), 2 * round(1.25 * camera.height),
+                                   2 * camera.fx)
+    return Rig(name=name, camera=camera, projector=projector, projector_translation=projector_translation,
+               second_camera_translation=second_camera_translation, max_depth=max_depth)
+
+
 def rig_file_json(rig: Rig, **extra) -> bytes:
     """The bytes of a dotsim rig file: {"rig": Rig.to_dict(), **extra} (e.g. device, notes)."""
     return (json.dumps({"rig": rig.to_dict(), **extra}, indent=2) + "\n").encode()

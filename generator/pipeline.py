@@ -113,7 +113,8 @@ def make_pattern(config: Config, width: int, height: int) -> DotPattern:
     if pattern.image.shape == (height, width):
         return pattern
     if abs(pattern.width * height / pattern.height - width) > 1.0:
-        raise PatternError(f"{pattern.source}: pattern is {pattern.width}x{pattern.height} px, which does not "
+        raise PatternError(f"{pattern.source}: pattern is {pattern.width}x{pattern.height} px, which does "
+                           "not "
                            f"fit the rig's projector of {width}x{height} px (another aspect ratio); allowed: "
                            f"a pattern of the projector's size, or scaled with the same aspect ratio")
     shrinking = pattern.image.shape[1] > width
