@@ -168,6 +168,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      "state (default 3)")
     rec.add_argument("--pause", type=float, default=0.0,
                      help="seconds between poses, to move the sensor or the scene (default 0)")
+    rec.add_argument("--white-level", type=float,
+                     help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
+                     "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
     rec.add_argument("--split", choices=("train", "test"), default="test", help="split (default test)")
     rec.add_argument("--pattern", type=Path, help="the sensor's pattern image, copied into the dataset")
     rec.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
@@ -337,7 +340,8 @@ def _record(args: argparse.Namespace) -> int:
         with _open(args, exposure=args.exposure, gain=args.gain) as device:
             rig = load_rig(args.rig) if args.rig else device.rig()
             summary = record(device, rig, args.out, scenes=args.scenes, frames_per_scene=args.frames,
-                             split=args.split, settle=args.settle, pause_s=args.pause, pattern=pattern,
+                             split=args.split, settle=args.settle, pause_s=args.pause,
+                             white_level=args.white_level, pattern=pattern,
                              dot_window=args.dot_window, visibility_threshold=args.visibility_threshold,
                              scenes_per_shard=args.scenes_per_shard, progress=not args.no_progress,
                              preview=not args.no_preview)

@@ -64,15 +64,16 @@ def _source(frame: DeviceFrame) -> dict:
     return {"frame_number": frame.frame_number, "timestamp_ms": frame.timestamp_ms, "emitter": frame.emitter}
 
 
-def pose_frame(device: Device, settle: int, dot_window: int, threshold: float) -> tuple[dict, dict]:
-    """Record one pose: (dataset channels, where they came from)."""
+def pose_frame(device: Device, settle: int, white_level: float, dot_window: int,
+               threshold: float) -> tuple[dict, dict]:
+    """Record one pose: (dataset channels, where they came from); IR values are raw / white_level."""
     switch = device.can_switch_emitter
     on = grab(device, True if switch else None, settle)
-    channels = {"ir": on.ir.astype(np.float32) / np.float32(device.white_level)}
+    channels = {"ir": on.ir.astype(np.float32) / np.float32(white_level)}
     source = {"on": _source(on)}
     if switch:
         off = grab(device, False, settle)
-        channels["ambient"] = off.ir.astype(np.float32) / np.float32(device.white_level)
+        channels["ambient"] = off.ir.astype(np.float32) / np.float32(white_level)
         channels["visibility"] = capture_visibility(channels["ir"], channels["ambient"], dot_window,
                                                     threshold)
         source["off"] = _source(off)
@@ -98,19 +99,24 @@ def _preview():
 
 
 def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int, frames_per_scene: int,
-           split: str = "test", settle: int = 3, pause_s: float = 0.0, pattern: DotPattern | None = None,
+           split: str = "test", settle: int = 3, pause_s: float = 0.0, white_level: float | None = None,
+           pattern: DotPattern | None = None,
            dot_window: int = DEFAULT_DOT_WINDOW, visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
            scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD, progress: bool = True,
            preview: bool = True) -> dict:
     """Record `scenes` x `frames_per_scene` poses from an opened device into a new dataset.
 
     The rig's camera must have the stream's size. pause_s: seconds between poses (to move the sensor
-    or the scene). Returns a summary: dataset, scenes, frames, stopped (None, or why the recording
-    ended early: the frames recorded until then are kept).
+    or the scene). white_level: the raw value stored as 1.0 (default: the device's full scale).
+    Returns a summary: dataset, scenes, frames, channels, stopped (None, or why the recording ended
+    early: the frames recorded until then are kept).
     """
     for name, value in (("--scenes", scenes), ("--frames", frames_per_scene)):
         if int(value) != value or value < 1:
             raise CaptureError(f"{name} must be a positive integer, got {value}")
+    white_level = device.white_level if white_level is None else white_level
+    if not (np.isfinite(white_level) and white_level > 0):
+        raise CaptureError(f"--white-level must be a positive number, got {white_level}")
     stream = device.info["stream"]
     if (stream["width"], stream["height"]) != (rig.camera.width, rig.camera.height):
         raise CaptureError(f"{device.name} streams {stream['width']}x{stream['height']} px but rig "
@@ -130,7 +136,7 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
         dataset.store_pattern(out_dir, pattern)
         pattern_entry = dataset.pattern_entry(pattern)
     channels = record_channels(device)
-    settings = {"white_level": device.white_level, "frames_per_scene": frames_per_scene,
+    settings = {"white_level": white_level, "frames_per_scene": frames_per_scene,
                 "device": device.info, "settings": device.settings(), "settle_frames": settle,
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold}}
     show = _preview() if preview else None
@@ -158,7 +164,7 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
             for pose in range(frames_per_scene):
                 if pause_s and (scene_index or pose):
                     time.sleep(pause_s)
-                pending.append(pose_frame(device, settle, dot_window, visibility_threshold))
+                pending.append(pose_frame(device, settle, white_level, dot_window, visibility_threshold))
                 if show is not None:
                     show(pending[-1][0]["ir"])
                 if bar is not None:
@@ -171,7 +177,8 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     finally:
         if bar is not None:
             bar.close()
-    if pending:  # the frames of an unfinished scene are complete frames too
+    # the frames of an unfinished scene are complete frames too (unless Ctrl-C came after its rename)
+    if pending and not dataset.is_scene_complete(out_dir, scene_index, scenes_per_shard):
         write(scene_index)
     if written:
         dataset.finalize_dataset(out_dir)

@@ -111,6 +111,18 @@ def test_device_that_stops_mid_recording_keeps_every_complete_frame(rendered, tm
     check_frames_equal_fed(frames, rendered[:4])
 
 
+def test_ctrl_c_keeps_every_complete_frame(rendered, tmp_path):
+    with SoftwareStereoModule(RIG, rendered[:6], interrupt_at_pose=3) as module:
+        device = RealSenseDevice(module.device)
+        summary = record(device, device.rig(), tmp_path / "rec", scenes=2, frames_per_scene=3,
+                         progress=False)
+        device.close()
+    assert summary["stopped"] == "interrupted (Ctrl-C)"
+    frames, _ = read_recorded(tmp_path / "rec")
+    assert summary["frames"] == len(frames) >= 3  # poses 0-2 were complete when Ctrl-C came
+    check_frames_equal_fed(frames, rendered)
+
+
 def test_capture_info_file_is_the_device_rig(rendered, tmp_path):
     with SoftwareStereoModule(RIG, rendered[:1]) as module:
         device = RealSenseDevice(module.device)
