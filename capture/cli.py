@@ -59,6 +59,22 @@ def _rig_arguments(parser: argparse.ArgumentParser) -> None:
                         "resolution; default 1)")
 
 
+def _dataset_arguments(parser: argparse.ArgumentParser) -> None:
+    """What a real-capture dataset records beside its frames (import and record alike)."""
+    parser.add_argument("--split", choices=("train", "test"), default="test",
+                        help="split recorded for every scene (default test)")
+    parser.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+                        help="px; at least the widest gap between neighbouring dots in the image "
+                        f"(default {DEFAULT_DOT_WINDOW})")
+    parser.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
+                        help="visible where the dots add more than this share of the 99th-percentile "
+                        f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
+    parser.add_argument("--pattern", type=Path,
+                        help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
+                        "DATASET/pattern.png and referenced by every scene")
+    parser.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "capture",
@@ -86,24 +102,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
     imp.add_argument("--frames-per-scene", type=int, default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
-    imp.add_argument("--split", choices=("train", "test"), default="test",
-                     help="split recorded for every scene (default test)")
     imp.add_argument("--white-level", type=float,
                      help="raw value stored as 1.0 (default: full scale of the files: 255, 65535, "
                      "or 1 for EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
-    imp.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
-                     help="px; at least the widest gap between neighbouring dots in the image "
-                     f"(default {DEFAULT_DOT_WINDOW})")
-    imp.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
-                     help="visible where the dots add more than this share of the 99th-percentile "
-                     f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
     imp.add_argument("--settings", type=Path,
                      help="JSON file of capture settings (exposure, gain, sensor serial, ...) copied into "
                      "every scene.json")
-    imp.add_argument("--pattern", type=Path,
-                     help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
-                     "DATASET/pattern.png and referenced by every scene")
-    imp.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    _dataset_arguments(imp)
     imp.set_defaults(func=_import)
 
     pat = actions.add_parser(
@@ -171,14 +176,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--white-level", type=float,
                      help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
-    rec.add_argument("--split", choices=("train", "test"), default="test", help="split (default test)")
-    rec.add_argument("--pattern", type=Path, help="the sensor's pattern image, copied into the dataset")
-    rec.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
-                     help=f"visibility mask window, px (as for import; default {DEFAULT_DOT_WINDOW})")
-    rec.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
-                     help="visibility mask threshold (as for import; default "
-                     f"{DEFAULT_VISIBILITY_THRESHOLD})")
-    rec.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    _dataset_arguments(rec)
     rec.add_argument("--no-preview", action="store_true", help="no live preview window")
     rec.add_argument("--no-progress", action="store_true", help="no progress bar")
     rec.set_defaults(func=_record)

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from capture.devices import Device, DeviceError, DeviceFrame, DeviceGone
+from capture.devices import Device, DeviceError, DeviceFrame
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError
 from capture.import_frames import scene_meta
@@ -172,7 +172,7 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
             write(scene_index)
     except KeyboardInterrupt:
         stopped = "interrupted (Ctrl-C)"
-    except DeviceGone as error:
+    except DeviceError as error:  # unplugged (DeviceGone), or a projector that stopped switching
         stopped = str(error)
     finally:
         if bar is not None:

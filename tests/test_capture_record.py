@@ -18,6 +18,7 @@ from capture.devices import DeviceError, device_rig_file, open_device
 from capture.frames import CaptureError
 from capture.record import record
 from dotsim import dataset
+from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.config import load_config
@@ -181,6 +182,10 @@ def test_bad_devices_give_one_line_errors_and_write_nothing(rendered, tmp_path, 
         wrong = get_preset("kinect_v1")
         with pytest.raises(CaptureError, match=r"streams 122x90 px but rig 'kinect_v1' camera is 640x480"):
             record(device, wrong, out, scenes=1, frames_per_scene=1, progress=False)
+        small = generate_dot_pattern(100, 100, density=0.01, seed=1)
+        with pytest.raises(CaptureError, match=r"pattern .* is 100 x 100 px but rig 'realsense_SIM0001' "
+                           r"projector is 304 x 224 px"):
+            record(device, device.rig(), out, scenes=1, frames_per_scene=1, pattern=small, progress=False)
         device.close()
     assert cli_main(["capture", "record", "--device", "opencv:0x", "--out", str(out)]) == 2
     assert "allowed: opencv:INDEX" in capsys.readouterr().err
