@@ -56,7 +56,8 @@ class RigConfig:
                       "docs/GEOMETRY.md \"Rig files\")", path=True)
     scale: float = _spec(1.0, "render resolution factor applied to camera and projector (0.5 = half "
                          "width and height, same field of view)", low=0.02, high=1.0)
-    baseline: float = _spec(0.0, "override of the projector's x offset in metres (0 = keep the preset's)",
+    baseline: float = _spec(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
+                            "file's)",
                             low=-0.5, high=0.5)
     projector_y: float = _spec(0.0, "override of the projector's y offset (down) in metres (0 = keep the "
                                "preset's or file's)", low=-0.5, high=0.5)

@@ -155,6 +155,9 @@ def test_opencv_backend_on_a_lossless_video(rendered, tmp_path):
     assert len(frames) == 5 and metas[0]["channels"] == {"ir": "float16"}
     for frame, (on, _, _) in zip(frames, rendered, strict=False):  # FFV1 is lossless
         np.testing.assert_array_equal(frame["ir"], (on.astype(np.float32) / 255).astype(np.float16))
+    # an OpenCV camera reports no calibration: `capture info` says what to do instead
+    assert cli_main(["capture", "info", "--device", f"opencv:{video}", "-o", str(tmp_path / "r.json")]) == 2
+    assert not (tmp_path / "r.json").exists()
 
 
 def cli_main(argv):

@@ -101,6 +101,20 @@ def test_missing_keys_list_the_allowed_names(tmp_path, skip, allowed):
         load_rig_file(write_storage(tmp_path / "calib.yaml", skip=skip))
 
 
+def test_bad_dotsim_rig_json_names_the_file_and_value(tmp_path):
+    rig = PRESETS["kinect_v1"].to_dict()
+    rig["camera"]["fx"] = -580.0
+    (tmp_path / "rig.json").write_text(json.dumps({"rig": rig}))
+    with pytest.raises(RigFileError, match=r"rig.json: rig.camera: fx must be a finite positive number, "
+                       r"got -580.0"):
+        load_rig_file(tmp_path / "rig.json")
+    rig = PRESETS["kinect_v1"].to_dict()
+    rig["projector_translation"] = [0.075, 0.0, -2.0]
+    (tmp_path / "rig.json").write_text(json.dumps(rig))
+    with pytest.raises(RigFileError, match=r"rig.json: the projector sits 2 m behind the camera"):
+        load_rig_file(tmp_path / "rig.json")
+
+
 def test_unreadable_rig_files(tmp_path):
     with pytest.raises(RigFileError, match="nope.json: rig file not found"):
         load_rig_file(tmp_path / "nope.json")
