@@ -15,8 +15,15 @@ TEST_DATA ?= $(OUT)/testset
 
 .PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval addon clean
 
+# pyrealsense2 (a test dependency) loads libusb-1.0, and the OpenNI2 tests the native OpenNI2
+# library: Debian packages, installed here when missing and apt-get is there.
+SYSTEM_LIBS := libusb-1.0-0 libopenni2-dev
+
 $(BIN)/dotsim: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@dpkg -s $(SYSTEM_LIBS) >/dev/null 2>&1 || ! command -v apt-get >/dev/null || \
+		(apt-get update -qq && apt-get install -y -qq $(SYSTEM_LIBS) >/dev/null) || \
+		echo "warning: could not install $(SYSTEM_LIBS); the RealSense and OpenNI2 tests will be skipped"
 	$(BIN)/pip install -q "$(TORCH)"
 	$(BIN)/pip install -q -e ".[dev]"
 	touch $@

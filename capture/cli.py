@@ -11,36 +11,36 @@ from pathlib import Path
 
 import numpy as np
 
+from capture.devices import DEVICE_SYNTAX, device_rig_file, open_device
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
-from capture.frames import CaptureError, list_images, read_image
+from capture.frames import CaptureError, list_images, read_image, recorded_images
 from capture.import_frames import import_frames
+from capture.record import record
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
-from dotsim.dataset import FormatError
+from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig import DEFAULT_PRESET, PRESETS, Rig, get_preset
+from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, load_rig_file
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
 
 def load_rig(spec: str, scale: float = 1.0) -> Rig:
-    """A rig preset by name, or a calibrated rig from a JSON file (Rig.to_dict() layout); then scaled.
-
-    Raises CaptureError naming the file or listing the presets.
+    """A rig preset by name, or a rig file (dotsim.rig_files: dotsim rig JSON or an OpenCV
+    FileStorage calibration); then scaled. Raises CaptureError naming the file or listing the presets.
     """
     if spec in PRESETS:
         rig = get_preset(spec)
-    elif spec.endswith(".json"):
+    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
         try:
-            rig = Rig.from_dict(json.loads(Path(spec).read_text()))
-        except OSError as error:
-            raise CaptureError(f"--rig {spec}: cannot read ({error.strerror})") from None
-        except ValueError as error:  # bad JSON or a bad rig field (JSONDecodeError is a ValueError)
-            raise CaptureError(f"--rig {spec}: not a rig ({error})") from None
+            rig = load_rig_file(spec)
+        except RigFileError as error:
+            raise CaptureError(f"--rig {error}") from None
     else:
         raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}) "
-                           f"nor a .json rig file")
+                           f"nor a rig file ({', '.join(RIG_FILE_SUFFIXES)})")
     if scale != 1.0:
         try:
             rig = rig.scaled(scale)
@@ -52,11 +52,28 @@ def load_rig(spec: str, scale: float = 1.0) -> Rig:
 def _rig_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", default=DEFAULT_PRESET,
                         help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}) or a "
-                        "calibrated rig as a JSON file in Rig.to_dict() layout; the frames must have its "
-                        "camera resolution")
+                        "rig file: dotsim rig JSON (Rig.to_dict(), scene.json, `dotsim capture info`) or an "
+                        "OpenCV FileStorage calibration (docs/GEOMETRY.md); the frames must have its camera "
+                        "resolution")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")
+
+
+def _dataset_arguments(parser: argparse.ArgumentParser) -> None:
+    """What a real-capture dataset records beside its frames (import and record alike)."""
+    parser.add_argument("--split", choices=("train", "test"), default="test",
+                        help="split recorded for every scene (default test)")
+    parser.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+                        help="px; at least the widest gap between neighbouring dots in the image "
+                        f"(default {DEFAULT_DOT_WINDOW})")
+    parser.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
+                        help="visible where the dots add more than this share of the 99th-percentile "
+                        f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
+    parser.add_argument("--pattern", type=Path,
+                        help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
+                        "DATASET/pattern.png and referenced by every scene")
+    parser.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -86,24 +103,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
     imp.add_argument("--frames-per-scene", type=int, default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
-    imp.add_argument("--split", choices=("train", "test"), default="test",
-                     help="split recorded for every scene (default test)")
     imp.add_argument("--white-level", type=float,
                      help="raw value stored as 1.0 (default: full scale of the files: 255, 65535, "
                      "or 1 for EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
-    imp.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
-                     help="px; at least the widest gap between neighbouring dots in the image "
-                     f"(default {DEFAULT_DOT_WINDOW})")
-    imp.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
-                     help="visible where the dots add more than this share of the 99th-percentile "
-                     f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
     imp.add_argument("--settings", type=Path,
                      help="JSON file of capture settings (exposure, gain, sensor serial, ...) copied into "
                      "every scene.json")
-    imp.add_argument("--pattern", type=Path,
-                     help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
-                     "DATASET/pattern.png and referenced by every scene")
-    imp.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    _dataset_arguments(imp)
     imp.set_defaults(func=_import)
 
     pat = actions.add_parser(
@@ -117,10 +123,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "prints the statistics. Only the part of the projector's field the camera sees is recovered.",
     )
     pat.add_argument("--wall", required=True, nargs="+", metavar="IMG",
-                     help="projector-on wall captures: files, folders or quoted globs (averaged)")
+                     help="projector-on wall captures: files, folders or quoted globs (averaged), or a "
+                     "dataset from `capture record` (its ir frames)")
     pat.add_argument("--off", nargs="+", metavar="IMG", default=[],
-                     help="projector-off captures of the same wall (averaged and subtracted); "
-                     "leave out in a dark room")
+                     help="projector-off captures of the same wall (averaged and subtracted), or a "
+                     "recorded dataset (its ambient frames); leave out in a dark room")
     depth = pat.add_mutually_exclusive_group(required=True)
     depth.add_argument("--distance", type=float, metavar="Z",
                        help="planar distance of the wall in metres (wall facing the camera squarely)")
@@ -141,6 +148,73 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      f"(default {DEFAULT_DETECT_THRESHOLD})")
     pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
     pat.set_defaults(func=_pattern)
+
+    rec = actions.add_parser(
+        "record",
+        help="record a live sensor (RealSense, OpenNI2, OpenCV camera or video) as a dataset",
+        description="Record --scenes x --frames poses from a live sensor into a finalized dataset in "
+        "the format of `capture import`: per pose the IR frame with the projector on and, where the "
+        "device can switch it (RealSense, OpenNI2), the same pose with it off (channels ir, ambient, "
+        "visibility), and the device's own depth where it has one (channel device_depth, never "
+        "ground truth). Auto exposure is switched off. scene.json records the device (model, "
+        "serial, stream), its exposure settings, and each frame's number and timestamp. Ctrl-C or "
+        "an unplugged device ends the recording and keeps every complete frame. A live preview "
+        "shows when a display and an OpenCV with windows are there.",
+    )
+    _device_arguments(rec)
+    rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
+    rec.add_argument("--scenes", type=int, default=1, help="scenes to record (default 1)")
+    rec.add_argument("--frames", type=int, default=4, help="poses per scene (default 4)")
+    rec.add_argument("--rig", help="rig preset or rig file for the frames (default: the device's own "
+                     "calibration, as `capture info` writes it; required for opencv devices)")
+    rec.add_argument("--exposure", type=float, help="fixed exposure in the device's units (default: as set)")
+    rec.add_argument("--gain", type=float, help="fixed gain in the device's units (default: as set)")
+    rec.add_argument("--settle", type=int, default=3,
+                     help="frames dropped after switching the projector when the frames do not report its "
+                     "state (default 3)")
+    rec.add_argument("--pause", type=float, default=0.0,
+                     help="seconds between poses, to move the sensor or the scene (default 0)")
+    rec.add_argument("--white-level", type=float,
+                     help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
+                     "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
+    _dataset_arguments(rec)
+    rec.add_argument("--no-preview", action="store_true", help="no live preview window")
+    rec.add_argument("--no-progress", action="store_true", help="no progress bar")
+    rec.set_defaults(func=_record)
+
+    info = actions.add_parser(
+        "info",
+        help="write a device's rig file (its calibration) and print what it offers",
+        description="Open the device, read its IR camera's calibration and write it as a dotsim rig "
+        "file ({\"rig\": ..., \"device\": ...}; `[rig] file` and `--rig` read it). A RealSense's "
+        "projector is placed at its right IR camera; OpenNI2 reports only fields of view "
+        "(docs/CAPTURE.md says what each device gives).",
+    )
+    _device_arguments(info)
+    info.add_argument("--max-depth", type=float, default=20.0, help="max_depth of the rig, m (default 20)")
+    info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
+    info.set_defaults(func=_info)
+
+
+def _size(text: str) -> tuple[int, int]:
+    width, _, height = text.partition("x")
+    if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT in pixels, e.g. 848x480")
+    return int(width), int(height)
+
+
+def _device_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", required=True, metavar="DEVICE",
+                        help=f"the sensor: {DEVICE_SYNTAX} (RealSense needs the extra dotsim[realsense], "
+                        "OpenNI2 dotsim[openni2])")
+    parser.add_argument("--size", type=_size, metavar="WxH", help="IR stream size (default: the device's)")
+    parser.add_argument("--fps", type=int, help="IR stream frame rate (default: the device's)")
+    parser.add_argument("--ir-format", choices=("y8", "y16"), default="y8",
+                        help="RealSense IR format (y16: full bit depth; default y8)")
+
+
+def _open(args: argparse.Namespace, **fixed):
+    return open_device(args.device, size=args.size, fps=args.fps, ir_format=args.ir_format, **fixed)
 
 
 def _fail(action: str, error: Exception) -> int:
@@ -191,9 +265,16 @@ def read_depth_map(path: Path, scale: float | None) -> np.ndarray:
     return np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
 
 
-def _load_wall_images(specs: list[str], what: str) -> list:
-    paths = [path for spec in specs for path in list_images(spec, what=what)]
-    return [read_image(path) for path in paths]
+def _load_wall_images(specs: list[str], what: str, channel: str) -> list:
+    """Images of files, folders or globs; a dataset folder (from `capture record`) gives its frames'
+    `channel` (ir for --wall, ambient for --off)."""
+    images = []
+    for spec in specs:
+        if (Path(spec) / INDEX_FILE).is_file():
+            images += recorded_images(Path(spec), channel)
+        else:
+            images += [read_image(path) for path in list_images(spec, what=what)]
+    return images
 
 
 def _pattern(args: argparse.Namespace) -> int:
@@ -202,8 +283,8 @@ def _pattern(args: argparse.Namespace) -> int:
         if args.output.suffix.lower() != ".png":
             raise CaptureError(f"-o {args.output}: the pattern is written as a .png file")
         rig = load_rig(args.rig, args.scale)
-        on = _load_wall_images(args.wall, "--wall")
-        off = _load_wall_images(args.off, "--off")
+        on = _load_wall_images(args.wall, "--wall", "ir")
+        off = _load_wall_images(args.off, "--off", "ambient")
         for image in on + off:
             if image.shape != on[0].shape:
                 raise CaptureError(f"{image.path}: {image.shape[1]} x {image.shape[0]} px, but "
@@ -248,4 +329,46 @@ def _pattern(args: argparse.Namespace) -> int:
           f"(empty {100 * s['flat_window_share']:.1f}%)")
     print(f"wrote {args.output}, {args.output.with_suffix('.csv').name}, "
           f"{args.output.with_suffix('.json').name} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _record(args: argparse.Namespace) -> int:
+    start = time.perf_counter()
+    try:
+        pattern = load_pattern(args.pattern) if args.pattern else None
+        with _open(args, exposure=args.exposure, gain=args.gain) as device:
+            rig = load_rig(args.rig) if args.rig else device.rig()
+            summary = record(device, rig, args.out, scenes=args.scenes, frames_per_scene=args.frames,
+                             split=args.split, settle=args.settle, pause_s=args.pause,
+                             white_level=args.white_level, pattern=pattern,
+                             dot_window=args.dot_window, visibility_threshold=args.visibility_threshold,
+                             scenes_per_shard=args.scenes_per_shard, progress=not args.no_progress,
+                             preview=not args.no_preview)
+    except (CaptureError, PatternError, FormatError, ValueError) as error:
+        return _fail("record", error)
+    kept = (f"{summary['frames']} frame(s) as {summary['scenes']} scene(s) into {summary['dataset']} "
+            f"(channels {', '.join(summary['channels'])}) in {time.perf_counter() - start:.1f} s")
+    if summary["stopped"]:
+        print(f"dotsim capture record: stopped: {summary['stopped']}; kept every complete frame: {kept}",
+              file=sys.stderr)
+        return 130 if "Ctrl-C" in summary["stopped"] else 1
+    print(f"recorded {kept}")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    try:
+        if args.output.suffix.lower() != ".json":
+            raise CaptureError(f"-o {args.output}: the rig file is written as .json")
+        with _open(args) as device:
+            rig, data = device_rig_file(device, args.max_depth)
+    except (CaptureError, ValueError) as error:
+        return _fail("info", error)
+    atomic_write_bytes(args.output, data)
+    camera = rig.camera
+    print(f"{device.name}: IR {camera.width}x{camera.height} px, fx {camera.fx:.2f} fy {camera.fy:.2f}, "
+          f"principal point ({camera.cx:.2f}, {camera.cy:.2f}); projector at "
+          f"{[round(v, 5) for v in rig.projector_translation]} m; projector switch "
+          f"{'yes' if device.can_switch_emitter else 'no'}, depth {'yes' if device.has_depth else 'no'}")
+    print(f"wrote {args.output}")
     return 0

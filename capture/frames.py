@@ -102,3 +102,20 @@ def pair_on_off(on_files: list[Path], off_files: list[Path]) -> list[tuple[Path,
     if overlap:
         raise CaptureError(f"{sorted(overlap)[0]} is listed both as projector-on and as projector-off")
     return list(zip(on_files, off_files, strict=True))
+
+
+def recorded_images(dataset_dir: Path, channel: str) -> list[GreyImage]:
+    """One channel ("ir" or "ambient") of every frame of a recorded dataset (`capture record`), as
+    float32 images at white level 1 with the frame file's sha256; CaptureError when a scene lacks it."""
+    from dotsim import dataset
+
+    images = []
+    for ref in dataset.open_dataset(dataset_dir).scenes:
+        scene = dataset.read_scene(ref.path)
+        if channel not in scene.meta["channels"]:
+            raise CaptureError(f"{ref.path}: has no {channel!r} channel (channels "
+                               f"{list(scene.meta['channels'])})")
+        for entry, frame in zip(scene.meta["frames"], scene.frames, strict=True):
+            images.append(GreyImage(ref.path / entry["file"], frame[channel].astype(np.float32), 1.0,
+                                    entry["sha256"]))
+    return images

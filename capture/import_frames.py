@@ -112,19 +112,20 @@ def _versions() -> dict:
             "python": platform.python_version()}
 
 
-def scene_meta(pairs: list[FramePair], rig: Rig, split: str, settings: dict,
+def scene_meta(sources: list[dict], rig: Rig, split: str, settings: dict,
                pattern: dict | None) -> dict:
     """scene.json content for one captured scene (the writer adds format and frame fields).
-    pattern: pattern_store.pattern_entry of the stored pattern, or None when the sensor's pattern is
-    not known."""
+    sources: per frame, where its on and off images came from (files, or a device's frame numbers
+    and timestamps); pattern: pattern_store.pattern_entry of the stored pattern, or None when the
+    sensor's pattern is not known."""
     return {
         "split": split,
         "source": "capture",
         "has_ground_truth": False,
         "rig": rig.to_dict(),
         "pattern": pattern,
-        "poses": [None] * len(pairs),  # the real rig's poses were not measured
-        "capture": {"frames": [pair.sources() for pair in pairs], **settings},
+        "poses": [None] * len(sources),  # the real rig's poses were not measured
+        "capture": {"frames": sources, **settings},
         "versions": _versions(),
     }
 
@@ -211,7 +212,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
             skipped += 1
             continue
         frames = [frame_channels(pair, dot_window, visibility_threshold) for pair in scene_pairs]
-        meta = scene_meta(scene_pairs, rig, split, settings, pattern_entry)
+        meta = scene_meta([pair.sources() for pair in scene_pairs], rig, split, settings, pattern_entry)
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
                             channels=CAPTURE_CHANNELS)
         written += 1

@@ -15,7 +15,9 @@ from dotsim.patterns import DotPattern, PatternError, generate_dot_pattern, load
 def resample_pattern(pattern: DotPattern, width: int, height: int) -> DotPattern:
     """`pattern` at width x height px: itself when it has that size, else resampled (area averaging
     when shrinking, bilinear when enlarging), so one captured full-resolution pattern serves
-    scaled-down rigs. params gains `resampled_from` ([width, height] of the source).
+    scaled-down rigs. params gains `resampled_from` ([width, height] of the source). A pattern of
+    another aspect ratio (more than a pixel off after scaling) does not fit the projector and
+    raises PatternError.
 
     Examples
     --------
@@ -28,6 +30,10 @@ def resample_pattern(pattern: DotPattern, width: int, height: int) -> DotPattern
 
     if pattern.image.shape == (height, width):
         return pattern
+    if abs(pattern.width * height / pattern.height - width) > 1.0:
+        raise PatternError(f"{pattern.source}: pattern is {pattern.width}x{pattern.height} px, which does "
+                           f"not fit the rig's projector of {width}x{height} px (another aspect ratio); "
+                           "allowed: a pattern of the projector's size, or scaled with the same aspect ratio")
     shrinking = pattern.image.shape[1] > width
     image = cv2.resize(pattern.image.astype(np.float32), (width, height),
                        interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

@@ -14,8 +14,10 @@ Conventions (docs/GEOMETRY.md has the derivations):
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -216,51 +218,21 @@ class Rig:
         return cls(**values)
 
 
-# Presets. Principal points are at the image centre because the simulated camera is what Blender
-# renders (docs/GEOMETRY.md: getting this half pixel wrong drops oracle-vs-render NCC 0.99 -> 0.66).
-# For the non-Structure-Core presets, the projector is chosen like Structure Core's: 2 projector px
-# per camera px (2230.88 / 1115.44) and a field about 25% wider than the camera's (1536 / 1216
-# camera-px equivalents), so near surfaces at the image edges still receive dots.
-PRESETS: dict[str, Rig] = {
-    # Occipital Structure Core as simulated for GigaDepth (docs/GEOMETRY.md "Presets"): rectified
-    # IR 1216x896, f 1115.44 px; its published principal point is (604, 457), replaced by the centre
-    # (607.5, 447.5) that Blender renders. Projector +0.0634 m along x, 3072x3072, f 2230.88 px;
-    # second IR camera +0.07501 m; training depth up to 20 m.
-    "structure_core": Rig(
-        name="structure_core",
-        camera=Intrinsics.centred(1216, 896, 1115.44),
-        projector=Intrinsics.centred(3072, 3072, 2230.88),
-        projector_translation=(0.0634, 0.0, 0.0),
-        second_camera_translation=(0.07501, 0.0, 0.0),
-        max_depth=20.0,
-    ),
-    # Kinect v1 like: IR 640x480; focal ~580 px (OpenNI/ROS default 575.8 px, Burrus' calibration
-    # 594 px, Khoshelham & Elberink 2012, Sensors 12:1437, ~585 px); baseline 7.5 cm (Khoshelham &
-    # Elberink 2012; OpenKinect wiki), projector on the image-right side. Range ~0.5-5 m (ibid.),
-    # max_depth 8 m. Projector 1600x1200 at f 1160 px (rule above); the real one is a diffractive
-    # element with ~30k dots in a 3x3 tiled speckle, not a pixel grid.
-    "kinect_v1": Rig(
-        name="kinect_v1",
-        camera=Intrinsics.centred(640, 480, 580.0),
-        projector=Intrinsics.centred(1600, 1200, 1160.0),
-        projector_translation=(0.075, 0.0, 0.0),
-        max_depth=8.0,
-    ),
-    # Intel RealSense D415 like: depth imager 1280x720 with HFOV 65 deg (Intel D400 series
-    # datasheet, depth FOV 65 x 40 deg) -> f = 640 / tan(32.5 deg) = 1004.6 px (VFOV then 39.4 deg);
-    # stereo baseline 55 mm (datasheet). The real D415 projector sits between its two imagers and only
-    # adds texture; here it stands at the second imager's place (+55 mm) for mono structured light,
-    # and second_camera_translation keeps the real stereo partner. Range up to ~10 m (datasheet).
-    # Projector 3200x1800 at f 2009.2 px (rule above).
-    "realsense_d415": Rig(
-        name="realsense_d415",
-        camera=Intrinsics.centred(1280, 720, 1004.6),
-        projector=Intrinsics.centred(3200, 1800, 2009.2),
-        projector_translation=(0.055, 0.0, 0.0),
-        second_camera_translation=(0.055, 0.0, 0.0),
-        max_depth=10.0,
-    ),
-}
+# Presets are rig files (dotsim/rigs/NAME.json, the format dotsim.rig_files reads; each file's
+# "notes" give the sources of its values). Principal points are at the image centre because the
+# simulated camera is what Blender renders (docs/GEOMETRY.md: half a pixel wrong drops
+# oracle-vs-render NCC 0.99 -> 0.66). For the non-Structure-Core presets the projector is chosen
+# like Structure Core's: 2 projector px per camera px and a field about 25% wider than the
+# camera's, so near surfaces at the image edges still receive dots.
+PRESET_DIR = Path(__file__).parent / "rigs"
+
+
+def _load_presets() -> dict[str, Rig]:
+    return {path.stem: Rig.from_dict(json.loads(path.read_text())["rig"])
+            for path in sorted(PRESET_DIR.glob("*.json"))}
+
+
+PRESETS: dict[str, Rig] = _load_presets()
 DEFAULT_PRESET = "structure_core"
 
 

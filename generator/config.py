@@ -20,6 +20,7 @@ from pathlib import Path
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
+from dotsim.rig_files import RigFileError, configured_rig
 from generator.scene_spec import PRIMITIVE_SHAPES
 
 RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
@@ -27,13 +28,48 @@ RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
 
 @dataclass(frozen=True)
 class RigConfig:
-    preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS", choices=RIG_PRESETS)
+    preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
+                          "dotsim/rigs/); ignored when `file` is set", choices=RIG_PRESETS)
+    file: str = setting("", "rig file instead of the preset: dotsim rig JSON (as in scene.json or from "
+                        "`dotsim capture info`) or an OpenCV FileStorage calibration (YAML/JSON/XML; "
+                        "docs/GEOMETRY.md \"Rig files\")", path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
                            "width and height, same field of view)", low=0.02, high=1.0)
-    baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's)",
+    baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
+                              "file's)",
                               low=-0.5, high=0.5)
+    projector_y: float = setting(0.0, "override of the projector's y offset (down) in metres (0 = keep the "
+                                 "preset's or file's)", low=-0.5, high=0.5)
+    projector_z: float = setting(0.0, "override of the projector's z offset (forward) in metres (0 = keep "
+                                 "the preset's or file's)", low=-0.5, high=0.5)
+    projector_rotation_x: float = setting(0.0, "projector rotation about the camera's x axis, degrees: R = "
+                                          "Rz Ry Rx with X_projector = R (X_camera - t) (all three 0 = keep "
+                                          "the preset's or file's rotation)", low=-30.0, high=30.0)
+    projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
+    projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
     max_depth: float = setting(20.0, "largest depth in metres treated as valid ground truth", low=0.5,
                                high=1000.0)
+    camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
+                                "set camera_width, camera_height and camera_fx to give one)", low=0,
+                                high=20000)
+    camera_height: int = setting(0, "explicit camera: image height, px", low=0, high=20000)
+    camera_fx: float = setting(0.0, "explicit camera: focal length, px (the renderer needs square pixels)",
+                               low=0.0, high=1e6)
+    camera_fy: float = setting(0.0, "explicit camera: vertical focal length, px (0 = camera_fx)", low=0.0,
+                               high=1e6)
+    camera_cx: float = setting(0.0, "explicit camera: principal point column, px, OpenCV convention "
+                               "(cx = 0 and cy = 0: the image centre, W/2 - 0.5)", low=-1e5, high=1e5)
+    camera_cy: float = setting(0.0, "explicit camera: principal point row, px", low=-1e5, high=1e5)
+    projector_width: int = setting(0, "explicit projector: pattern width, px (0 = the preset's or file's "
+                                   "projector; set projector_width, projector_height and projector_fx to "
+                                   "give one)", low=0, high=50000)
+    projector_height: int = setting(0, "explicit projector: pattern height, px", low=0, high=50000)
+    projector_fx: float = setting(0.0, "explicit projector: focal length, px", low=0.0, high=1e6)
+    projector_fy: float = setting(0.0, "explicit projector: vertical focal length, px (0 = projector_fx)",
+                                  low=0.0, high=1e6)
+    projector_cx: float = setting(0.0, "explicit projector: principal point column, px (cx = 0 and cy = 0: "
+                                  "the image centre)", low=-1e5, high=1e5)
+    projector_cy: float = setting(0.0, "explicit projector: principal point row, px", low=-1e5, high=1e5)
 
 
 @dataclass(frozen=True)
@@ -232,6 +268,10 @@ def _check_cross_fields(config: Config) -> None:
             problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
+    try:
+        configured_rig(config.rig, f"{src}: [rig]")
+    except RigFileError as error:
+        raise ConfigError(str(error)) from None
     if config.assets.source == "cache":
         path = config.assets.cache_dir
         if not path or not Path(path).is_dir():

@@ -17,7 +17,8 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dotsim.rig import Rig, get_preset
+from dotsim.rig import Rig
+from dotsim.rig_files import configured_rig
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
@@ -65,12 +66,8 @@ def scene_seed(base_seed: int, scene_index: int) -> int:
 
 
 def build_rig(config: Config) -> Rig:
-    """The rig of a config: the preset, its overrides, scaled to the render resolution."""
-    rig = get_preset(config.rig.preset)
-    if config.rig.baseline != 0.0:
-        rig = replace(rig, projector_translation=(config.rig.baseline, *rig.projector_translation[1:]))
-    rig = replace(rig, max_depth=config.rig.max_depth)
-    return rig.scaled(config.rig.scale) if config.rig.scale != 1.0 else rig
+    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution."""
+    return configured_rig(config.rig, f"{config.source}: [rig]")
 
 
 @dataclass(frozen=True)

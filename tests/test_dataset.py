@@ -65,8 +65,9 @@ def test_round_trip_every_channel_and_field(tmp_path):
     assert scene.meta["dotsim_version"] == __version__
     assert scene.meta["scene_index"] == 3 and scene.meta["frame_count"] == 4
     for got, sent in zip(scene.frames, frames, strict=True):
-        assert set(got) == set(ds.FRAME_CHANNELS)
-        for name, dtype in ds.FRAME_CHANNELS.items():
+        assert set(got) == set(ds.RENDERED_CHANNELS)
+        for name in ds.RENDERED_CHANNELS:
+            dtype = ds.FRAME_CHANNELS[name]
             assert got[name].dtype == dtype, name
             # Bit-exact for the stored dtype (NaN == NaN here); masks as 0/1 uint8.
             want = np.asarray(sent[name]).astype(dtype)
@@ -202,7 +203,8 @@ def test_reader_refuses_missing_channel(tmp_path):
 def test_reader_refuses_shape_mismatch(tmp_path):
     path, _ = write(tmp_path, 0)
     rewrite_exr(path / "frame_0.exr", {k: np.zeros((H, W + 2), np.uint32 if k in ds.MASK_CHANNELS else d)
-                                       for k, d in ds.FRAME_CHANNELS.items()})
+                                       for k, d in ds.FRAME_CHANNELS.items()
+                                       if k in ds.RENDERED_CHANNELS})
     with pytest.raises(ds.FormatError, match=rf"frame_0\.exr: channel '\w+' has shape \({H}, {W + 2}\), "
                                              rf"expected \({H}, {W}\)"):
         ds.read_scene(path, verify=False)

@@ -55,7 +55,7 @@ def test_make_frame_against_analytic_wall():
     config = config_from_dict({})
     frame = make_frame({"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth},
                        spec_with_rig(rig, config), np.random.default_rng(1))
-    assert set(frame) == set(dataset.FRAME_CHANNELS)
+    assert set(frame) == set(dataset.RENDERED_CHANNELS)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
     np.testing.assert_array_equal(frame["depth"][5:, :-5][np.isfinite(depth[5:, :-5])],

@@ -6,7 +6,7 @@ import pytest
 
 from dotsim.dataset import PATTERN_FILE, FormatError
 from dotsim.pattern_store import make_pattern, pattern_entry, store_pattern
-from dotsim.patterns import generate_dot_pattern
+from dotsim.patterns import PatternError, generate_dot_pattern
 from generator.config import config_from_dict
 
 
@@ -41,3 +41,12 @@ def test_pattern_file_is_resampled_to_the_projector(tmp_path):
     assert pattern.image.mean() == pytest.approx(big.image.mean(), rel=0.01)
     same = make_pattern(config.pattern, 614, 614)
     np.testing.assert_array_equal(same.image, big.image)
+
+
+def test_pattern_of_another_aspect_ratio_does_not_fit_the_rig(tmp_path):
+    generate_dot_pattern(400, 300, density=0.01, seed=5).save_png(tmp_path / "wide.png")
+    config = config_from_dict({"pattern": {"source": "file", "path": "wide.png"}}, base_dir=tmp_path)
+    assert make_pattern(config.pattern, 200, 150).image.shape == (150, 200)  # same aspect ratio: resampled
+    with pytest.raises(PatternError, match=r"wide.png: pattern is 400x300 px, which does not fit the rig's "
+                       r"projector of 307x307 px \(another aspect ratio\)"):
+        make_pattern(config.pattern, 307, 307)

@@ -32,6 +32,7 @@ from dotsim.dataset.frames import (
     EXR_COMPRESSION,
     FRAME_CHANNELS,
     MASK_CHANNELS,
+    RENDERED_CHANNELS,
     decode_frame,
     encode_frame,
     write_frame_file,
@@ -93,7 +94,8 @@ def __getattr__(name: str):
 
 __all__ = [
     "DEFAULT_SCENES_PER_SHARD", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS", "INDEX_FILE",
-    "LAYOUT_FILE", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE", "SHARD_FILE",
+    "RENDERED_CHANNELS", "LAYOUT_FILE", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE",
+    "SHARD_FILE",
     "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "FormatError", "Problem", "RepairResult", "Scene",
     "SceneRef", "SealResult", "VerifyReport", "atomic_write_bytes", "camera_size", "check_format_version",
     "complete_scenes", "dataset_summary", "decode_frame", "encode_frame", "finalize_dataset", "frame_name",

@@ -30,7 +30,12 @@ FRAME_CHANNELS: dict[str, np.dtype] = {
     "edge": np.dtype(np.uint8),
     "projector_column": np.dtype(np.float32),
     "disparity": np.dtype(np.float32),
+    # A real sensor's own depth (metres, nan = no reading), stored beside recordings: the sensor's
+    # estimate, never ground truth (which is "depth").
+    "device_depth": np.dtype(np.float32),
 }
+# What the generator renders: every channel but the sensor's own depth; the writer's default.
+RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
 MASK_CHANNELS = ("visibility", "edge")
 
 
@@ -89,12 +94,12 @@ def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] 
                  compression: str = EXR_COMPRESSION, where: str = "frame") -> bytes:
     """The bytes of one frame EXR (validated and converted to FRAME_CHANNELS dtypes first).
 
-    channels: the channel set the frame must carry (default all of FRAME_CHANNELS); compression:
+    channels: the channel set the frame must carry (default RENDERED_CHANNELS); compression:
     an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
     """
     import OpenEXR
 
-    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
+    channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     pixels = _frame_pixels(frame, channels, shape, where)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               "dotsim_format_version": FORMAT_VERSION}

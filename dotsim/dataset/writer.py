@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import __version__ as DOTSIM_VERSION
-from dotsim.dataset.frames import FRAME_CHANNELS, encode_frame
+from dotsim.dataset.frames import FRAME_CHANNELS, RENDERED_CHANNELS, encode_frame
 from dotsim.dataset.layout import (
     DEFAULT_SCENES_PER_SHARD,
     FORMAT_VERSION,
@@ -60,8 +60,8 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     is the required frame shape; "poses" has one 4x4 world_from_camera per frame). The writer adds
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
     frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
-    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default: all of
-    FRAME_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
+    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default:
+    RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
     ``.tmp-*`` dir that remove_partial_scenes deletes.
     """
@@ -72,7 +72,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     if not isinstance(scenes_per_shard, int) or scenes_per_shard < 1:
         raise FormatError(f"scenes_per_shard must be a positive integer, found {scenes_per_shard!r}")
     where = f"scene {scene_index}"
-    channels = tuple(FRAME_CHANNELS) if channels is None else tuple(channels)
+    channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     if "ir" not in channels or any(c not in FRAME_CHANNELS for c in channels):
         raise FormatError(f"{where}: channels {list(channels)} must include 'ir' and be among "
                           f"{list(FRAME_CHANNELS)}")

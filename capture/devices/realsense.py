@@ -1,0 +1,189 @@
+"""Intel RealSense (D400 family) through pyrealsense2 (extra `realsense`).
+
+One sensor (the stereo module) carries the left IR stream (infrared index 1), the depth stream (in
+the left IR camera's frame, so pixel-aligned with it) and the projector's `emitter_enabled`
+option; both streams are opened on it and paired by frame number with an rs.syncer. The frame
+metadata `frame_emitter_mode` says whether the projector lit a frame, so recording waits for the
+state it asked for rather than guessing a settling time. The same code drives a
+pyrealsense2 `software_device` fed with rendered frames (tests/test_capture_record.py).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from capture.devices import Device, DeviceError, DeviceFrame, DeviceGone, require_extra
+from dotsim.rig import Intrinsics, Rig
+from dotsim.rig_files import device_rig
+
+IR_FORMATS = {"y8": 255.0, "y16": 65535.0}  # format -> raw value of a saturated pixel
+# Options read back into every scene.json (when the device has them).
+RECORDED_OPTIONS = ("exposure", "gain", "enable_auto_exposure", "emitter_enabled", "laser_power",
+                    "depth_units")
+
+
+def _rs():
+    return require_extra("pyrealsense2", "realsense", "realsense")
+
+
+def open_realsense(serial: str = "", devices=None, **mode) -> RealSenseDevice:
+    """The RealSense with this serial (any one when empty) among `devices` (default: the connected
+    ones, from librealsense's context), opened by RealSenseDevice."""
+    rs = _rs()
+    devices = list(rs.context().query_devices() if devices is None else devices)
+    if not devices:
+        raise DeviceError("--device realsense: no RealSense device found; allowed: a connected RealSense "
+                          "(check the cable and that librealsense sees it)")
+    serials = [device.get_info(rs.camera_info.serial_number) for device in devices]
+    if serial and serial not in serials:
+        raise DeviceError(f"--device realsense:{serial}: no RealSense with that serial; connected: "
+                          f"{', '.join(serials)}")
+    return RealSenseDevice(devices[serials.index(serial) if serial else 0], **mode)
+
+
+def _mode(profile) -> str:
+    video = profile.as_video_stream_profile()
+    return f"{video.width()}x{video.height()}@{profile.fps()}"
+
+
+class RealSenseDevice(Device):
+    """An opened RealSense (or software_device) streaming left IR and, where it has it, depth."""
+
+    def __init__(self, device, *, size: tuple[int, int] | None = None, fps: int | None = None,
+                 exposure: float | None = None, gain: float | None = None, ir_format: str = "y8",
+                 timeout_s: float = 5.0):
+        rs = self._rs = _rs()
+        serial = device.get_info(rs.camera_info.serial_number)
+        self.name = f"realsense:{serial}"
+        self._device = device  # also keeps a software_device alive while its sensor streams
+        self._timeout_s = timeout_s
+        if ir_format not in IR_FORMATS:
+            raise DeviceError(f"{self.name}: IR format {ir_format!r}; allowed: {', '.join(IR_FORMATS)}")
+        fmt = getattr(rs.format, ir_format)
+        candidates = [(sensor, profile) for sensor in device.query_sensors()
+                      for profile in sensor.get_stream_profiles()
+                      if profile.stream_type() == rs.stream.infrared and profile.stream_index() == 1
+                      and profile.format() == fmt]
+        if not candidates:
+            raise DeviceError(f"{self.name}: no left infrared stream (index 1) in {ir_format}")
+        offered = sorted({_mode(profile) for _, profile in candidates})
+        matching = [(sensor, profile) for sensor, profile in candidates
+                    if (size is None or _mode(profile).startswith(f"{size[0]}x{size[1]}@"))
+                    and (fps is None or profile.fps() == fps)]
+        if not matching:
+            wanted = f"{size[0]}x{size[1]}" if size else "any size"
+            raise DeviceError(f"{self.name}: no infrared stream {wanted} at {fps or 'any'} fps in "
+                              f"{ir_format}; "
+                              f"allowed: {', '.join(offered)}")
+        # the device's default mode first, then the largest image at the highest rate
+        self._sensor, self._ir = max(matching, key=lambda item: (
+            item[1].is_default(), item[1].as_video_stream_profile().width(), item[1].fps()))
+        ir_mode = _mode(self._ir)
+        same_mode = [profile for profile in self._sensor.get_stream_profiles() if _mode(profile) == ir_mode]
+        self._depth = next((p for p in same_mode if p.stream_type() == rs.stream.depth
+                            and p.format() == rs.format.z16), None)
+        self._ir2 = next((p for p in same_mode if p.stream_type() == rs.stream.infrared
+                          and p.stream_index() == 2), None)
+        self.has_depth = self._depth is not None
+        self.can_switch_emitter = self._sensor.supports(rs.option.emitter_enabled)
+        self.white_level = IR_FORMATS[ir_format]
+        self._depth_scale = (self._sensor.get_option(rs.option.depth_units)
+                             if self._sensor.supports(rs.option.depth_units) else 0.001)
+        self._fix_exposure(exposure, gain)
+        video = self._ir.as_video_stream_profile()
+        self.info = {"kind": "realsense", "serial": serial, "model": self._info(rs.camera_info.name),
+                     "firmware": self._info(rs.camera_info.firmware_version),
+                     "stream": {"width": video.width(), "height": video.height(), "fps": self._ir.fps(),
+                                "format": ir_format, "depth": self.has_depth}}
+        self._syncer = rs.syncer()
+        self._sensor.open([self._ir] + ([self._depth] if self._depth is not None else []))
+        self._sensor.start(self._syncer)
+
+    def _info(self, field) -> str | None:
+        return self._device.get_info(field) if self._device.supports(field) else None
+
+    def _fix_exposure(self, exposure: float | None, gain: float | None) -> None:
+        """Auto exposure off (on and off frames must share one scale), then the asked values."""
+        rs = self._rs
+        if self._sensor.supports(rs.option.enable_auto_exposure):
+            self._sensor.set_option(rs.option.enable_auto_exposure, 0.0)
+        for option, value in (("exposure", exposure), ("gain", gain)):
+            if value is None:
+                continue
+            key = getattr(rs.option, option)
+            if not self._sensor.supports(key):
+                raise DeviceError(f"{self.name}: has no {option} option; leave --{option} out")
+            limits = self._sensor.get_option_range(key)
+            if not limits.min <= value <= limits.max:
+                raise DeviceError(f"{self.name}: --{option} {value:g}; allowed: {limits.min:g} to "
+                                  f"{limits.max:g}")
+            self._sensor.set_option(key, float(value))
+
+    def camera(self) -> Intrinsics:
+        intrinsics = self._ir.as_video_stream_profile().get_intrinsics()
+        if any(coefficient != 0 for coefficient in intrinsics.coeffs):
+            raise DeviceError(f"{self.name}: the IR stream reports distortion {list(intrinsics.coeffs)}; "
+                              "dotsim needs rectified IR images (the D400's are)")
+        return Intrinsics(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.ppx,
+                          intrinsics.ppy)
+
+    def rig(self) -> Rig:
+        """The left IR camera, with the projector (and second camera) at the right IR camera's place:
+        the D400's own projector is not calibrated, so it stands where the stereo partner is."""
+        if self._ir2 is None:
+            raise DeviceError(f"{self.name}: no right infrared stream whose position would place the "
+                              "projector; pass a rig file with --rig")
+        extrinsics = self._ir.get_extrinsics_to(self._ir2)
+        rotation = np.array(extrinsics.rotation).reshape(3, 3).T  # librealsense stores it column-major
+        centre = tuple((-rotation.T @ np.array(extrinsics.translation)).tolist())  # X2 = R X1 + T
+        return device_rig(f"realsense_{self.info['serial']}", self.camera(), centre, centre)
+
+    def settings(self) -> dict:
+        rs = self._rs
+        return {name: float(self._sensor.get_option(getattr(rs.option, name)))
+                for name in RECORDED_OPTIONS if self._sensor.supports(getattr(rs.option, name))}
+
+    def set_emitter(self, on: bool) -> None:
+        if not self.can_switch_emitter:
+            super().set_emitter(on)
+        self._sensor.set_option(self._rs.option.emitter_enabled, 1.0 if on else 0.0)
+
+    def read(self) -> DeviceFrame:
+        rs = self._rs
+        deadline = time.monotonic() + self._timeout_s
+        while True:
+            remaining_ms = int(1000 * (deadline - time.monotonic()))
+            if remaining_ms <= 0:
+                raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)")
+            try:
+                frames = self._syncer.wait_for_frames(remaining_ms)
+            except RuntimeError:
+                raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)") \
+                    from None
+            ir = depth = None
+            for k in range(frames.size()):
+                frame = frames[k]
+                if frame.profile.stream_type() == rs.stream.infrared and frame.profile.stream_index() == 1:
+                    ir = frame
+                elif frame.profile.stream_type() == rs.stream.depth:
+                    depth = frame
+            if ir is not None and (depth is not None or not self.has_depth):
+                break  # the syncer can hand out a stream alone before its partner arrives
+        emitter = None
+        if ir.supports_frame_metadata(rs.frame_metadata_value.frame_emitter_mode):
+            emitter = ir.get_frame_metadata(rs.frame_metadata_value.frame_emitter_mode) != 0
+        metres = None
+        if depth is not None:
+            raw = np.asanyarray(depth.get_data()).astype(np.float32) * np.float32(self._depth_scale)
+            metres = np.where(raw > 0, raw, np.nan).astype(np.float32)
+        return DeviceFrame(np.asanyarray(ir.get_data()).copy(), float(ir.get_timestamp()),
+                           int(ir.get_frame_number()), emitter, metres)
+
+    def close(self) -> None:
+        try:
+            self._sensor.stop()
+            self._sensor.close()
+        except RuntimeError:  # already stopped, or the device is gone
+            pass
