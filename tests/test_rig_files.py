@@ -10,7 +10,7 @@ import pytest
 from dotsim.rig import PRESET_DIR, PRESETS, Rig, project_to_projector, rotation_matrix
 from dotsim.rig_files import RigFileError, check_rig, load_rig_file, rig_file_json
 from generator.config import ConfigError, config_from_dict, load_config
-from generator.scene_spec import build_rig
+from generator.sample_scene import build_rig
 
 # A calibrated-looking rig: off-centre principal points, projector slightly rotated and offset.
 ROTATION = rotation_matrix(0.01, -0.02, 0.015)
