@@ -11,6 +11,7 @@ join_process_group reads them.
 from __future__ import annotations
 
 import os
+import pickle
 import socket
 from dataclasses import dataclass
 
@@ -77,13 +78,14 @@ def _free_port() -> int:
 def _rank_main(rank: int, env: dict, threads: int, fn, args, kwargs, outcomes) -> None:
     os.environ.update(env, RANK=str(rank), LOCAL_RANK=str(rank))
     torch.set_num_threads(threads)
+    # pickled here: torch's queue would share tensors through this process's memory, gone once it exits
     try:
         value = fn(*args, **kwargs)
     except Exception as e:
-        outcomes.put((e, None))  # the launcher re-raises it, so an expected error stays one line
+        outcomes.put(pickle.dumps((e, None)))  # the launcher re-raises it: an expected error stays one line
         raise
     if rank == 0:
-        outcomes.put((None, value))
+        outcomes.put(pickle.dumps((None, value)))
 
 
 def run_on_ranks(nproc: int, fn, *args, **kwargs):
@@ -99,12 +101,12 @@ def run_on_ranks(nproc: int, fn, *args, **kwargs):
 
     def drain() -> None:  # as we go: a rank writing into a full pipe would wait for ever
         while not outcomes.empty():
-            received.append(outcomes.get())
+            received.append(pickle.loads(outcomes.get()))
 
     try:
         while not ranks.join(timeout=0.1):
             drain()
-    except mp.ProcessException:
+    except (mp.ProcessRaisedException, mp.ProcessExitedException):
         drain()
         errors = [e for e, _ in received if e is not None]
         if errors:
