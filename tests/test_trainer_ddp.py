@@ -68,27 +68,31 @@ def test_ranks_share_each_global_batch_and_together_see_what_one_process_sees():
     assert list(EpochSampler(n, seed=5, epoch=3, batch=batch)) != list(EpochSampler(n, 5, 2, 0, batch))
 
 
-def _batchnorm_on_half(bn_state: dict, x: torch.Tensor, grad_out: torch.Tensor, global_stats: bool):
-    """One rank's half of the batch through a BatchNorm; every rank's output, input gradient, parameter
-    gradients (summed over ranks, as DDP's average times the ranks) and running statistics."""
+def _batchnorm_on_halves(bn_state: dict, x: torch.Tensor, grad_out: torch.Tensor) -> dict:
+    """Each rank's half of the batch through GlobalBatchNorm2d ("global") and nn.BatchNorm2d ("per_rank"):
+    all ranks' outputs and input gradients, the parameter gradients summed over the ranks (DDP's average
+    times the ranks) and rank 0's running statistics."""
     rank, world = int(os.environ["RANK"]), int(os.environ["WORLD_SIZE"])
     dist.init_process_group("gloo", rank=rank, world_size=world)
-    bn = (GlobalBatchNorm2d if global_stats else nn.BatchNorm2d)(x.shape[1])
-    bn.load_state_dict(bn_state)
-    part = x.chunk(world)[rank].clone().requires_grad_(True)
-    out = bn(part)
-    out.backward(grad_out.chunk(world)[rank])
-    gathered = {}
-    for name, t in {"out": out.detach(), "grad_x": part.grad}.items():
-        pieces = [torch.empty_like(t) for _ in range(world)]
-        dist.all_gather(pieces, t.contiguous())
-        gathered[name] = torch.cat(pieces)
-    for name, t in {"grad_w": bn.weight.grad, "grad_b": bn.bias.grad}.items():
-        dist.all_reduce(t)
-        gathered[name] = t
-    gathered["running_mean"], gathered["running_var"] = bn.running_mean, bn.running_var
+    results = {}
+    for kind, cls in (("global", GlobalBatchNorm2d), ("per_rank", nn.BatchNorm2d)):
+        bn = cls(x.shape[1])
+        bn.load_state_dict(bn_state)
+        part = x.chunk(world)[rank].clone().requires_grad_(True)
+        out = bn(part)
+        out.backward(grad_out.chunk(world)[rank])
+        got = {}
+        for name, t in {"out": out.detach(), "grad_x": part.grad}.items():
+            pieces = [torch.empty_like(t) for _ in range(world)]
+            dist.all_gather(pieces, t.contiguous())
+            got[name] = torch.cat(pieces)
+        for name, t in {"grad_w": bn.weight.grad, "grad_b": bn.bias.grad}.items():
+            dist.all_reduce(t)
+            got[name] = t
+        got["running_mean"], got["running_var"] = bn.running_mean, bn.running_var
+        results[kind] = got
     dist.destroy_process_group()
-    return gathered
+    return results
 
 
 def test_global_batchnorm_on_two_ranks_equals_torch_batchnorm_on_the_whole_batch():
@@ -107,11 +111,10 @@ def test_global_batchnorm_on_two_ranks_equals_torch_batchnorm_on_the_whole_batch
     expected = {"out": out.detach(), "grad_x": whole.grad, "grad_w": reference.weight.grad,
                 "grad_b": reference.bias.grad, "running_mean": reference.running_mean,
                 "running_var": reference.running_var}
-    got = run_on_ranks(2, _batchnorm_on_half, state, x, grad_out, True)
+    got = run_on_ranks(2, _batchnorm_on_halves, state, x, grad_out)
     for name, value in expected.items():
-        torch.testing.assert_close(got[name], value, rtol=1e-5, atol=1e-6, msg=name)
-    per_rank = run_on_ranks(2, _batchnorm_on_half, state, x, grad_out, False)
-    assert not torch.allclose(per_rank["out"], expected["out"], atol=1e-3)
+        torch.testing.assert_close(got["global"][name], value, rtol=1e-5, atol=1e-6, msg=name)
+    assert not torch.allclose(got["per_rank"]["out"], expected["out"], atol=1e-3)
 
 
 def test_two_ranks_train_as_one_process_and_resume_across_process_counts(data, tmp_path):
