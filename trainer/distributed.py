@@ -10,6 +10,7 @@ join_process_group reads them.
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import socket
@@ -103,6 +104,8 @@ def run_on_ranks(nproc: int, fn, *args, **kwargs):
         while not outcomes.empty():
             received.append(pickle.loads(outcomes.get()))
 
+    # torch warns of each rank it stops after another failed; the failure itself is what we report
+    logging.getLogger("torch.multiprocessing.spawn").setLevel(logging.ERROR)
     try:
         while not ranks.join(timeout=0.1):
             drain()
