@@ -3,9 +3,10 @@ threads, the same config and data (the tiny oracle dataset of tests/trainer_fixt
 
     python -m bench.trainer_ddp [--config configs/train_tiny.toml] [--nproc 2] [--threads 2] [--steps 40]
 
-One process gets all --threads; each of the N ranks gets threads / N (as `dotsim train --nproc` shares
-them out). [train].batch_size is the global batch in both. Time is the training loop's (start-up of the
-processes and the data listing excluded); each is measured twice, alternating, and the better one kept.
+Measured: one process on all --threads, one process on threads / N, and N ranks on threads / N each
+(as `dotsim train --nproc` shares them out); [train].batch_size is the global batch in all three. Time is
+the training loop's (start-up of the processes and the data listing excluded); each is measured twice,
+alternating, and the better one kept.
 """
 
 from __future__ import annotations
@@ -37,23 +38,27 @@ def main(argv=None) -> int:
     cfg = load_config(args.config)
     cfg = replace(cfg, train=replace(cfg.train, max_steps=args.steps, checkpoint_every=10**9,
                                      image_every=10**9, epochs=10**6))
-    torch.set_num_threads(args.threads)
-    best = {1: 0.0, args.nproc: 0.0}
+    per_rank = max(1, args.threads // args.nproc)
+    # (processes, threads each): one process on all threads, one on a rank's share, the N ranks
+    setups = list(dict.fromkeys([(1, args.threads), (1, per_rank), (args.nproc, per_rank)]))
+    best = dict.fromkeys(setups, 0.0)
     with tempfile.TemporaryDirectory() as tmp:
         data = make_dataset(Path(tmp) / "ds", scenes=8, frames_per_scene=2)
         for repeat in range(2):
-            for nproc in best:
-                out = Path(tmp) / f"run{nproc}_{repeat}"
+            for nproc, threads in setups:
+                out = Path(tmp) / f"run{nproc}_{threads}_{repeat}"
                 if nproc == 1:
+                    torch.set_num_threads(threads)
                     result = train(cfg, data, out, progress=False)
                 else:
+                    torch.set_num_threads(args.threads)  # run_on_ranks shares these out
                     result = run_on_ranks(nproc, train, cfg, data, out, progress=False)
                 rate = args.steps * cfg.train.batch_size / result["seconds"]
-                print(f"{nproc} process(es): {rate:.1f} samples/s ({result['seconds']:.1f} s)", flush=True)
-                best[nproc] = max(best[nproc], rate)
-    print(f"summary ({args.config}, batch {cfg.train.batch_size}, {args.threads} threads in all): "
-          + ", ".join(f"{n} process(es) {r:.1f} samples/s" for n, r in best.items())
-          + f"; ratio {best[args.nproc] / best[1]:.2f}")
+                print(f"{nproc} process(es) x {threads} thread(s): {rate:.1f} samples/s "
+                      f"({result['seconds']:.1f} s)", flush=True)
+                best[nproc, threads] = max(best[nproc, threads], rate)
+    print(f"summary ({args.config}, global batch {cfg.train.batch_size}, best of 2): " + ", ".join(
+        f"{n} process(es) x {t} thread(s) {r:.1f} samples/s" for (n, t), r in best.items()))
     return 0
 
 
