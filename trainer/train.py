@@ -238,16 +238,17 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
             losses.append(value)
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
-            if ranks.main and (step % t.log_every == 0 or step == total_steps):
-                writer.add_scalar("loss/total", value, step)
-                for k, v in parts.items():
-                    writer.add_scalar(f"loss/{k}", v, step)
-                writer.add_scalar("lr", sched.get_last_lr()[0], step)
-            if ranks.main and (step % t.image_every == 0 or step == total_steps):
-                _log_images(writer, step, model, batch)
             out_of_time = 0 < max_seconds < elapsed
-            if ranks.main and (step % t.checkpoint_every == 0 or step == total_steps or out_of_time):
-                save()
+            if ranks.main:  # rank 0 alone writes
+                if step % t.log_every == 0 or step == total_steps:
+                    writer.add_scalar("loss/total", value, step)
+                    for k, v in parts.items():
+                        writer.add_scalar(f"loss/{k}", v, step)
+                    writer.add_scalar("lr", sched.get_last_lr()[0], step)
+                if step % t.image_every == 0 or step == total_steps:
+                    _log_images(writer, step, model, batch)
+                if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
+                    save()
             if step >= total_steps or out_of_time:
                 total_steps = step
                 break
