@@ -21,14 +21,7 @@ from trainer.train import batch_loss, build_model, load_checkpoint, train
 sys.path.insert(0, str(Path(__file__).parent))
 from trainer_fixtures import make_dataset  # noqa: E402
 
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """One intra-op thread: on the shared 2-core machine two threads measured 3-10x slower per step."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def tiny_config(steps: int, **train):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 
 from dotsim.dataset import FormatError
 from trainer.config import ConfigError, load_config
@@ -23,10 +24,14 @@ def _guarded(run):
 
 
 def _train(args: argparse.Namespace) -> None:
+    from trainer.distributed import run_on_ranks
     from trainer.train import train
 
-    train(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
-          split=args.split)
+    if args.nproc < 1:
+        raise DataError(f"--nproc {args.nproc}: need at least 1 process")
+    run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
+    run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
+        split=args.split)
 
 
 def _eval(args: argparse.Namespace) -> None:
@@ -49,7 +54,9 @@ def add_parser(subparsers) -> None:
         "column) on the scenes of --split in DATA. Writes RUN/checkpoint.pt (model, optimiser, schedule, "
         "step, config, rig, RNG states; saved every [train].checkpoint_every steps and at the end) and "
         "TensorBoard logs in RUN/tb (tensorboard --logdir RUN/tb). A CPU run with the same config, data "
-        "and seed is deterministic.")
+        "and seed is deterministic. --nproc N (or torchrun --nproc_per_node N -m dotsim.cli train ...) "
+        "trains with N data-parallel processes (DDP: gloo on CPU, NCCL on CUDA with one GPU each); "
+        "[train].batch_size is the global batch, shared out among them, so N processes train as one does.")
     p.add_argument("--config", required=True, metavar="TOML",
                    help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml "
                    "(keys: docs/TRAIN_CONFIG.md)")
@@ -61,6 +68,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="cpu (default) or cuda (mixed precision when [train].amp)")
     p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
+    p.add_argument("--nproc", type=int, default=1, metavar="N",
+                   help="data-parallel processes on this machine (default 1); each takes batch_size / N "
+                   "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
     p.set_defaults(func=_guarded(_train))
 
     p = subparsers.add_parser(

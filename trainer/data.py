@@ -122,25 +122,33 @@ class FrameDataset(Dataset):
 
 
 class EpochSampler(Sampler[int]):
-    """A seeded permutation of all frames per epoch (shuffles across and within shards), skipping the
-    first `skip` samples of the first epoch it serves so a resumed run sees what an unbroken run would."""
+    """A seeded permutation of all frames per epoch (shuffles across and within shards), cut to whole
+    global batches of `batch` samples, skipping the first `skip` samples of the first epoch it serves so
+    a resumed run sees what an unbroken run would. With `world` ranks, rank r takes every world-th sample
+    from the r-th (as torch's DistributedSampler), so the ranks' k-th batches of batch / world samples
+    together hold the samples of a single process's k-th batch."""
 
-    def __init__(self, n: int, seed: int, epoch: int = 0, skip: int = 0):
+    def __init__(self, n: int, seed: int, epoch: int = 0, skip: int = 0, batch: int = 1, rank: int = 0,
+                 world: int = 1):
         self.n, self.seed, self.epoch, self.skip = n, seed, epoch, skip
+        self.usable, self.rank, self.world = n - n % batch, rank, world
 
     def __iter__(self):
         g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch)
         order = torch.randperm(self.n, generator=g).tolist()
-        return iter(order[self.skip :])
+        return iter(order[self.skip + self.rank : self.usable : self.world])
 
     def __len__(self) -> int:
-        return self.n - self.skip
+        return len(range(self.skip + self.rank, self.usable, self.world))
 
 
-def make_loader(ds: FrameDataset, batch_size: int, epoch: int, skip: int, workers: int) -> DataLoader:
-    """Loader for one epoch (workers are recreated per epoch so they see ds.epoch)."""
+def make_loader(ds: FrameDataset, batch_size: int, epoch: int, skip: int, workers: int, rank: int = 0,
+                world: int = 1) -> DataLoader:
+    """Loader of rank `rank`'s share (batch_size / world per batch) of one epoch's global batches of
+    batch_size samples (workers are recreated per epoch so they see ds.epoch)."""
     ds.epoch = epoch
     return DataLoader(
-        ds, batch_size=batch_size, sampler=EpochSampler(len(ds), ds.seed, epoch, skip),
+        ds, batch_size=batch_size // world, sampler=EpochSampler(len(ds), ds.seed, epoch, skip, batch_size,
+                                                                  rank, world),
         num_workers=workers, drop_last=True, persistent_workers=False,
     )

@@ -20,6 +20,8 @@ import math
 from itertools import pairwise
 
 import torch
+import torch.distributed as dist
+import torch.distributed._functional_collectives as funcol  # autograd-aware collectives
 import torch.nn.functional as F
 from torch import nn
 
@@ -155,8 +157,34 @@ class IndexedMLP(nn.Module):
         return x
 
 
+class GlobalBatchNorm2d(nn.BatchNorm2d):
+    """BatchNorm2d whose training statistics are those of the global batch when several processes train
+    together (trainer/distributed.py): each channel's sum and then its centred sum of squares are summed
+    over the ranks (autograd-aware all-reduces), so N ranks x batch B normalise, train and update the
+    running statistics as one process with batch N B. torch's SyncBatchNorm would do the same but
+    refuses CPU tensors. One process, or eval mode: exactly nn.BatchNorm2d. Same state_dict keys."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not (self.training and dist.is_initialized() and dist.get_world_size() > 1):
+            return super().forward(x)
+        x = x.float()  # as autocast runs batch_norm: float16 sums over a batch overflow
+        dims, shape = (0, 2, 3), (1, -1, 1, 1)
+        local = torch.cat([x.sum(dims), x.new_full((1,), x.numel() // x.shape[1])])
+        total = funcol.all_reduce(local, "sum", dist.group.WORLD)
+        n = total[-1]
+        mean = total[:-1] / n
+        centred = x - mean.view(shape)
+        var = funcol.all_reduce(centred.square().sum(dims), "sum", dist.group.WORLD) / n
+        with torch.no_grad():
+            self.num_batches_tracked += 1
+            self.running_mean.lerp_(mean, self.momentum)
+            self.running_var.lerp_(var * n / (n - 1), self.momentum)  # unbiased, as BatchNorm keeps it
+        scale = torch.rsqrt(var + self.eps) * self.weight
+        return centred * scale.view(shape) + self.bias.view(shape)
+
+
 def _conv_bn(cin: int, cout: int, k: int, stride: int = 1) -> list[nn.Module]:
-    return [nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.LeakyReLU(0.01)]
+    return [nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), GlobalBatchNorm2d(cout), nn.LeakyReLU(0.01)]
 
 
 class ConvBackbone(nn.Sequential):

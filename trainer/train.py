@@ -15,12 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from dotsim.file_io import atomic_writer
 from dotsim.rig import Rig
 from trainer.config import Config, config_from_dict
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
+from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
 from trainer.model import GigaDepthNet
 
 CHECKPOINT = "checkpoint.pt"
@@ -37,19 +39,35 @@ def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
     return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2)
 
 
-def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config) -> tuple[torch.Tensor, dict[str, float]]:
+def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE_PROCESS
+               ) -> tuple[torch.Tensor, dict[str, float]]:
     """Weighted loss of one batch: sum_l ce_weights[l] * CE_l + l1_weight * L1, each the mean over the
-    valid pixels weighted by 1 + edge_weight * edge (GigaDepth weights edges up: the column jumps there)."""
+    valid pixels weighted by 1 + edge_weight * edge (GigaDepth weights edges up: the column jumps there).
+
+    With several ranks each holds part of the global batch; the means are over the global batch's pixel
+    weight (times the number of ranks, as DDP averages the ranks' gradients), so the ranks' mean loss and
+    gradient are the single-process ones."""
     feat = model.features(batch["ir"])
     valid = batch["valid"]
     terms = model.loss_terms(feat, batch["row0"], batch["column"], valid)
     weight = 1.0 + cfg.train.edge_weight * batch["edge"][valid]
-    norm = weight.sum().clamp_min(1.0)
+    norm = ranks.mean(weight.sum()).clamp_min(1.0 / ranks.world)
     parts = {f"ce{k + 1}": (ce * weight).sum() / norm for k, ce in enumerate(terms["ce"])}
     parts["l1"] = (terms["l1"] * weight).sum() / norm
     loss = sum(w * parts[f"ce{k + 1}"] for k, w in enumerate(cfg.train.ce_weights))
     loss = loss + cfg.train.l1_weight * parts["l1"]
     return loss, {k: float(v.detach()) for k, v in parts.items()}
+
+
+class TrainingLoss(torch.nn.Module):
+    """batch_loss as a module: DDP synchronises the gradients of what runs through its module's forward."""
+
+    def __init__(self, model: GigaDepthNet, cfg: Config, ranks: Ranks):
+        super().__init__()
+        self.model, self.cfg, self.ranks = model, cfg, ranks
+
+    def forward(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
+        return batch_loss(self.model, batch, self.cfg, self.ranks)
 
 
 def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int):
@@ -132,6 +150,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
           device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0) -> dict:
     """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}.
 
+    Launched as several processes (torchrun, or trainer.distributed.run_on_ranks), each is one DDP rank
+    of the same run: each takes its share of every global batch, and rank 0 alone writes and prints.
     max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time."""
     from torch.utils.tensorboard import SummaryWriter
 
@@ -149,10 +169,15 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     if device == "cuda" and not torch.cuda.is_available():
         raise DataError("--device cuda: no CUDA device is available; use --device cpu")
 
+    ranks = join_process_group(device)
+    device = ranks.device
+    if t.batch_size % ranks.world:
+        raise DataError(f"[train].batch_size {t.batch_size} is the global batch and must divide evenly "
+                        f"among the {ranks.world} processes")
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch)
-    use_amp = device == "cuda" and t.amp
+    use_amp = device.startswith("cuda") and t.amp
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     step = 0
     if ckpt_path.exists():
@@ -169,7 +194,12 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         scaler.load_state_dict(ckpt["scaler"])
         step = ckpt["step"]
         _set_rng_states(ckpt["rng"])
-    out_dir.mkdir(parents=True, exist_ok=True)
+    loss_of = TrainingLoss(model, cfg, ranks)
+    if ranks.world > 1:  # BatchNorm statistics are global already (GlobalBatchNorm2d): no buffers to send
+        loss_of = DistributedDataParallel(loss_of, forward_sync_buffers=False)
+    if ranks.main:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        writer = SummaryWriter(str(out_dir / "tb"), purge_step=step)
 
     def save() -> None:
         atomic_torch_save({
@@ -179,19 +209,23 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         }, ckpt_path)
 
     ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
-    writer = SummaryWriter(str(out_dir / "tb"), purge_step=step)
     losses: list[float] = []
     start = time.perf_counter()
     model.train()
+    progress = progress and ranks.main
     bar = tqdm(total=total_steps, initial=step, desc="train", unit="step", disable=not progress)
     while step < total_steps:
         epoch, within = divmod(step, steps_per_epoch)
-        loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers)
+        loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,
+                             ranks.world)
         for batch in loader:
             batch = {k: v.to(device) for k, v in batch.items()}
             with torch.autocast("cuda", dtype=torch.float16, enabled=use_amp):
-                loss, parts = batch_loss(model, batch, cfg)
-            value = float(loss.detach())
+                loss, parts = loss_of(batch)
+            # means over the ranks: the global batch's loss, and one elapsed time so all ranks stop together
+            values = [float(loss.detach()), *parts.values(), time.perf_counter() - start]
+            value, *part_values, elapsed = ranks.mean(torch.tensor(values, dtype=torch.float64)).tolist()
+            parts = dict(zip(parts, part_values, strict=True))
             if not math.isfinite(value):
                 raise FloatingPointError(f"step {step}: loss is {value}; lower [train].lr")
             opt.zero_grad(set_to_none=True)
@@ -203,24 +237,28 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
             losses.append(value)
             bar.update(1)
             bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
-            if step % t.log_every == 0 or step == total_steps:
-                writer.add_scalar("loss/total", value, step)
-                for k, v in parts.items():
-                    writer.add_scalar(f"loss/{k}", v, step)
-                writer.add_scalar("lr", sched.get_last_lr()[0], step)
-            if step % t.image_every == 0 or step == total_steps:
-                _log_images(writer, step, model, batch)
-            out_of_time = 0 < max_seconds < time.perf_counter() - start
-            if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
-                save()
+            out_of_time = 0 < max_seconds < elapsed
+            if ranks.main:  # rank 0 alone writes
+                if step % t.log_every == 0 or step == total_steps:
+                    writer.add_scalar("loss/total", value, step)
+                    for k, v in parts.items():
+                        writer.add_scalar(f"loss/{k}", v, step)
+                    writer.add_scalar("lr", sched.get_last_lr()[0], step)
+                if step % t.image_every == 0 or step == total_steps:
+                    _log_images(writer, step, model, batch)
+                if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
+                    save()
             if step >= total_steps or out_of_time:
                 total_steps = step
                 break
     bar.close()
-    writer.close()
+    if ranks.main:
+        writer.close()
+    leave_process_group(ranks)
     seconds = time.perf_counter() - start
     if progress:
         last = f"{losses[-1]:.4f}" if losses else "n/a (already complete)"
-        print(f"trained {len(losses)} step(s) to step {step}/{total_steps} in {seconds:.1f} s, "
-              f"last loss {last}; checkpoint {ckpt_path}")
+        print(f"trained {len(losses)} step(s) to step {step}/{total_steps} in {seconds:.1f} s "
+              f"({len(losses) * t.batch_size / max(seconds, 1e-9):.1f} samples/s on {ranks.world} "
+              f"process(es)), last loss {last}; checkpoint {ckpt_path}")
     return {"step": step, "losses": losses, "seconds": seconds}
