@@ -138,14 +138,15 @@ def test_nproc_that_does_not_divide_the_batch_is_a_one_line_error(data, tmp_path
     cfg = tiny_config_file(tmp_path / "cfg.toml", steps=2, batch_size=3)
     status = main(["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "run"),
                    "--nproc", "2"])
-    out = capfd.readouterr().out.strip().splitlines()
-    assert status == 1
-    assert out == ["dotsim train: [train].batch_size 3 is the global batch and must divide evenly among "
-                   "the 2 processes"]
+    captured = capfd.readouterr()
+    assert status == 1 and captured.out == ""
+    assert captured.err.strip().splitlines() == [
+        "dotsim train: error: [train].batch_size 3 is the global batch and must divide evenly among "
+        "the 2 processes"]
     assert not (tmp_path / "run").exists()
     assert main(["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "run"),
                  "--nproc", "0"]) == 1
-    assert capfd.readouterr().out == "dotsim train: --nproc 0: need at least 1 process\n"
+    assert capfd.readouterr().err == "dotsim train: error: --nproc 0: need at least 1 process\n"
 
 
 def test_torchrun_two_processes_rank_zero_alone_prints_and_writes(data, tmp_path):
