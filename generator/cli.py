@@ -67,6 +67,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="render with this Blender executable (`EXE --background --python "
                              "generator/blender/run_in_blender.py`) instead of the bpy module")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-seal", action="store_true",
+                        help="do not seal at the end (tasks of a cluster run that writes one dataset "
+                             "from many machines; run `dotsim seal DIR` once they are done)")
     parser.set_defaults(func=run)
     return parser
 
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         config = load_config(args.config)
         summary = generate(config, args.out, args.split, args.scenes, start=args.start,
                            workers=args.workers, seed=args.seed, blender=args.blender,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, seal=not args.no_seal)
     except ConfigError as exc:
         print(f"dotsim generate: error: {exc}", file=sys.stderr)
         return 2
