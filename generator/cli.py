@@ -15,8 +15,10 @@ ground-truth projector column and disparity (docs/FORMAT.md). Scene k depends on
 Everything is checked before anything is written: a bad config key, type or range, a missing
 pattern or asset file, an unwritable DIR or a DIR holding a dataset made with other settings
 stops the run with a message naming the file, key and value. Rerunning the same command resumes:
-complete scenes are skipped, half-written ones are redone. A failing scene is logged in
-DIR/logs/ and the run goes on; the exit status is 1 when any scene failed, 2 on a config error.
+complete scenes are skipped, half-written and damaged ones (a frame deleted) are redone, and the
+dataset is sealed again (shard.json, index.json; `dotsim verify DIR` checks every checksum). A
+failing scene is logged in DIR/logs/ and the run goes on; the exit status is 1 when any scene
+failed or the disk is full, 2 on a config error.
 """
 
 EPILOG = """\
@@ -67,6 +69,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="render with this Blender executable (`EXE --background --python "
                              "generator/blender/run_in_blender.py`) instead of the bpy module")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-seal", action="store_true",
+                        help="do not seal at the end (tasks of a cluster run that writes one dataset "
+                             "from many machines; run `dotsim seal DIR` once they are done)")
     parser.set_defaults(func=run)
     return parser
 
@@ -80,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         config = load_config(args.config)
         summary = generate(config, args.out, args.split, args.scenes, start=args.start,
                            workers=args.workers, seed=args.seed, blender=args.blender,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, seal=not args.no_seal)
     except ConfigError as exc:
         print(f"dotsim generate: error: {exc}", file=sys.stderr)
         return 2

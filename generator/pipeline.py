@@ -58,6 +58,7 @@ class RunSummary:
     worker_seconds: float = 0.0
     failed: list[int] = field(default_factory=list)
     redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
+    unsealed: str = ""  # why the run could not seal (other writers kept changing the dataset)
 
     def line(self) -> str:
         per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
@@ -65,6 +66,8 @@ class RunSummary:
         scenes = "scene" if self.done == 1 else "scenes"
         text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
                 f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
+        if self.unsealed:
+            text += f"; not sealed: {self.unsealed}"
         if self.redone:
             text += f"; {len(self.redone)} damaged scene(s) found and redone: {self.redone[:10]}"
         if self.failed:
@@ -167,12 +170,13 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
 
 def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
              workers: int = 1, seed: int = 0, blender: str | None = None,
-             progress: bool = True) -> RunSummary:
+             progress: bool = True, seal: bool = True) -> RunSummary:
     """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
 
     Raises ConfigError before anything is written when an argument, the output directory, the
     Blender executable or an existing dataset in `out` does not fit (see `prepare_run`). Failed
-    scenes are listed in the summary (and logged), not raised.
+    scenes are listed in the summary (and logged), not raised. seal: seal the dataset at the end
+    (False for the tasks of a cluster run, which one final dotsim.dataset.seal_dataset seals).
     """
     for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1)):
         if not isinstance(value, int) or isinstance(value, bool) or value < low:
@@ -208,10 +212,14 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
         render_pool(job, batches, min(workers, len(batches)), count)
     bar.close()
     summary.failed.sort()
-    # Always: a run killed after its last scene and before or during its seal left a stale seal,
-    # and sealing is incremental (unchanged shards cost a listing and their scene.json files).
-    if (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
-        dataset.seal_dataset(out)
+    # Every run seals (a run killed after its last scene and before or during its seal left a stale
+    # seal), which is cheap because sealing is incremental; cluster array tasks leave it (seal=False)
+    # to one final `dotsim seal`.
+    if seal and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
+        try:
+            dataset.seal_dataset(out)
+        except dataset.DatasetChangingError as exc:  # other writers' own seals will follow
+            summary.unsealed = str(exc)
     summary.seconds = time.perf_counter() - began
     return summary
 

@@ -36,12 +36,16 @@ from dotsim.dataset.layout import (
     shard_name,
 )
 from dotsim.dataset.scene_meta import parse_scene_meta
-from dotsim.file_io import atomic_write_json, json_bytes, sha256_bytes, sha256_file
+from dotsim.file_io import atomic_write_bytes, json_bytes, sha256_bytes, sha256_file
 
 # A seal that finds the disk changed under it starts again; writers still running after this many
 # rounds mean the caller should seal when they are done.
 MAX_SEAL_ROUNDS = 5
 _REPAIR_HINT = "run `dotsim verify DATASET --repair` to remove damaged scenes, then generate them again"
+
+
+class DatasetChangingError(FormatError):
+    """Writers kept changing the dataset while it was sealed; seal again when they are done."""
 
 
 @dataclass
@@ -61,14 +65,17 @@ class SealResult:
                 f"{self.scenes_hashed} scenes hashed, in {self.seconds:.2f} s")
 
 
-def _previous_scenes(shard_path: Path) -> dict[str, dict]:
-    """scene name -> entry of the shard.json there now; {} when it is missing or unreadable (then
+def _read_shard(shard_path: Path) -> tuple[bytes, dict]:
+    """(bytes, dict) of the shard.json there now; (b"", {}) when it is missing or unreadable (then
     every scene of the shard is hashed again)."""
     try:
-        shard = load_json(shard_path)
-        return {s["name"]: s for s in shard["scenes"] if isinstance(s, dict) and "name" in s}
-    except (FormatError, KeyError, TypeError):
-        return {}
+        data = shard_path.read_bytes()
+        shard = load_json(shard_path, data)
+        if not isinstance(shard.get("scenes"), list):
+            return b"", {}
+        return data, shard
+    except (OSError, FormatError):
+        return b"", {}
 
 
 def _scene_entry(sdir: Path, index: int, scene_bytes: bytes) -> dict:
@@ -88,14 +95,23 @@ def _scene_entry(sdir: Path, index: int, scene_bytes: bytes) -> dict:
             "frame_count": meta["frame_count"], "files": files}
 
 
-def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int) -> tuple[dict | None, bool, int]:
-    """Bring one shard's shard.json up to date with the complete scenes in its folder.
+@dataclass
+class ShardSeal:
+    """One shard's seal: its shard.json dict and the sha256 of that file's bytes, whether it was
+    (re)written, and how many scenes had their frames hashed."""
 
-    Returns (shard.json dict, or None when the shard holds no scene and has no shard.json any
-    more; whether shard.json was written; how many scenes had their frames hashed).
-    """
+    shard_json: dict
+    sha256: str
+    written: bool
+    hashed: int
+
+
+def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int) -> ShardSeal | None:
+    """Bring one shard's shard.json up to date with the complete scenes in its folder; None when
+    the shard holds no scene (then it has no shard.json any more)."""
     path = shard / SHARD_FILE
-    previous = _previous_scenes(path)
+    old_bytes, old_json = _read_shard(path)
+    previous = {s.get("name"): s for s in old_json.get("scenes", []) if isinstance(s, dict)}
     scenes, hashed = [], 0
     for index, sdir in scene_dirs(shard):
         if index // scenes_per_shard != shard_index:
@@ -115,17 +131,23 @@ def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int) -> tuple[di
             hashed += 1
     if not scenes:
         path.unlink(missing_ok=True)  # every scene was removed (dotsim verify --repair)
-        return None, False, 0
+        return None
     shard_json = {"format_version": FORMAT_VERSION, "dotsim_version": DOTSIM_VERSION,
                   "shard": shard.name, "scene_count": len(scenes), "scenes": scenes}
+    # Compared as dicts, not as serialised bytes: indented JSON is slow to write in Python, and an
+    # unchanged shard is the common case (index.json takes the sha256 of the bytes on disk).
+    if shard_json == old_json:
+        return ShardSeal(shard_json, sha256_bytes(old_bytes), False, 0)
     data = json_bytes(shard_json)
+    atomic_write_bytes(path, data)
+    return ShardSeal(shard_json, sha256_bytes(data), True, hashed)
+
+
+def _read_bytes(path: Path) -> bytes | None:
     try:
-        unchanged = path.read_bytes() == data
+        return path.read_bytes()
     except FileNotFoundError:
-        unchanged = False
-    if not unchanged:
-        atomic_write_json(path, shard_json)
-    return shard_json, not unchanged, hashed
+        return None
 
 
 def _dataset_files(root: Path) -> dict[str, str]:
@@ -134,17 +156,17 @@ def _dataset_files(root: Path) -> dict[str, str]:
             if p.is_file() and p.name != INDEX_FILE and not p.name.startswith(".")}
 
 
-def build_index(root: Path, scenes_per_shard: int, shards: list[dict]) -> dict:
-    """index.json's dict from the shard.json dicts of the shards that hold scenes, in order."""
+def build_index(root: Path, scenes_per_shard: int, shards: list[ShardSeal]) -> dict:
+    """index.json's dict from the seals of the shards that hold scenes, in order."""
     splits: dict[str, int] = {}
     entries, scene_count, frame_count = [], 0, 0
-    for shard in shards:
+    for seal in shards:
+        shard = seal.shard_json
         for scene in shard["scenes"]:
             splits[str(scene.get("split"))] = splits.get(str(scene.get("split")), 0) + 1
             frame_count += scene["frame_count"]
         scene_count += shard["scene_count"]
-        entries.append({"name": shard["shard"], "scene_count": shard["scene_count"],
-                        "sha256": sha256_bytes(json_bytes(shard))})
+        entries.append({"name": shard["shard"], "scene_count": shard["scene_count"], "sha256": seal.sha256})
     return {"format_version": FORMAT_VERSION, "dotsim_version": DOTSIM_VERSION,
             "scenes_per_shard": scenes_per_shard, "shards": entries, "scene_count": scene_count,
             "frame_count": frame_count, "split_counts": splits, "files": _dataset_files(root)}
@@ -172,7 +194,7 @@ def seal_dataset(dataset_dir: str | os.PathLike, max_rounds: int = MAX_SEAL_ROUN
     Incremental and safe to rerun at any time (see the module docstring); this is the function a
     cluster's final job calls after its tasks wrote scene ranges. Raises FormatError naming the
     file when a scene not sealed before is damaged (a frame missing or not matching scene.json),
-    and when writers kept changing the dataset for max_rounds rounds.
+    and DatasetChangingError when writers kept changing the dataset for max_rounds rounds.
     """
     start = time.perf_counter()
     root = Path(dataset_dir)
@@ -184,20 +206,23 @@ def seal_dataset(dataset_dir: str | os.PathLike, max_rounds: int = MAX_SEAL_ROUN
         result.rounds = rounds
         shards, listed = [], {}
         for shard_index, shard in shard_dirs(root):
-            shard_json, written, hashed = seal_shard(shard, shard_index, scenes_per_shard)
-            result.scenes_hashed += hashed
-            if written:
+            seal = seal_shard(shard, shard_index, scenes_per_shard)
+            if seal is None:
+                continue
+            result.scenes_hashed += seal.hashed
+            if seal.written:
                 result.shards_written.append(shard.name)
-            if shard_json is not None:
-                shards.append(shard_json)
-                listed[shard.name] = [scene["name"] for scene in shard_json["scenes"]]
+            shards.append(seal)
+            listed[shard.name] = [scene["name"] for scene in seal.shard_json["scenes"]]
         result.index = build_index(root, scenes_per_shard, shards)
-        atomic_write_json(root / INDEX_FILE, result.index)
+        data = json_bytes(result.index)
+        if _read_bytes(root / INDEX_FILE) != data:  # unchanged: no write, no fsync
+            atomic_write_bytes(root / INDEX_FILE, data)
         if _seal_holds(root, result.index, listed):
             result.seconds = time.perf_counter() - start
             return result
-    raise FormatError(f"{root}: the dataset kept changing while it was sealed ({max_rounds} rounds); "
-                      f"seal it again when its writers are done")
+    raise DatasetChangingError(f"{root}: the dataset kept changing while it was sealed ({max_rounds} "
+                               f"rounds); seal it again (`dotsim seal {root}`) when its writers are done")
 
 
 def finalize_dataset(dataset_dir: str | os.PathLike) -> dict:
