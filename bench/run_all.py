@@ -21,6 +21,7 @@ BENCHMARKS = {
     "render_memory": ["--minutes", "1"],
     "trainer_speed": ["--repeats", "1", "--no-published"],
     "trainer_accuracy": ["--minutes", "1"],
+    "trainer_gpu": ["--repeats", "3", "--train-steps", "3", "--backbones", "conv"],  # skips without CUDA
 }
 
 
