@@ -19,18 +19,11 @@ from trainer.train import batch_loss, build_model, load_checkpoint, train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_trainer_model import _naive_linear  # noqa: E402
+from test_trainer_pipeline import one_thread  # noqa: E402, F401 (autouse: one torch thread)
 from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
 
 LOW = [torch.bfloat16, torch.float16]
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")
