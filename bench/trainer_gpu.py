@@ -33,7 +33,7 @@ from dotsim.patterns import generate_dot_pattern
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames, make_loader
 from trainer.evaluate import PRECISIONS, load_model, predict_disparity
-from trainer.model import autocast
+from trainer.model import LOW_PRECISION, autocast
 from trainer.train import batch_loss, build_model, make_optimizer, train
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
@@ -67,14 +67,19 @@ class GraphedBackbone(torch.nn.Module):
     def __init__(self, backbone: torch.nn.Module, example: torch.Tensor, precision: str):
         super().__init__()
         self.static_in = example.clone()
+        dtype = LOW_PRECISION.get(precision)
+
+        def amp():  # no cast cache: the weight casts must be recorded in the graph, not reused from before
+            return torch.autocast("cuda", dtype=dtype, enabled=dtype is not None, cache_enabled=False)
+
         stream = torch.cuda.Stream()
         stream.wait_stream(torch.cuda.current_stream())
-        with torch.cuda.stream(stream), torch.no_grad(), autocast("cuda", precision):
+        with torch.cuda.stream(stream), torch.no_grad(), amp():
             for _ in range(3):  # warm-up outside the capture (cuDNN picks its algorithms)
                 backbone(self.static_in)
         torch.cuda.current_stream().wait_stream(stream)
         self.graph = torch.cuda.CUDAGraph()
-        with torch.no_grad(), autocast("cuda", precision), torch.cuda.graph(self.graph):
+        with torch.no_grad(), amp(), torch.cuda.graph(self.graph):
             self.static_out = backbone(self.static_in)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -230,6 +235,8 @@ def main(argv=None) -> int:
     if set(precisions) - set(PRECISIONS):
         parser.error(f"--precisions {args.precisions}: allowed {', '.join(PRECISIONS)}")
     graphs = args.cuda_graph and device == "cuda"
+    if args.cuda_graph and not graphs:
+        print("--cuda-graph: CUDA only, no graph rows on CPU")
     variants = ["eager"] + ["compile"] * args.compile + ["cuda-graph"] * graphs
     default_config = "configs/train_tiny.toml" if args.small else "configs/train_gigadepth.toml"
     cfg = load_config(args.config or default_config)

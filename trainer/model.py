@@ -16,8 +16,10 @@ neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does.
 Mixed precision (`autocast`, on any device). LCN is computed in float64 and the network's input is
 float32; the convs then run in float16/bfloat16, and the indexed layers compute in the dtype of their
 input (the backbone's, so the low one), casting the gathered float32 weights to it; their weight
-gradients accumulate in float32. Logits and offsets leave in the low precision; the losses and the
-output column are computed in float32 (in float16 a column of 1280 leaves would keep half a leaf).
+gradients accumulate in float32. These casts are explicit, so the autograd functions need no
+torch.amp.custom_fwd (which would tie them to one device type). Logits and offsets leave in the low
+precision; the losses and the output column are computed in float32 (in float16 a position on 1280
+leaves would be rounded to whole leaves near the end of the tree, in bfloat16 to 8 leaves).
 """
 
 from __future__ import annotations
