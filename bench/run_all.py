@@ -22,6 +22,7 @@ BENCHMARKS = {
     "trainer_speed": ["--repeats", "1", "--no-published"],
     "trainer_accuracy": ["--minutes", "1"],
     "trainer_ddp": ["--steps", "5"],
+    "trainer_gpu": ["--repeats", "3", "--train-steps", "3", "--backbones", "conv"],  # skips without CUDA
 }
 
 

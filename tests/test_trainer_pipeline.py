@@ -12,24 +12,16 @@ import torch
 
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
-from trainer.config import config_from_dict, load_config
+from trainer.config import config_from_dict
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.train import batch_loss, build_model, load_checkpoint, train
 
 sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset  # noqa: E402
+from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
-
-
-def tiny_config(steps: int, **train):
-    cfg = load_config("configs/train_tiny.toml")
-    d = cfg.to_dict()
-    d["data"].update(crop_width=64, crop_height=48)
-    d["train"].update(max_steps=steps, batch_size=2, checkpoint_every=1000, image_every=10, **train)
-    return config_from_dict(d, "test config")
 
 
 @pytest.fixture(scope="module")

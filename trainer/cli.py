@@ -38,13 +38,22 @@ def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
-             max_frames=args.max_frames, images=args.images)
+             max_frames=args.max_frames, images=args.images, precision=args.precision)
 
 
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
-    infer(args.checkpoint, args.inputs, args.out, device=args.device)
+    infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision)
+
+
+def _add_inference_device(p: argparse.ArgumentParser) -> None:
+    from trainer.evaluate import PRECISIONS
+
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
+    p.add_argument("--precision", choices=PRECISIONS, default="float32",
+                   help="float32 (default), or float16 / bfloat16 autocast (docs/TRAINER.md: their "
+                   "disparity differences against float32)")
 
 
 def add_parser(subparsers) -> None:
@@ -66,7 +75,7 @@ def add_parser(subparsers) -> None:
                    help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "
                    "checkpoint is an error")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="cpu (default) or cuda (mixed precision when [train].amp)")
+                   help="cpu (default) or cuda; [train].amp sets the precision on either")
     p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
     p.add_argument("--nproc", type=int, default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
@@ -86,7 +95,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
     p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
+    _add_inference_device(p)
     p.set_defaults(func=_guarded(_eval))
 
     p = subparsers.add_parser(
@@ -99,5 +108,5 @@ def add_parser(subparsers) -> None:
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
+    _add_inference_device(p)
     p.set_defaults(func=_guarded(_infer))

@@ -68,6 +68,9 @@ class DataConfig:
     workers: int = setting(0, "DataLoader worker processes (0 = load in the training process)", low=0)
 
 
+AMP_CHOICES = ("off", "float16", "bfloat16")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     # The published setup is SGD with lr 4 and step decay, 10 epochs, batch 4.
@@ -86,7 +89,10 @@ class TrainConfig:
     l1_weight: float = setting(1.0, "weight of the L1 on the column in leaf units (column * leaves)",
                                low=0.0)
     edge_weight: float = setting(10.0, "pixel weight 1 + edge_weight * edge", low=0.0)
-    amp: bool = setting(True, "mixed precision on CUDA (ignored on CPU)")
+    amp: str = setting("off", "mixed precision on any device: off (float32), float16 (with a gradient "
+                       "scaler) or bfloat16 (no scaler needed); older configs' true / false read as float16 "
+                       "/ off",
+                       choices=AMP_CHOICES)
     log_every: int = setting(10, "steps between logged losses", low=1)
     image_every: int = setting(100, "steps between logged images", low=1)
     checkpoint_every: int = setting(200, "steps between checkpoints (and one at the end)", low=1)
@@ -108,6 +114,11 @@ class Config:
 
 def config_from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
     """Build and validate a Config from a TOML/JSON-shaped dict; `source` names it in errors."""
+    train = d.get("train")
+    if isinstance(train, dict) and isinstance(train.get("amp"), bool):
+        # [train].amp was a boolean (float16 on CUDA) before it named a precision: checkpoints and
+        # configs written then still load.
+        d = {**d, "train": {**train, "amp": "float16" if train["amp"] else "off"}}
     cfg = config_schema.from_dict(Config, d, source)
     validate(cfg, source)
     return cfg

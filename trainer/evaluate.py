@@ -25,12 +25,14 @@ from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth, reference_image
+from trainer.config import Config
 from trainer.data import DataError, list_frames
-from trainer.model import GigaDepthNet
+from trainer.model import LOW_PRECISION, GigaDepthNet, autocast
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import build_model, check_rig, load_checkpoint
 
 THRESHOLDS = (0.5, 1.0, 2.0, 5.0)
+PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
 EVAL_CHANNELS = ("ir", "visibility", "depth", "disparity")
 
@@ -80,10 +82,24 @@ def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None 
     return along(along(np.asarray(half, np.float64), height, 0), width, 1)
 
 
-def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu"):
-    """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth."""
+def load_model(checkpoint: str | Path, device: str = "cpu") -> tuple[GigaDepthNet, Config, Rig]:
+    """The trained network of a checkpoint on `device`, in eval mode, with its config and rig.
+
+    The file is read to CPU whatever device wrote it (a CUDA run's checkpoint loads on a machine
+    without one), then the network is moved to `device`."""
+    ckpt, cfg, rig = load_checkpoint(checkpoint)
+    model = build_model(cfg, rig)
+    model.load_state_dict(ckpt["model"])
+    return model.to(device).eval(), cfg, rig
+
+
+def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu",
+                      precision: str = "float32"):
+    """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth.
+
+    precision: float32, or float16 / bfloat16 autocast (the column itself is computed in float32)."""
     model.eval()
-    with torch.no_grad():
+    with torch.no_grad(), autocast(device, precision):
         x = torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None, None].to(device)
         column = model(x)[0].float().cpu().numpy()
     height, width = rig.camera.height, rig.camera.width
@@ -133,15 +149,13 @@ def format_table(rows: list[dict]) -> str:
 
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
-             progress: bool = True) -> list[dict]:
+             progress: bool = True, precision: str = "float32") -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM on `split` of data_dir; write OUT/eval.md, OUT/eval.csv and
     OUT/errors/*.png (IR | network error | SGBM error, first `images` frames). Returns the table rows."""
     data_dir, out_dir = Path(data_dir), Path(out_dir)
-    ckpt, cfg, rig = load_checkpoint(checkpoint, device)
+    model, cfg, rig = load_model(checkpoint, device)
     frames, data_rig, _ = list_frames(data_dir, split)
     check_rig(rig, data_rig, f"checkpoint {checkpoint}", str(data_dir))
-    model = build_model(cfg, rig).to(device)
-    model.load_state_dict(ckpt["model"])
     reference = load_reference(data_dir, rig)
     n_disp = num_disparities_for(rig)
     if max_frames > 0:
@@ -154,7 +168,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         f = read_frame(ref.path, channels=EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = (f["visibility"] > 0) & np.isfinite(gt) & (gt > 0)
-        preds = {"network": predict_disparity(model, rig, ir, device)[0],
+        preds = {"network": predict_disparity(model, rig, ir, device, precision)[0],
                  "sgbm": sgbm_disparity(ir, reference, n_disp)}
         for method, pred in preds.items():
             for name, lim in ranges:
@@ -177,8 +191,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
             row[f"o({t:g})"] = c[1 + k] / c[0] if c[0] else float("nan")
         rows.append(row)
     table = format_table(rows)
-    header = (f"Evaluation of {checkpoint} on {len(frames)} frame(s) of {data_dir} (split {split!r}); "
-              f"SGBM with {n_disp} disparities, block 5, P1 200, P2 800.\n\n")
+    header = (f"Evaluation of {checkpoint} ({precision} inference) on {len(frames)} frame(s) of {data_dir} "
+              f"(split {split!r}); SGBM with {n_disp} disparities, block 5, P1 200, P2 800.\n\n")
     atomic_write_bytes(out_dir / "eval.md", (header + table).encode())
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(rows[0]))

@@ -21,8 +21,7 @@ from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.rig import Rig, backproject
 from dotsim.show import colourise
 from trainer.data import DataError
-from trainer.evaluate import predict_disparity
-from trainer.train import build_model, load_checkpoint
+from trainer.evaluate import load_model, predict_disparity
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
@@ -79,11 +78,10 @@ def ply_bytes(points: np.ndarray, grey: np.ndarray) -> bytes:
 
 
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
-          progress: bool = True) -> list[Path]:
-    """Run the network on each input; returns the written EXR paths (PNG and PLY lie beside them)."""
-    ckpt, cfg, rig = load_checkpoint(checkpoint, device)
-    model = build_model(cfg, rig).to(device)
-    model.load_state_dict(ckpt["model"])
+          progress: bool = True, precision: str = "float32") -> list[Path]:
+    """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
+    EXR paths (PNG and PLY lie beside them)."""
+    model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
     names = [_output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
@@ -93,7 +91,7 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     written = []
     todo = list(zip(names, irs, strict=True))
     for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):
-        disparity, depth = predict_disparity(model, rig, ir, device)
+        disparity, depth = predict_disparity(model, rig, ir, device, precision)
         write_exr(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)

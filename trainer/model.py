@@ -12,6 +12,14 @@ hidden layers per (line, leaf parent) and its output layer per (line, leaf); it 
 the leaf. Lines map the half-resolution rows onto `lines` weight sets (row * lines // rows). Inference
 routes by argmax; training routes by the ground-truth class (teacher forcing) and also trains the
 neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does.
+
+Mixed precision (`autocast`, on any device). LCN is computed in float64 and the network's input is
+float32; the convs then run in float16/bfloat16, and the indexed layers compute in the dtype of their
+input (the backbone's, so the low one), casting the gathered float32 weights to it; their weight
+gradients accumulate in float32. These casts are explicit, so the autograd functions need no
+torch.amp.custom_fwd (which would tie them to one device type). Logits and offsets leave in the low
+precision; the losses and the output column are computed in float32 (in float16 a position on 1280
+leaves would be rounded to whole leaves near the end of the tree, in bfloat16 to 8 leaves).
 """
 
 from __future__ import annotations
@@ -26,6 +34,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from trainer.config import ModelConfig
+
+LOW_PRECISION = {"float16": torch.float16, "bfloat16": torch.bfloat16}
+
+
+def autocast(device: str | torch.device, precision: str):
+    """torch.autocast to `precision` (a LOW_PRECISION name) on `device`'s type, CPU included; any
+    other name ("off" in [train].amp, "float32" for inference) runs in float32."""
+    dtype = LOW_PRECISION.get(precision)
+    return torch.autocast(torch.device(device).type, dtype=dtype, enabled=dtype is not None)
 
 
 class _IndexedLinearFunction(torch.autograd.Function):
@@ -292,7 +309,7 @@ class GigaDepthNet(nn.Module):
             g = (g * c + logits.argmax(1) - o).clamp(0, parents * c - 1)
         hidden_idx = line * (self.leaves // cls[-1]) + g // cls[-1]
         offset = self.regressor(self._stage_input(feat, len(cls)), hidden_idx, line * self.leaves + g)[:, 0]
-        padded = (g.to(offset.dtype) + offset) / self.leaves
+        padded = (g.float() + offset.float()) / self.leaves
         return self.unpad_column(padded).reshape(b, h, w)
 
     # ---- training ------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ from dotsim.rig import Rig
 from trainer.config import Config, config_from_dict
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
-from trainer.model import GigaDepthNet
+from trainer.model import GigaDepthNet, autocast
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -177,13 +177,15 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch)
-    use_amp = device.startswith("cuda") and t.amp
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    # float16's narrow range needs loss scaling; bfloat16 has float32's range and needs none.
+    scaler = torch.amp.GradScaler(torch.device(device).type, enabled=t.amp == "float16")
     step = 0
     if ckpt_path.exists():
         if not resume:
             raise DataError(f"{ckpt_path}: exists; pass --resume to continue it or choose another --out")
-        ckpt, old_cfg, old_rig = load_checkpoint(ckpt_path, device)
+        # read to CPU: load_state_dict moves each tensor to the model's device, and the RNG states
+        # must stay CPU tensors (mapped to CUDA, torch.set_rng_state refuses them)
+        ckpt, old_cfg, old_rig = load_checkpoint(ckpt_path)
         if _without_length(old_cfg) != _without_length(cfg):
             raise DataError(f"{ckpt_path}: was trained with another config; resume needs the same one "
                             "(only [train].epochs and max_steps may change)")
@@ -191,7 +193,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         sched.load_state_dict(ckpt["scheduler"])
-        scaler.load_state_dict(ckpt["scaler"])
+        if ckpt["scaler"]:  # empty when saved disabled (CPU runs with the former amp = true)
+            scaler.load_state_dict(ckpt["scaler"])
         step = ckpt["step"]
         _set_rng_states(ckpt["rng"])
     loss_of = TrainingLoss(model, cfg, ranks)
@@ -220,7 +223,7 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
                              ranks.world)
         for batch in loader:
             batch = {k: v.to(device) for k, v in batch.items()}
-            with torch.autocast("cuda", dtype=torch.float16, enabled=use_amp):
+            with autocast(device, t.amp):
                 loss, parts = loss_of(batch)
             # means over the ranks: the global batch's loss, and one elapsed time so all ranks stop together
             values = [float(loss.detach()), *parts.values(), time.perf_counter() - start]
