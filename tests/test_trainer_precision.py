@@ -19,11 +19,11 @@ from trainer.train import batch_loss, build_model, load_checkpoint, train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_trainer_model import _naive_linear  # noqa: E402
-from test_trainer_pipeline import one_thread  # noqa: E402, F401 (autouse: one torch thread)
 from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
 
 LOW = [torch.bfloat16, torch.float16]
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
