@@ -14,6 +14,8 @@ import time
 BENCHMARKS = {
     "pattern_uniqueness": ["--repeats", "1"],
     "read_shards": ["--repeats", "1", "--shards", "1", "--scenes", "1"],
+    "seal_cost": ["--scenes", "20", "--scenes-per-shard", "10"],
+    "kill_trials": ["--trials", "1", "--during-seal", "1", "--base", "2", "--extra", "2"],
     "generate_stages": ["--repeats", "1"],
     "assets_build": ["--repeats", "1", "--no-blender"],
     "render_speed": ["--sizes", "640", "--repeats", "1"],

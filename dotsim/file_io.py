@@ -1,9 +1,10 @@
 """Writing files so that readers see all or nothing, and sha256 checksums of bytes and files.
 
-Every file dotsim writes goes through `atomic_writer`: the bytes go to ``.tmp-<name>-<pid>``
-beside the final name, are flushed and fsync'ed, and the temporary file is renamed into place
-(``os.replace``, atomic on POSIX), so a reader or a crash never leaves half a file under the
-final name. A write that fails removes its temporary file; one that runs out of space raises
+Every file dotsim writes for someone to read (datasets, caches, checkpoints, images, reports; not
+scratch files in private temporary folders) goes through `atomic_writer`: the bytes go to
+``.tmp-<name>-<pid>`` beside the final name, are flushed and fsync'ed, and the temporary file is
+renamed into place (``os.replace``, atomic on POSIX), so a reader or a crash never leaves half a
+file under the final name. A write that fails removes its temporary file; one that runs out of space raises
 DiskFullError naming the file and the space it needed.
 
 Standard library only, so Blender's own Python (generator/blender/run_in_blender.py) imports it
