@@ -35,7 +35,7 @@ from dotsim import __version__ as DOTSIM_VERSION
 if TYPE_CHECKING:
     from dotsim.patterns import DotPattern
 
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "1.1"
 DEFAULT_SCENES_PER_SHARD = 100
 # Lossless; chosen over PIZ by bench/read_shards.py --compression (numbers in docs/FORMAT.md).
 EXR_COMPRESSION = "ZIP_COMPRESSION"
