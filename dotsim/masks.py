@@ -1,7 +1,9 @@
 """Per-pixel masks the trainer weights its loss with: where the pattern is visible, where depth jumps.
 
 Both are pure numpy (+ OpenCV for the filters) and are stored in every frame (docs/FORMAT.md), so
-the trainer never recomputes them; they can always be recomputed from the stored passes.
+the trainer never recomputes them. Generated frames take visibility from the renderer's direct-light
+passes (direct_visibility_mask); real captures, which have no such passes, from the projector's
+light in the image (visibility_mask, capture/dots.py). The edge mask comes from depth alone.
 """
 
 from __future__ import annotations

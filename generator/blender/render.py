@@ -306,19 +306,19 @@ class SceneRenderer:
     @contextlib.contextmanager
     def _projector_direct_only(self):
         """The scene lit by the spot alone, without bounces: a render gives the spot's direct light
-        in R and G (the world is blue, so it may stay)."""
+        in R and G (the world is blue, so it may stay); no compositing, the image is the result."""
         lights = [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
         self.scene.cycles.max_bounces = 0
         for obj in lights:
             obj.hide_render = True
-        self.scene.compositing_node_group = self._combined
+        self.scene.render.use_compositing = False
         try:
             yield
         finally:
             self.scene.cycles.max_bounces = self._bounces
             for obj in lights:
                 obj.hide_render = False
-            self.scene.compositing_node_group = self._indirect
+            self.scene.render.use_compositing = True
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth,
