@@ -83,6 +83,30 @@ def _shadowed(columns: np.ndarray, projector_on_right: bool) -> np.ndarray:
     return hidden if projector_on_right else hidden[:, ::-1]
 
 
+def _incidence(points: np.ndarray, normals: np.ndarray, projector_centre: np.ndarray):
+    """cos(theta) between the normals and the direction to the projector centre, and the squared
+    distance to it, of camera-frame points (..., 3)."""
+    to_projector = projector_centre - points
+    distance_sq = np.einsum("...k,...k->...", to_projector, to_projector)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cosine = np.einsum("...k,...k->...", normals, to_projector) / np.sqrt(distance_sq)
+    return cosine, distance_sq
+
+
+def projector_lighting(depth: np.ndarray, rig: Rig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel (pixel centres, no supersampling) of a planar depth map (H, W): the cosine of the
+    projector's light on the surface (nan without depth), whether the point lies inside the
+    projector's image, and whether it lies in the projector's cast shadow (step 4 of the module
+    docstring). The projector lights a pixel directly where it is inside, cosine > 0 and not in
+    shadow; a pixel lies in a cast shadow where it is inside, faces the projector and is shadowed."""
+    points = backproject(depth, rig.camera)
+    cosine, _ = _incidence(points, surface_normals(points), rig.t)
+    xp, yp, _ = project_to_projector(points, rig)
+    inside = bilinear_sample(np.ones((rig.projector.height, rig.projector.width)), xp, yp) > 0
+    shadowed = _shadowed(xp, projector_on_right=rig.baseline >= 0) & inside
+    return cosine, inside, shadowed
+
+
 def expected_pattern_image(
     depth: np.ndarray,
     rig: Rig,
@@ -122,9 +146,7 @@ def expected_pattern_image(
         xp, yp, _ = project_to_projector(sample_points, rig)
         value = bilinear_sample(pattern, xp, yp)
         if falloff:
-            to_projector = projector_centre - sample_points
-            distance_sq = np.einsum("...k,...k->...", to_projector, to_projector)
-            cosine = np.einsum("...k,...k->...", block_normals, to_projector) / np.sqrt(distance_sq)
+            cosine, distance_sq = _incidence(sample_points, block_normals, projector_centre)
             value = value * np.clip(cosine, 0.0, None) / distance_sq
         if shadows:
             value = np.where(_shadowed(xp, projector_on_right=rig.baseline >= 0), 0.0, value)

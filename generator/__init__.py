@@ -5,7 +5,8 @@ Modules (one idea each; only generator/blender/ imports bpy):
   scene_spec     the typed SceneSpec, validated once (docs/SCENE_SPEC.md); numpy + dotsim.rig only
   sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
   resources      the files scenes refer to: pattern, built-in textures, asset cache
-  blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth)
+  blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth and the
+                 projector's and flood's direct light)
   sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
   post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
   render_scenes  render_scenes(job, indices): sample, render, post-render, write; the worker pool

@@ -189,11 +189,12 @@ class SensorConfig:
 
 @dataclass(frozen=True)
 class MasksConfig:
-    visibility_threshold: float = setting(0.05, "(flood - ambient) x depth^2, as a fraction of its 99th "
-                                          "percentile, above which the pattern counts as visible (depth^2 "
-                                          "undoes the projector's inverse-square falloff, so far walls "
-                                          "count like near ones; dotsim.masks.visibility_mask)",
-                                          low=0.0, high=1.0)
+    visibility_margin: float = setting(3.0, "noise sigmas (read and shot noise at the pixel, after the "
+                                        "frame's exposure) by which a dot of the projector's direct "
+                                        "light within 5 x 5 px must stand out for the pixel to count as "
+                                        "visible; cast shadows are never visible "
+                                        "(dotsim.masks.direct_visibility_mask)",
+                                        low=0.0, high=100.0)
     edge_threshold: float = setting(0.1, "relative depth change per pixel (Sobel magnitude / depth) above "
                                     "which a pixel is an edge (dotsim.masks.edge_mask)", low=0.0,
                                     high=1000.0, low_open=True)

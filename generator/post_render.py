@@ -2,25 +2,28 @@
 
 Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radiance):
   projector  what the dot projector adds; flood  what the uniform flood rectangle adds;
-  ambient    world + extra lights (projector off); depth  planar metres, inf where nothing is hit.
+  ambient    world + extra lights (projector off); depth  planar metres, inf where nothing is hit;
+  projector_direct, flood_direct  the projector's and the flood's direct light alone (included in
+  projector and flood).
 Stored channels (dotsim.dataset.FRAME_CHANNELS):
   ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
   projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
-  depth; visibility and edge masks (dotsim.masks); projector_column and disparity (dotsim.rig),
-  nan where the depth is missing or beyond the rig's max_depth.
+  depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
+  frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column and
+  disparity (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from dotsim.masks import edge_mask, visibility_mask
+from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import apply_sensor_model
+from generator.sensor_model import apply_sensor_model, exposure_gain
 
-RAW_PASSES = ("projector", "flood", "ambient", "depth")
+RAW_PASSES = ("projector", "flood", "ambient", "depth", "projector_direct", "flood_direct")
 
 
 def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
@@ -42,18 +45,24 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
                where: str = "frame") -> dict[str, np.ndarray]:
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
     spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise."""
-    rig, masks = spec.rig, spec.masks
+    rig, masks, sensor = spec.rig, spec.masks, spec.sensor
     raw = check_raw_passes(raw, rig, where)
     depth = np.where(raw["depth"] >= NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
+    signal = ambient + raw["projector"]
+    visibility = direct_visibility_mask(
+        raw["projector_direct"], raw["flood_direct"], signal - raw["projector_direct"],
+        exposure_gain(signal, sensor), sensor.read_noise, sensor.shot_noise,
+        masks.visibility_margin, sensor.blur_sigma * sensor.pixel_scale,
+    ) & np.isfinite(depth)
     return {
-        "ir": apply_sensor_model(ambient + raw["projector"], spec.sensor, rng, spec.sensor.pixel_scale),
+        "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale),
         "ambient": ambient,
         "flood": flood,
         "depth": depth,
-        "visibility": visibility_mask(ambient, flood, masks.visibility_threshold, depth=depth),
+        "visibility": visibility,
         "edge": edge_mask(depth, masks.edge_threshold, masks.edge_dilation),
         "projector_column": depth_to_projector_column(gt_depth, rig),
         "disparity": depth_to_disparity(gt_depth, rig),

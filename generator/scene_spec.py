@@ -299,7 +299,7 @@ class SensorModel:
 @dataclass(frozen=True)
 class MaskParams:
     """Thresholds of the stored masks (dotsim.masks; meanings in docs/CONFIG.md [masks])."""
-    visibility_threshold: float
+    visibility_margin: float
     edge_threshold: float
     edge_dilation: int
 
@@ -308,8 +308,8 @@ class MaskParams:
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "masks") -> MaskParams:
-        f = _Fields(d, where, ("visibility_threshold", "edge_threshold", "edge_dilation"))
-        return cls(visibility_threshold=f.number("visibility_threshold", low=0.0),
+        f = _Fields(d, where, ("visibility_margin", "edge_threshold", "edge_dilation"))
+        return cls(visibility_margin=f.number("visibility_margin", low=0.0),
                    edge_threshold=f.number("edge_threshold", low=0.0, low_open=True),
                    edge_dilation=f.integer("edge_dilation", 0))
 

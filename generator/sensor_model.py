@@ -14,14 +14,18 @@ from scipy.ndimage import gaussian_filter
 from generator.scene_spec import SensorModel
 
 
-def expose(signal: np.ndarray, params: SensorModel) -> np.ndarray:
-    """Radiance -> level (full scale 1). fixed: gain * signal. auto: the auto_percentile of the
-    signal maps to auto_target (a black image stays black)."""
-    signal = np.asarray(signal, np.float64)
+def exposure_gain(signal: np.ndarray, params: SensorModel) -> float:
+    """Level (full scale 1) per unit radiance for this frame. fixed: params.gain. auto: the
+    auto_percentile of the signal maps to auto_target (a black image keeps gain 1)."""
     if params.exposure == "fixed":
-        return signal * params.gain
-    reference = float(np.percentile(signal, params.auto_percentile))
-    return signal * (params.auto_target / reference) if reference > 0 else signal
+        return params.gain
+    reference = float(np.percentile(np.asarray(signal, np.float64), params.auto_percentile))
+    return params.auto_target / reference if reference > 0 else 1.0
+
+
+def expose(signal: np.ndarray, params: SensorModel) -> np.ndarray:
+    """Radiance -> level (full scale 1): signal times exposure_gain."""
+    return np.asarray(signal, np.float64) * exposure_gain(signal, params)
 
 
 def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) -> np.ndarray:

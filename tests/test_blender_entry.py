@@ -13,6 +13,7 @@ import pytest
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
 from generator.blender import demo_scenes as ds
+from generator.post_render import RAW_PASSES
 
 pytest.importorskip("bpy")
 SCRIPT = Path(__file__).resolve().parents[1] / "generator" / "blender" / "run_in_blender.py"
@@ -56,7 +57,7 @@ def test_run_in_blender_writes_raw_npz_and_reports_bad_specs(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["scene_0000003_raw.npz"]  # no temp files left
     with np.load(out / "scene_0000003_raw.npz") as raw:
         assert sorted(raw.files) == sorted(
-            f"{name}_{k}" for name in ("projector", "flood", "ambient", "depth") for k in range(2)
+            f"{name}_{k}" for name in RAW_PASSES for k in range(2)
         )
         np.testing.assert_allclose(raw["depth_0"], 1.5, rtol=1e-6)
         np.testing.assert_allclose(raw["depth_1"], 2.0, rtol=1e-6)

@@ -18,6 +18,7 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
 from generator.blender import demo_scenes as ds
+from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
 
 bpy = pytest.importorskip("bpy")
@@ -127,6 +128,40 @@ def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
     assert frame["projector"][lit_core].mean() > 0.05 * direct[lit_core].mean()
 
 
+def test_direct_light_has_no_pepper_and_the_mask_no_shadow(renderer, pattern):
+    """The box's cast shadow (analytic ray casting, as above) with two bright extra lights near the
+    wall, at 1 sample: the direct passes are 0 in the whole shadow and lit on every lit pixel (the
+    one-render way left 5-10% of them dark, docs/RENDERING.md); the mask (make_frame) marks no
+    shadow pixel visible and the lit wall visible."""
+    lower, upper, wall_z = (-0.1, -0.1, 0.5), (0.1, 0.1, 0.7), 1.6
+    lights = [{"type": "POINT", "location": [x, -0.4, 0.8], "power": 10.0, "radius": 0.05}
+              for x in (-0.6, 0.6)]
+    spec = _spec(pattern, samples=1, projector_power=100.0, flood_power=100.0, world_strength=0.05,
+                 lights=lights)
+    spec["objects"] = [ds.wall(wall_z), ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6))]
+    spec = SceneSpec.from_dict(spec)
+    raw = renderer.render(spec)[0]
+
+    rays = pixel_rays(*pixel_grid(RIG.camera), RIG.camera)
+    on_box = np.isfinite(_box_intersections(np.zeros(3), rays, lower, upper))
+    wall_points = rays * wall_z
+    shadow = ~on_box & (_box_intersections(wall_points, RIG.t - wall_points, lower, upper) < 1.0)
+    # 2 px from the silhouette and the shadow's edge (one pixel may straddle both sides)
+    shadow_core, lit_core = _erode(shadow, 2), _erode(~on_box & ~shadow, 2)
+    assert shadow_core.sum() > 50
+    assert np.count_nonzero(raw["flood_direct"][shadow_core]) == 0
+    assert np.count_nonzero(raw["projector_direct"][shadow_core]) == 0
+    pepper = np.mean(raw["flood_direct"][lit_core] <= 0)
+    assert pepper <= 0.003, pepper
+    for name in ("projector", "flood"):
+        assert (raw[name] >= raw[f"{name}_direct"]).all(), name
+
+    frame = make_frame(raw, spec, np.random.default_rng(0))
+    visible = frame["visibility"].astype(bool)
+    assert visible[shadow_core].mean() <= 0.01
+    assert visible[lit_core].mean() >= 0.97
+
+
 def _clutter_spec(pattern, samples: int, seed: int = 7, **kwargs) -> dict:
     spec = _spec(pattern, samples=samples, seed=seed, **kwargs)
     spec["objects"] = [ds.wall(5.0)] + ds.clutter(25, seed=seed, depth_range=(0.8, 3.5), half_fov=0.45)
@@ -147,6 +182,10 @@ def test_clutter_projector_pass_matches_oracle(renderer, pattern):
     # Measured here: 0.948 / 0.967 / 0.994 at 1 / 4 / 16 samples (the rest is sampling noise), the
     # same with 0 or 4 bounces; the dots shifted by one pixel score about 0.3.
     assert score > 0.985, score
+    # The projector's light that bounced is kept (the direct passes hold the rest).
+    for name in ("projector", "flood"):
+        indirect = frame[name] - frame[f"{name}_direct"]
+        assert indirect.min() >= 0 and np.mean(indirect > 0) > 0.05, name
 
 
 def test_same_spec_renders_bit_identical_after_another_scene(renderer, pattern):

@@ -260,7 +260,7 @@ def test_reader_refuses_unknown_major_version(tmp_path):
     ds.seal_dataset(tmp_path)
     index_file = tmp_path / "index.json"
     text = index_file.read_text()
-    index_file.write_text(text.replace('"format_version": "1.0"', '"format_version": "3.1"'))
+    index_file.write_text(text.replace(f'"format_version": "{ds.FORMAT_VERSION}"', '"format_version": "3.1"'))
     with pytest.raises(ds.FormatError, match=r"index\.json: format_version 3\.1 has major version 3"):
         ds.open_dataset(tmp_path)
 

@@ -18,7 +18,7 @@ from dotsim.rig import get_preset
 from generator import cli
 from generator.config import ConfigError, config_from_dict, load_config
 from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
-from generator.post_render import make_frame
+from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,8 +53,9 @@ def test_make_frame_against_analytic_wall():
     flood_only[:, 30:33] = 0.0          # a projector shadow
     projector = flood_only * np.random.default_rng(0).uniform(0, 1, (h, w)).astype(np.float32)
     config = config_from_dict({})
-    frame = make_frame({"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth},
-                       spec_with_rig(rig, config), np.random.default_rng(1))
+    raw = {"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth,
+           "projector_direct": projector, "flood_direct": flood_only}  # no indirect light here
+    frame = make_frame(raw, spec_with_rig(rig, config), np.random.default_rng(1))
     assert set(frame) == set(dataset.RENDERED_CHANNELS)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
@@ -81,7 +82,7 @@ def test_make_frame_against_analytic_wall():
 
 def test_make_frame_names_bad_raw_passes():
     rig = get_preset("structure_core").scaled(0.05)
-    raw = {name: np.zeros((3, 3), np.float32) for name in ("projector", "flood", "ambient", "depth")}
+    raw = {name: np.zeros((3, 3), np.float32) for name in RAW_PASSES}
     with pytest.raises(ValueError, match="scene 4 frame 1: raw pass 'projector' has shape"):
         make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0),
                    where="scene 4 frame 1")

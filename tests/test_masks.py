@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dotsim.masks import edge_mask, exposure_scale, visibility_mask
+from dotsim.masks import direct_visibility_mask, edge_mask, exposure_scale, noise_sigma, visibility_mask
 
 
 def columns(mask):
@@ -90,3 +90,42 @@ def test_bad_arguments_are_named():
         visibility_mask(np.ones((5, 5)), np.ones((5, 6)))
     with pytest.raises(ValueError, match="depth"):
         visibility_mask(np.ones((5, 5)), np.ones((5, 5)), depth=np.ones((4, 5)))
+
+
+def test_direct_visibility_needs_direct_light_and_a_dot_above_the_noise():
+    """One dot of level 0.05 (gain 1) on a directly lit 9 x 9 patch, read noise 0.01: visible
+    within 2 px of the dot (5 x 5 window) at a 3-sigma margin, nowhere at 6 sigma; never where the
+    flood's direct light is 0 (a cast shadow), however bright the dot next to it."""
+    projector = np.zeros((9, 9))
+    projector[4, 4] = 0.05
+    flood = np.ones((9, 9))
+    flood[:, 6:] = 0.0  # shadow from column 6 on
+    background = np.zeros((9, 9))
+    vis = direct_visibility_mask(projector, flood, background, gain=1.0, read_noise=0.01, shot_noise=0.0)
+    expected = np.zeros((9, 9), bool)
+    expected[2:7, 2:6] = True
+    np.testing.assert_array_equal(vis, expected)
+    assert not direct_visibility_mask(projector, flood, background, 1.0, 0.01, 0.0, margin=6.0).any()
+    # exposure: the same radiance at a tenth of the gain falls below 3 sigma
+    assert not direct_visibility_mask(projector, flood, background, 0.1, 0.01, 0.0).any()
+
+
+def test_direct_visibility_shot_noise_grows_with_the_background():
+    """sigma = sqrt(read^2 + shot^2 x level): a dot of 0.05 stands out on a dark background but not
+    on a background at level 1 with shot noise 0.02 (3 sigma = 0.06)."""
+    projector = np.full((5, 5), 0.05)
+    flood = np.ones((5, 5))
+    dark = direct_visibility_mask(projector, flood, np.zeros((5, 5)), 1.0, 0.001, 0.02)
+    bright = direct_visibility_mask(projector, flood, np.ones((5, 5)), 1.0, 0.001, 0.02)
+    assert dark.all() and not bright.any()
+    np.testing.assert_allclose(noise_sigma(np.array([0.0, 1.0]), 0.001, 0.02), [0.001, np.hypot(0.001, 0.02)])
+
+
+def test_direct_visibility_names_bad_input():
+    ones = np.ones((4, 4))
+    with pytest.raises(ValueError, match="one shape"):
+        direct_visibility_mask(ones, np.ones((4, 5)), ones, 1.0, 0.01, 0.01)
+    with pytest.raises(ValueError, match="gain"):
+        direct_visibility_mask(ones, ones, ones, -1.0, 0.01, 0.01)
+    with pytest.raises(ValueError, match="window"):
+        direct_visibility_mask(ones, ones, ones, 1.0, 0.01, 0.01, window=4)

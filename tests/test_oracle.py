@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from dotsim.oracle import expected_pattern_image, surface_normals
+from dotsim.oracle import expected_pattern_image, projector_lighting, surface_normals
 from dotsim.rig import backproject, get_preset, reference_image
 
 RIG = get_preset("structure_core").scaled(0.25)  # camera 304 x 224, projector 768 x 768
@@ -119,6 +119,27 @@ def test_box_casts_a_shadow_on_the_wall_where_geometry_says():
     # without the shadow test the same pixels are lit
     unshadowed = expected_pattern_image(depth, RIG, np.ones((PROJ.height, PROJ.width)), shadows=False)
     assert (unshadowed[CAM.height // 2][shadow] > 0).all()
+
+
+def test_projector_lighting_finds_the_analytic_shadow_and_the_wall_cosine():
+    depth, blocked = _box_scene()
+    cosine, inside, shadowed = projector_lighting(depth, RIG)
+    row = CAM.height // 2
+    wall = np.ones(CAM.width, bool)
+    wall[150:200] = False
+    border = np.convolve(blocked.astype(int), [1, 1, 1], mode="same") % 3 != 0
+    assert (shadowed[row][blocked & wall & ~border]).all()
+    assert not shadowed[row][~blocked & ~border].any()
+    # wall normal (0, 0, -1) against the direction to the projector at (b, 0, 0): cos = z / r
+    x_wall = (np.arange(CAM.width) - CAM.cx) / CAM.fx * 2.0
+    y_wall = (row - CAM.cy) / CAM.fy * 2.0
+    expected = 2.0 / np.sqrt((x_wall - RIG.t[0]) ** 2 + y_wall**2 + 2.0**2)
+    interior = wall & (np.abs(np.arange(CAM.width) - 175) > 27)  # away from the box's edges
+    np.testing.assert_allclose(cosine[row][interior], expected[interior], rtol=1e-6)
+    assert inside[row].all()
+    depth[:10] = np.inf
+    cosine, inside, shadowed = projector_lighting(depth, RIG)
+    assert np.isnan(cosine[:10]).all() and not inside[:10].any() and not shadowed[:10].any()
 
 
 def test_no_depth_and_outside_the_projector_are_dark():

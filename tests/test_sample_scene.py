@@ -76,7 +76,7 @@ def check_contract(d: dict) -> None:
     assert len({obj["name"] for obj in d["objects"]}) == len(d["objects"])
     assert d["sensor"]["exposure"] in ("fixed", "auto") and 1 <= d["sensor"]["bit_depth"] <= 16
     assert d["sensor"]["pixel_scale"] > 0 and d["sensor"]["gain"] > 0
-    assert set(d["masks"]) == {"visibility_threshold", "edge_threshold", "edge_dilation"}
+    assert set(d["masks"]) == {"visibility_margin", "edge_threshold", "edge_dilation"}
     json.dumps(d, allow_nan=False)  # travels as JSON to `blender --python`
 
 

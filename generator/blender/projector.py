@@ -23,11 +23,10 @@ from .pattern_filter import box_prefilter, png16_bytes
 # Cycles samples one light per shading point, chosen by each light's energy; it cannot see that the
 # spot's node tree carries the projector, the pass that must be clean at one sample. Where an extra
 # point light is picked instead, that pixel gets no projector and no flood light at all ("pepper").
-# Declaring the spot 3x brighter (and dividing its node gains by 3: same output, unbiased) gives it
-# more samples. Measured with 300 objects, two 50 W lights, 1 sample (boost 1 / 3 / 10): projector
-# quality at 640 x 472 0.977 / 0.981 / 0.982; flood pixels below 0.3x their 5x5 median at 320 x 236
-# 12% / 7% / 4% (2% without extra lights); but the ambient pass, sampled less, correlates
-# 0.49 / 0.37 / 0.24 with a 128-sample ambient render. 3 is the compromise.
+# Declaring the spot brighter (and dividing its node gains alike: same output, unbiased) gives it
+# more samples, at the ambient pass's expense (docs/RENDERING.md has the measurements). The
+# renderer's default way takes the spot's direct light from a separate render and uses boost 1;
+# SAMPLING_BOOST serves its one-render way (SceneRenderer(direct_render=False)).
 SAMPLING_BOOST = 3.0
 
 
@@ -56,6 +55,7 @@ class ProjectorLight:
     """A spot light projecting a pattern image (red channel) and its bounding rectangle (green)."""
 
     def __init__(self, collection: bpy.types.Collection):
+        self.sampling_boost = SAMPLING_BOOST  # read by set_powers; the renderer sets it per way
         self.light = bpy.data.lights.new("dotsim_projector", "SPOT")
         self.light.shadow_soft_size = 0.0  # a pinhole: sharp dots and sharp shadows
         self.light.spot_blend = 0.0
@@ -143,11 +143,11 @@ class ProjectorLight:
     def set_powers(self, projector_power: float, flood_power: float) -> None:
         """Spot power (W) for a fully white pattern pixel in red, and for the flood rectangle in green.
         The node gains scale each channel, so either power can be zero without touching the other
-        channel; the light's energy is SAMPLING_BOOST times the larger power (see there)."""
+        channel; the light's energy is sampling_boost times the larger power (see SAMPLING_BOOST)."""
         for name, value in (("projector.power", projector_power), ("flood.power", flood_power)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        energy = SAMPLING_BOOST * max(projector_power, flood_power)
+        energy = self.sampling_boost * max(projector_power, flood_power)
         self.light.energy = energy
         self.object.hide_render = energy == 0
         self.pattern_gain.inputs[1].default_value = projector_power / energy if energy else 0.0

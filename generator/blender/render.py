@@ -1,13 +1,23 @@
 """SceneRenderer: SceneSpec (generator/scene_spec.py) -> one frame of raw passes per pose, with
-Cycles, in ONE path-tracing render per frame.
+Cycles: one path-tracing render per frame for all light, and one direct-light render of the
+projector alone (docs/RENDERING.md).
 
-How the passes are separated (docs/RENDERING.md explains why several lights in one render are
-noisy): materials are grey, so colour channels never mix. One spot light emits the pattern in red
-and the flood rectangle in green (projector.py); the world and the extra lights are pure blue. So
-one render gives projector = R, flood = G, ambient = B, and the Z pass gives planar depth. The
-compositor packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, read back with a
-tiny numpy reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off,
-because each of them would mix channels or change values.
+How the passes are separated (several lights in one render are noisy, docs/RENDERING.md): materials
+are grey, so colour channels never mix. One spot light emits the pattern in red and the flood
+rectangle in green (projector.py); the world and the extra lights are pure blue. So one render
+gives projector = R, flood = G, ambient = B, and the Z pass gives planar depth. The compositor
+packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, read back with a tiny numpy
+reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off, because each
+of them would mix channels or change values.
+
+Direct light: Cycles samples one light per shading point, so where an extra light was picked at the
+surface the camera sees, the projector's direct light is missing ("pepper"). The path-tracing
+render therefore keeps only the projector's and flood's indirect light (the diffuse and glossy
+indirect passes times their colour passes, composited), and a second render with no bounces and
+the extra lights hidden gives their direct light at every pixel (the world stays: it is blue and
+not light-sampled): the dots the sensor sees are direct + indirect, and the visibility mask uses
+the direct light alone. All path-traced frames of a scene render first, then all direct ones,
+because each switch between the two makes Cycles sync the scene again.
 
 Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
@@ -33,7 +43,7 @@ from generator.scene_spec import RenderSettings, SceneSpec
 from .exr import read_exr
 from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, projector_pose
 from .pattern_filter import footprint_width
-from .projector import ProjectorLight
+from .projector import SAMPLING_BOOST, ProjectorLight
 from .scene_builder import SceneContent
 
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
@@ -94,23 +104,40 @@ def _configure_render(scene: bpy.types.Scene) -> None:
     settings.color_depth = "32"
     settings.exr_codec = "NONE"
     scene.render.use_file_extension = False
-    _build_compositor(scene)
 
 
-def _build_compositor(scene: bpy.types.Scene) -> None:
-    """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file."""
+def _build_compositor(indirect_red_green: bool) -> bpy.types.NodeTree:
+    """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file.
+    indirect_red_green: R and G hold only indirect light, (DiffInd x DiffCol + GlossInd x GlossCol),
+    which is how Cycles itself sums those passes into the combined image (B stays combined)."""
     tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     layers = tree.nodes.new("CompositorNodeRLayers")
-    separate = tree.nodes.new("CompositorNodeSeparateColor")
     combine = tree.nodes.new("CompositorNodeCombineColor")
     output = tree.nodes.new("NodeGroupOutput")
-    tree.links.new(layers.outputs["Image"], separate.inputs[0])
-    for k in range(3):
-        tree.links.new(separate.outputs[k], combine.inputs[k])
+    combined = tree.nodes.new("CompositorNodeSeparateColor")
+    tree.links.new(layers.outputs["Image"], combined.inputs[0])
+    red_green = combined
+    if indirect_red_green:
+        terms = []
+        for light, colour in (("Diffuse Indirect", "Diffuse Color"), ("Glossy Indirect", "Glossy Color")):
+            product = tree.nodes.new("ShaderNodeVectorMath")
+            product.operation = "MULTIPLY"
+            tree.links.new(layers.outputs[light], product.inputs[0])
+            tree.links.new(layers.outputs[colour], product.inputs[1])
+            terms.append(product)
+        total = tree.nodes.new("ShaderNodeVectorMath")
+        total.operation = "ADD"
+        for k, term in enumerate(terms):
+            tree.links.new(term.outputs[0], total.inputs[k])
+        red_green = tree.nodes.new("CompositorNodeSeparateColor")
+        tree.links.new(total.outputs[0], red_green.inputs[0])
+    tree.links.new(red_green.outputs[0], combine.inputs[0])
+    tree.links.new(red_green.outputs[1], combine.inputs[1])
+    tree.links.new(combined.outputs[2], combine.inputs[2])
     tree.links.new(layers.outputs["Depth"], combine.inputs[3])
     tree.links.new(combine.outputs[0], output.inputs[0])
-    scene.compositing_node_group = tree
+    return tree
 
 
 def select_device(scene: bpy.types.Scene, device: str) -> str:
@@ -148,17 +175,36 @@ class SceneRenderer:
     render(spec) for each scene; close() removes the temp folder. Use one per process.
     """
 
-    def __init__(self, reset: bool = True):
+    def __init__(self, reset: bool = True, direct_render: bool = True):
+        """direct_render=False renders each frame in one path-tracing render, the projector's direct
+        light included (the way before the direct render existed, kept to compare against: its
+        frames lack projector_direct and flood_direct, and have pepper with extra lights)."""
         if reset:
             bpy.ops.wm.read_factory_settings(use_empty=True)
         self.scene = bpy.context.scene
         _configure_render(self.scene)
+        self._set_indirect_passes(True)  # the compositor can only link passes that exist
+        self._combined = _build_compositor(indirect_red_green=False)
+        self._indirect = _build_compositor(indirect_red_green=True)
         self.content = SceneContent(self.scene)
         self.projector = ProjectorLight(self.scene.collection)
+        self.direct_render = direct_render  # applied by setup(); may change between scenes
         shm = Path("/dev/shm")
         self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
         self.scene.render.filepath = str(self._tmp / "frame.exr")
         self.device = "CPU"
+
+    def _set_indirect_passes(self, on: bool) -> None:
+        layer = self.scene.view_layers[0]
+        for name in ("diffuse_indirect", "diffuse_color", "glossy_indirect", "glossy_color"):
+            setattr(layer, f"use_pass_{name}", on)
+
+    def _apply_direct_render(self) -> None:
+        self._set_indirect_passes(self.direct_render)
+        self.scene.compositing_node_group = self._indirect if self.direct_render else self._combined
+        # With the spot's direct light from the direct render, the path-tracing render needs no
+        # extra samples for it (projector.py SAMPLING_BOOST): the ambient light gets more.
+        self.projector.sampling_boost = 1.0 if self.direct_render else SAMPLING_BOOST
 
     def close(self) -> None:
         self.content.release()
@@ -179,6 +225,7 @@ class SceneRenderer:
         cycles.glossy_bounces = render.max_bounces
         cycles.transmission_bounces = render.max_bounces
         cycles.volume_bounces = 0
+        self._bounces = render.max_bounces
         self.scene.render.threads_mode = "FIXED" if render.threads else "AUTO"
         if render.threads:
             self.scene.render.threads = render.threads
@@ -191,6 +238,7 @@ class SceneRenderer:
         if not Path(spec.pattern.path).is_file():
             raise ValueError(f"scene spec: pattern.path {spec.pattern.path} does not exist")
         self._apply_render_settings(spec.render)
+        self._apply_direct_render()
         rig = spec.rig
         self.content.set_camera(rig.camera)
         self.projector.set_intrinsics(astuple(rig.projector))
@@ -217,17 +265,18 @@ class SceneRenderer:
         self.projector.set_pose(blender_matrix_from_opencv_pose(
             projector_pose(world_from_camera, self._rig.R, self._rig.t)))
 
-    def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
-        """Render the built scene from one rig pose: {projector, flood, ambient, depth} float32 (H, W);
-        depth is planar (metres), inf where nothing is hit."""
-        self.place_rig(world_from_camera)
+    def _render_channels(self) -> dict[str, np.ndarray]:
         output = Path(self.scene.render.filepath)
         output.unlink(missing_ok=True)  # never read a previous frame if Blender fails to write
         with _quiet_stdout():
             bpy.ops.render.render(write_still=True)
         if not output.is_file():
             raise RuntimeError(f"Cycles wrote no image to {output}")
-        channels = read_exr(output)
+        return read_exr(output)
+
+    def _path_traced(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
+        self.place_rig(world_from_camera)
+        channels = self._render_channels()
         depth = channels["A"].copy()
         depth[depth >= NO_HIT_DEPTH] = np.inf
         return {
@@ -237,6 +286,46 @@ class SceneRenderer:
             "depth": depth,
         }
 
+    @contextlib.contextmanager
+    def _projector_direct_only(self):
+        """The scene lit by the spot alone, without bounces: a render gives the spot's direct light
+        in R and G (the world is blue, so it may stay); no compositing, the image is the result."""
+        lights = [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
+        self.scene.cycles.max_bounces = 0
+        for obj in lights:
+            obj.hide_render = True
+        self.scene.render.use_compositing = False
+        try:
+            yield
+        finally:
+            self.scene.cycles.max_bounces = self._bounces
+            for obj in lights:
+                obj.hide_render = False
+            self.scene.render.use_compositing = True
+
+    def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
+        """Render the built scene from one rig pose: {projector, flood, ambient, depth,
+        projector_direct, flood_direct} float32 (H, W); depth is planar (metres), inf where nothing
+        is hit; projector and flood hold direct + indirect light, the *_direct passes the spot's
+        direct light alone (absent with direct_render=False)."""
+        return self.render_poses([world_from_camera])[0]
+
+    def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
+        """render_frame for each pose: the path-traced renders first, then the direct ones (each
+        switch between the two makes Cycles sync the scene again, so it happens once)."""
+        frames = [self._path_traced(pose) for pose in poses]
+        if not self.direct_render:
+            return frames
+        with self._projector_direct_only():
+            for frame, pose in zip(frames, poses, strict=True):
+                self.place_rig(pose)
+                direct = self._render_channels()
+                frame["projector_direct"] = direct["R"].copy()
+                frame["flood_direct"] = direct["G"].copy()
+                frame["projector"] += frame["projector_direct"]
+                frame["flood"] += frame["flood_direct"]
+        return frames
+
     def render(self, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
-        """All frames of `spec`: a list (one per pose) of {projector, flood, ambient, depth}."""
-        return [self.render_frame(pose) for pose in self.setup(spec)]
+        """All frames of `spec`: a list (one per pose) of render_frame's passes."""
+        return self.render_poses(self.setup(spec))
