@@ -93,13 +93,15 @@ def test_texture_fields_are_checked_where_they_are():
 
 
 def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
-    """make_frame takes no config: the bit depth and edge dilation come from the spec."""
+    """make_frame takes no config: the bit depth, edge dilation and visibility margin come from the
+    spec."""
     spec = sampled(rig={"scale": 0.05})
     h, w = spec.rig.camera.height, spec.rig.camera.width
     depth = np.full((h, w), 2.0, np.float32)
     depth[:, w // 2:] = 1.0  # one vertical depth edge
     raw = {"projector": np.full((h, w), 0.3, np.float32), "flood": np.ones((h, w), np.float32),
            "ambient": np.full((h, w), 0.05, np.float32), "depth": depth}
+    raw["projector_direct"], raw["flood_direct"] = raw["projector"], raw["flood"]  # no bounced light
     coarse = replace(spec, sensor=replace(spec.sensor, bit_depth=3, shot_noise=0.0, read_noise=0.0),
                      masks=replace(spec.masks, edge_dilation=0))
     wide = replace(coarse, masks=replace(coarse.masks, edge_dilation=3))
@@ -108,6 +110,10 @@ def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
     narrow_edges = make_frame(raw, coarse, np.random.default_rng(0))["edge"].sum(axis=1)
     wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
     assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
+    # the visibility margin (noise sigmas a dot must stand out by) is the spec's too
+    strict = replace(spec, masks=replace(spec.masks, visibility_margin=1e4))
+    assert make_frame(raw, spec, np.random.default_rng(0))["visibility"].all()
+    assert not make_frame(raw, strict, np.random.default_rng(0))["visibility"].any()
 
 
 def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():
