@@ -15,7 +15,7 @@ from torch import nn
 from dotsim.cli import main
 from trainer.config import config_from_dict, load_config
 from trainer.data import EpochSampler
-from trainer.distributed import run_on_ranks
+from trainer.distributed import Ranks, leave_process_group, run_on_ranks
 from trainer.model import GlobalBatchNorm2d
 from trainer.train import load_checkpoint, train
 
@@ -85,7 +85,7 @@ def _batchnorm_on_halves(bn_state: dict, x: torch.Tensor, grad_out: torch.Tensor
             got[name] = t
         got["running_mean"], got["running_var"] = bn.running_mean, bn.running_var
         results[kind] = got
-    dist.destroy_process_group()
+    leave_process_group(Ranks(rank, world, "cpu"))
     return results
 
 
