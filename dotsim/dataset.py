@@ -486,6 +486,32 @@ def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = F
     return removed
 
 
+def remove_partial_scenes_in_range(dataset_dir: str | os.PathLike, first: int, stop: int,
+                                   scenes_per_shard: int) -> list[Path]:
+    """Delete the ``.tmp-scene_*`` leftovers of scenes first .. stop-1, whatever wrote them.
+
+    For a writer that owns a range of scenes while other machines write other ranges into the same
+    dataset (a Slurm array task, a Ray run after a node died): pids of other machines mean nothing
+    here, and only this range's writers (all finished or dead) can have left these. Lists one
+    shard folder per shard of the range. Returns the removed paths.
+    """
+    root = Path(dataset_dir)
+    removed = []
+    for shard_index in range(first // scenes_per_shard, (stop - 1) // scenes_per_shard + 1):
+        shard = root / shard_name(shard_index)
+        if not shard.is_dir():
+            continue
+        for p in sorted(shard.glob(TMP_PREFIX + "scene_*")):
+            m = _SCENE_DIR_RE.match(_TMP_PID_RE.sub("", p.name[len(TMP_PREFIX):]))
+            if m and first <= int(m.group(1)) < stop:
+                if p.is_dir():
+                    shutil.rmtree(p)
+                else:
+                    p.unlink()
+                removed.append(p)
+    return removed
+
+
 def _numbered_dirs(folder: Path, name_re: re.Pattern) -> list[tuple[int, Path]]:
     """(number, path) of the sub-folders whose names match name_re (group 1 = the number), by number."""
     found = []

@@ -338,6 +338,24 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
     return results
 
 
+def render_scenes(job: _Job, indices: list[int]) -> list[SceneResult]:
+    """Render scenes `indices` of `job` into its dataset from any process (a Ray task).
+
+    The process keeps one renderer for every later call with the same job, as a pool worker does.
+    A scene already complete (written by an attempt that died before reporting back) is not
+    rendered again: a retried batch neither fails on it nor writes it twice.
+    """
+    if _WORKER.get("job") != job:
+        _WORKER.clear()
+        _init_worker(job)
+    spp = job.config.output.scenes_per_shard
+    done = [i for i in indices if dataset.is_scene_complete(job.out, i, spp)]
+    results = [SceneResult(i, True, len(dataset.read_scene_meta(dataset.scene_dir(job.out, i, spp),
+                                                                  verify=False)["frames"]))
+               for i in done]
+    return results + _render_batch([i for i in indices if i not in done])
+
+
 def _render_batch(indices: list[int]) -> list[SceneResult]:
     if "start_error" in _WORKER:
         text = f"the render worker could not start:\n{_WORKER['start_error']}"
@@ -350,6 +368,27 @@ def _render_batch(indices: list[int]) -> list[SceneResult]:
 
 
 # ----------------------------------------------------------------------------- the run
+
+
+def batch_failed(job: _Job, indices: list[int], exc: BaseException) -> list[SceneResult]:
+    """Results (and logs) for a batch whose worker died: every scene of it failed."""
+    text = "".join(traceback.format_exception(exc))
+    for index in indices:
+        _log_failure(job, index, f"worker process failed:\n{text}")
+    return [SceneResult(index, False, error=text) for index in indices]
+
+
+def count_results(results: list[SceneResult], summary: RunSummary, bar: tqdm) -> None:
+    """Add a batch's results to the run summary and the progress bar."""
+    for result in results:
+        if result.ok:
+            summary.done += 1
+            summary.frames += result.frames
+            summary.worker_seconds += result.seconds
+        else:
+            summary.failed.append(result.index)
+            bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
+    bar.update(len(results))
 
 
 def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunSummary, bar: tqdm) -> None:
@@ -367,19 +406,8 @@ def _render_all(job: _Job, batches: list[list[int]], workers: int, summary: RunS
             try:
                 results = future.result()
             except Exception as exc:  # a worker died (crash in Blender): its scenes failed
-                text = "".join(traceback.format_exception(exc))
-                results = [SceneResult(i, False, error=text) for i in futures[future]]
-                for result in results:
-                    _log_failure(job, result.index, f"worker process failed:\n{text}")
-            for result in results:
-                if result.ok:
-                    summary.done += 1
-                    summary.frames += result.frames
-                    summary.worker_seconds += result.seconds
-                else:
-                    summary.failed.append(result.index)
-                    bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
-            bar.update(len(results))
+                results = batch_failed(job, futures[future], exc)
+            count_results(results, summary, bar)
     except KeyboardInterrupt:
         pool.shutdown(wait=False, cancel_futures=True)
         for worker in multiprocessing.active_children():
@@ -401,21 +429,23 @@ def check_blender(blender: str | None) -> str | None:
     return str(Path(found).resolve())
 
 
-def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
-             workers: int = 1, seed: int = 0, blender: str | None = None,
-             progress: bool = True) -> RunSummary:
-    """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
+def seal_dataset(out: Path) -> None:
+    """Write the dataset's index (the one place generation seals, from a run or a Slurm final job)."""
+    dataset.finalize_dataset(out)
+
+
+def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 0,
+                blender: str | None = None, backend=None) -> _Job:
+    """Check everything about a run, then write what all its scenes share into `out`: the pattern,
+    built-in textures and the run record (generate.json). Returns the job the workers get.
 
     Raises ConfigError before anything is written when an argument, the output directory, the
-    Blender executable or an existing dataset in `out` does not fit. Failed scenes are listed in the
-    summary (and logged), not raised.
+    Blender executable or an existing dataset in `out` does not fit. backend: see `generate`.
     """
     if split not in _SPLIT_CODE:
         raise ConfigError(f"--split {split!r}: allowed: train or test")
-    for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1),
-                             ("--seed", seed, 0)):
-        if not isinstance(value, int) or isinstance(value, bool) or value < low:
-            raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ConfigError(f"--seed {seed!r}: allowed: an integer >= 0")
     out = check_output_dir(out)
     blender = check_blender(blender)
     record = _run_record(config, split, seed)
@@ -431,10 +461,10 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
         raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
     assets = cached_assets(config, split) if config.assets.source == "cache" else None
     software = versions(blender)
+    if backend is not None:
+        backend.start(out, config)
 
-    began = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    dataset.remove_partial_scenes(out)
     try:
         pattern_file = dataset.store_pattern(out, pattern)
     except dataset.FormatError as exc:
@@ -445,24 +475,83 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     if assets is None:
         assets = SceneResources("", "", textures=builtin_textures(out, split))
     resources = replace(assets, pattern_path=str(pattern_file), pattern_sha256=pattern.sha256)
-    job = _Job(config, out, split, seed, resources, dataset.pattern_entry(pattern), software, blender)
+    return _Job(config, out, split, seed, resources, dataset.pattern_entry(pattern), software, blender)
+
+
+def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
+             workers: int = 1, seed: int = 0, blender: str | None = None,
+             progress: bool = True, backend=None, seal: bool = True) -> RunSummary:
+    """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
+
+    Raises ConfigError before anything is written when an argument, the output directory, the
+    Blender executable or an existing dataset in `out` does not fit. Failed scenes are listed in the
+    summary (and logged), not raised.
+
+    backend: renders on other machines instead of `workers` local processes (a
+    generator.ray_cluster.RayBackend): `backend.start(out, config)` runs after every check and before
+    anything is written (it raises ConfigError when its workers cannot see `out`), then
+    `backend.render(job, todo, summary, bar)` renders the scene indices `todo`.
+    seal: False for one of several runs writing into `out` at the same time (a Slurm array task):
+    only this range's half-written scenes are removed, and sealing is left to `seal_run`.
+    """
+    for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < low:
+            raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
+    job = prepare_run(config, out, split, seed, blender, backend)
+    out = job.out
+    began = time.perf_counter()
+    spp = config.output.scenes_per_shard
+    if seal:
+        dataset.remove_partial_scenes(out)
+    else:
+        dataset.remove_partial_scenes_in_range(out, start, start + scenes, spp)
 
     indices = range(start, start + scenes)
-    spp = config.output.scenes_per_shard
     todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
     summary = RunSummary(out=out, skipped=scenes - len(todo))
     batch = 1 if blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
     batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
                dynamic_ncols=True)
-    if todo:
+    if todo and backend is not None:
+        backend.render(job, todo, summary, bar)
+        # A node that died mid-scene left its temp dir; the scene was redone elsewhere.
+        dataset.remove_partial_scenes_in_range(out, start, start + scenes, spp)
+    elif todo:
         _render_all(job, batches, min(workers, len(batches)), summary, bar)
     bar.close()
     summary.failed.sort()
     # finalize re-hashes every file: skip it when nothing changed since the last sealed run.
     changed = summary.done or not (out / dataset.INDEX_FILE).exists()
-    if changed and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
-        dataset.finalize_dataset(out)
+    if seal and changed and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
+        seal_dataset(out)
+    summary.seconds = time.perf_counter() - began
+    return summary
+
+
+def seal_run(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
+             seed: int = 0) -> RunSummary:
+    """Seal what several runs wrote into `out` (the final job of a Slurm array); renders nothing.
+
+    No writer may still be running: every half-written scene is removed. Scenes of start ..
+    start+scenes-1 that are still missing are listed in the summary's `failed` (a rerun of the
+    same range renders them). Raises ConfigError when `out` holds no dataset of these settings.
+    """
+    out = Path(out).absolute()
+    if not (out / RUN_FILE).is_file():
+        raise ConfigError(f"--out {out}: no {RUN_FILE} (no dataset was started here); check --out")
+    _check_existing_run(out, _run_record(config, split, seed))
+    began = time.perf_counter()
+    dataset.remove_partial_scenes(out, include_live=True)
+    spp = config.output.scenes_per_shard
+    summary = RunSummary(out=out)
+    for index in range(start, start + scenes):
+        if dataset.is_scene_complete(out, index, spp):
+            summary.skipped += 1
+        else:
+            summary.failed.append(index)
+    if (out / dataset.LAYOUT_FILE).exists():
+        seal_dataset(out)
     summary.seconds = time.perf_counter() - began
     return summary
 
