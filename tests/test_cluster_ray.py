@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import threading
@@ -16,12 +15,13 @@ from pathlib import Path
 import pytest
 import ray
 from ray.cluster_utils import Cluster
+from test_generate import TINY, run_cli
 
+from bench.one_node_slurm import free_port
 from dotsim import dataset
 from generator.config import ConfigError, load_config
 from generator.pipeline import generate
 from generator.ray_cluster import RayBackend
-from test_generate import TINY, run_cli
 
 SEED = 5
 SCENES = 6
@@ -32,12 +32,6 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
     """Every file of a dataset (relative path -> bytes), logs aside."""
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
             if p.is_file() and p.relative_to(root).parts[0] != "logs"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +69,8 @@ def test_two_nodes_one_removed_mid_run_same_bytes_as_local(cluster, local_run, t
     remover.start()
     backend = RayBackend(cluster.address, scenes_per_task=2)
     try:
-        summary = generate(load_config(TINY), out, "train", SCENES, seed=SEED, progress=False, backend=backend)
+        summary = generate(load_config(TINY), out, "train", SCENES, seed=SEED, progress=False,
+                           backend=backend)
     finally:
         backend.close()
     remover.join(timeout=60)

@@ -5,20 +5,17 @@ sealing job end to end; skipped, with the reason, where Slurm cannot start."""
 from __future__ import annotations
 
 import os
-import shutil
-import socket
 import subprocess
-import time
-from pathlib import Path
 
 import pytest
+from test_cluster_ray import tree_bytes
+from test_generate import TINY, run_cli
 
+from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from generator.config import load_config
 from generator.pipeline import generate
 from generator.slurm import SlurmOptions, plan
-from test_cluster_ray import free_port, tree_bytes
-from test_generate import TINY, run_cli
 
 SEED = 7
 
@@ -85,77 +82,14 @@ def test_a_node_that_cannot_see_the_output_stops_before_writing(tmp_path):
 # ----------------------------------------------------------------------------- a real Slurm
 
 
-SLURM_CONF = """\
-ClusterName=dotsimtest
-SlurmctldHost={host}(127.0.0.1)
-SlurmctldPort={ctld_port}
-SlurmdPort={d_port}
-SlurmUser=root
-AuthType=auth/munge
-AuthInfo=socket={dir}/munge.sock
-StateSaveLocation={dir}/state
-SlurmdSpoolDir={dir}/spool
-SlurmctldPidFile={dir}/slurmctld.pid
-SlurmdPidFile={dir}/slurmd.pid
-SlurmctldLogFile={dir}/slurmctld.log
-SlurmdLogFile={dir}/slurmd.log
-ProctrackType=proctrack/linuxproc
-TaskPlugin=task/none
-SelectType=select/cons_tres
-SelectTypeParameters=CR_CPU
-JobCompType=jobcomp/none
-AccountingStorageType=accounting_storage/none
-MpiDefault=none
-ReturnToService=2
-NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} State=UNKNOWN
-PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
-"""
-
-
 @pytest.fixture(scope="module")
 def slurm(tmp_path_factory):
-    """A one-node Slurm cluster of its own (munged, slurmctld, slurmd on free ports); yields the
-    environment that points sbatch at it."""
-    missing = [exe for exe in ("munged", "slurmctld", "slurmd", "sbatch", "squeue") if not shutil.which(exe)]
-    if missing:
-        pytest.skip(f"Slurm not installed (no {', '.join(missing)}); `apt-get install slurm-wlm munge`")
-    if os.geteuid() != 0:
-        pytest.skip("starting slurmctld and slurmd needs root")
-    folder = tmp_path_factory.mktemp("slurm")
-    for sub in ("state", "spool"):
-        (folder / sub).mkdir()
-    key = folder / "munge.key"
-    key.write_bytes(os.urandom(1024))
-    key.chmod(0o400)
-    conf = folder / "slurm.conf"
-    conf.write_text(SLURM_CONF.format(host=socket.gethostname().split(".")[0], dir=folder,
-                                      ctld_port=free_port(), d_port=free_port(), cpus=os.cpu_count()))
-    env = {**os.environ, "SLURM_CONF": str(conf)}
-    daemons = []
+    """The environment of a one-node Slurm of the test's own (bench.one_node_slurm)."""
     try:
-        for command in (["munged", "-F", "--force", f"--socket={folder}/munge.sock", f"--key-file={key}",
-                         f"--pid-file={folder}/munged.pid", f"--seed-file={folder}/munge.seed",
-                         f"--log-file={folder}/munged.log"],
-                        ["slurmctld", "-D", "-f", str(conf)], ["slurmd", "-D", "-f", str(conf)]):
-            daemons.append(subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
-                                            stderr=subprocess.DEVNULL))
-            time.sleep(1)
-        deadline = time.monotonic() + 60
-        while "idle" not in subprocess.run(["sinfo", "-h", "-o", "%t"], env=env, capture_output=True,
-                                           text=True).stdout:
-            if time.monotonic() > deadline or any(d.poll() is not None for d in daemons):
-                logs = " | ".join(p.read_text().strip().splitlines()[-1] for p in folder.glob("*.log")
-                                  if p.read_text().strip())
-                pytest.skip(f"the test's Slurm did not come up within 60 s: {logs}")
-            time.sleep(0.5)
-        yield env
-    finally:
-        for daemon in reversed(daemons):
-            daemon.terminate()
-            try:
-                daemon.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                daemon.kill()
+        with one_node_slurm(tmp_path_factory.mktemp("slurm")) as env:
+            yield env
+    except SlurmUnavailable as exc:
+        pytest.skip(str(exc))
 
 
 def test_real_slurm_array_and_sealing_job(slurm, tmp_path, monkeypatch, capsys):
@@ -168,11 +102,7 @@ def test_real_slurm_array_and_sealing_job(slurm, tmp_path, monkeypatch, capsys):
                    "--seed", str(SEED), "--slurm", "--slurm-scenes-per-task", "2", "--slurm-time", "10") == 0
     said = capsys.readouterr().out
     assert "2 tasks" in said
-    jobs = said.split("squeue -j ")[1].split("`")[0]
-    deadline = time.monotonic() + 540
-    while subprocess.run(["squeue", "-h", "-j", jobs], capture_output=True, text=True).stdout.strip():
-        assert time.monotonic() < deadline, "the Slurm jobs did not finish within 9 minutes"
-        time.sleep(1)
+    wait_for_jobs(said.split("squeue -j ")[1].split("`")[0], slurm, timeout_s=540)
     folder = next((out / "slurm").iterdir())
     logs = {p.name: p.read_text() for p in folder.glob("*.log")}
     assert len([n for n in logs if n.startswith("generate_")]) == 2, logs
