@@ -9,8 +9,8 @@ the first scene written with Ray and with Slurm.
 Each repeat renders the same scenes (the config at --scale, one render thread per worker, same
 seed and range) into fresh folders, once with `--workers W` local processes and once with
 `--ray local` on a cluster of W CPUs started beforehand (a cluster outlives runs; its start-up is
-printed separately), alternating which goes first. Throughput is scenes per hour of wall time from the call to the sealed dataset; Ray's
-overhead is (local rate / Ray rate - 1), median over repeats (goal: at most 5%). Submit to first
+printed separately), alternating which goes first. Throughput is scenes per hour of wall time
+from the call to the sealed dataset; Ray's overhead is (local rate / Ray rate - 1), median over repeats (goal: at most 5%). Submit to first
 scene: from the call (Ray) or from `dotsim generate --slurm` (Slurm: a one-node cluster of its own,
 bench.one_node_slurm, needs root and slurm-wlm; configs/tiny.toml, two array tasks) until the first
 scene folder is complete.
