@@ -10,10 +10,10 @@ Each repeat renders the same scenes (the config at --scale, one render thread pe
 seed and range) into fresh folders, once with `--workers W` local processes and once with
 `--ray local` on a cluster of W CPUs started beforehand (a cluster outlives runs; its start-up is
 printed separately), alternating which goes first. Throughput is scenes per hour of wall time
-from the call to the sealed dataset; Ray's overhead is (local rate / Ray rate - 1), median over repeats (goal: at most 5%). Submit to first
-scene: from the call (Ray) or from `dotsim generate --slurm` (Slurm: a one-node cluster of its own,
-bench.one_node_slurm, needs root and slurm-wlm; configs/tiny.toml, two array tasks) until the first
-scene folder is complete.
+from the call to the sealed dataset; Ray's overhead is (local rate / Ray rate - 1), median over
+repeats (goal: at most 5%). Submit to first scene: from the call (Ray) or from
+`dotsim generate --slurm` (Slurm: a one-node cluster of its own, bench.one_node_slurm, needs root
+and slurm-wlm; configs/tiny.toml, two array tasks) until the first scene folder is complete.
 Run on a quiet machine: other load on the cores changes both rates.
 """
 
