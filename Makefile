@@ -13,7 +13,7 @@ WORKERS ?= 1
 DATA ?= $(OUT)/dataset
 TEST_DATA ?= $(OUT)/testset
 
-.PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval clean
+.PHONY: setup ray test lint bench bench-quick dataset testset assets assets-train train eval clean
 
 $(BIN)/dotsim: pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ $(BIN)/dotsim: pyproject.toml
 	touch $@
 
 setup: $(BIN)/dotsim
+
+# Only what `dotsim generate --ray` needs (setup already installs it with the dev extra).
+ray: setup
+	$(BIN)/pip install -q -e ".[ray]"
 
 test: setup
 	$(BIN)/python -m pytest -q tests

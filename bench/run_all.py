@@ -21,6 +21,8 @@ BENCHMARKS = {
     "render_memory": ["--minutes", "1"],
     "trainer_speed": ["--repeats", "1", "--no-published"],
     "trainer_accuracy": ["--minutes", "1"],
+    "scene_cost": ["--scales", "0.1", "--scenes", "1"],
+    "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
 }
 
 

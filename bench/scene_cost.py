@@ -6,12 +6,14 @@ Renders --scenes scenes of the config at each rig scale with one render worker o
 ([render] threads = 1), so seconds per scene are per core: a node with C cores and enough memory
 runs C such workers (docs/SCALE.md turns this into scenes per node-hour). Prints, per scale, the
 worker's seconds per scene (render to written, Blender's start-up excluded), the scene folder's
-size in MB and its file count (what a shared filesystem must create per scene).
+size in MB, its file count (what a shared filesystem must create per scene) and the peak resident
+memory of a render worker.
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 import tempfile
 import tomllib
 from pathlib import Path
@@ -41,7 +43,9 @@ def scene_cost(config_path: Path, scale: float, scenes: int) -> dict:
         return {"scale": scale, "size": f"{width} x {height}",
                 "s_per_scene": summary.worker_seconds / summary.done,
                 "mb_per_scene": sum(p.stat().st_size for p in files) / len(dirs) / 1e6,
-                "files_per_scene": len(files) / len(dirs)}
+                "files_per_scene": len(files) / len(dirs),
+                # Largest resident memory of any worker process so far (scales run in rising order).
+                "worker_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,12 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=2, help="scenes per scale (default 2)")
     args = parser.parse_args(argv)
     print("| scale | IR size | s per scene, one core | scenes per core-hour | MB per scene | "
-          "files per scene |")
-    print("|---|---|---|---|---|---|")
+          "files per scene | worker peak MB |")
+    print("|---|---|---|---|---|---|---|")
     for scale in (float(s) for s in args.scales.split(",")):
         r = scene_cost(args.config, scale, args.scenes)
         print(f"| {r['scale']} | {r['size']} | {r['s_per_scene']:.1f} | {3600 / r['s_per_scene']:.0f} | "
-              f"{r['mb_per_scene']:.2f} | {r['files_per_scene']:.0f} |", flush=True)
+              f"{r['mb_per_scene']:.2f} | {r['files_per_scene']:.0f} | {r['worker_mb']:.0f} |", flush=True)
     return 0
 
 

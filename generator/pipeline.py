@@ -341,19 +341,24 @@ def _render_with_blender(indices: list[int]) -> list[SceneResult]:
 def render_scenes(job: _Job, indices: list[int]) -> list[SceneResult]:
     """Render scenes `indices` of `job` into its dataset from any process (a Ray task).
 
-    The process keeps one renderer for every later call with the same job, as a pool worker does.
-    A scene already complete (written by an attempt that died before reporting back) is not
-    rendered again: a retried batch neither fails on it nor writes it twice.
+    The process keeps its renderer for every later call, as a pool worker does (a renderer serves
+    any job: each spec carries everything). A scene already complete (written by an attempt that
+    died before reporting back) is not rendered again: a retried batch neither fails on it nor
+    writes it twice.
     """
     if _WORKER.get("job") != job:
-        _WORKER.clear()
-        _init_worker(job)
+        if job.blender is None and "renderer" in _WORKER:
+            _WORKER["job"] = job
+        else:
+            _WORKER.clear()
+            _init_worker(job)
     spp = job.config.output.scenes_per_shard
     done = [i for i in indices if dataset.is_scene_complete(job.out, i, spp)]
     results = [SceneResult(i, True, len(dataset.read_scene_meta(dataset.scene_dir(job.out, i, spp),
                                                                   verify=False)["frames"]))
                for i in done]
-    return results + _render_batch([i for i in indices if i not in done])
+    todo = [i for i in indices if i not in done]
+    return results + (_render_batch(todo) if todo else [])
 
 
 def _render_batch(indices: list[int]) -> list[SceneResult]:
