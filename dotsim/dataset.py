@@ -470,20 +470,25 @@ def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = F
     Returns the removed paths.
     """
     root = Path(dataset_dir)
-    removed = []
     # Temp names live beside their final names: top level, shard dirs, and other first-level dirs
     # (e.g. the generator's logs/).
     candidates = list(root.glob(TMP_PREFIX + "*")) + list(root.glob("*/" + TMP_PREFIX + "*"))
-    for p in sorted(candidates):
-        m = _TMP_PID_RE.search(p.name)
-        if m and not include_live and _pid_alive(int(m.group(1))):
-            continue
+    return _remove([p for p in sorted(candidates) if include_live or not _writer_alive(p)])
+
+
+def _writer_alive(tmp: Path) -> bool:
+    m = _TMP_PID_RE.search(tmp.name)
+    return bool(m) and _pid_alive(int(m.group(1)))
+
+
+def _remove(paths: list[Path]) -> list[Path]:
+    """Delete each path (a folder with its content) and return them."""
+    for p in paths:
         if p.is_dir():
             shutil.rmtree(p)
         else:
             p.unlink()
-        removed.append(p)
-    return removed
+    return paths
 
 
 def remove_partial_scenes_in_range(dataset_dir: str | os.PathLike, first: int, stop: int,
@@ -495,21 +500,13 @@ def remove_partial_scenes_in_range(dataset_dir: str | os.PathLike, first: int, s
     here, and only this range's writers (all finished or dead) can have left these. Lists one
     shard folder per shard of the range. Returns the removed paths.
     """
-    root = Path(dataset_dir)
-    removed = []
+    found = []
     for shard_index in range(first // scenes_per_shard, (stop - 1) // scenes_per_shard + 1):
-        shard = root / shard_name(shard_index)
-        if not shard.is_dir():
-            continue
-        for p in sorted(shard.glob(TMP_PREFIX + "scene_*")):
+        for p in sorted((Path(dataset_dir) / shard_name(shard_index)).glob(TMP_PREFIX + "scene_*")):
             m = _SCENE_DIR_RE.match(_TMP_PID_RE.sub("", p.name[len(TMP_PREFIX):]))
             if m and first <= int(m.group(1)) < stop:
-                if p.is_dir():
-                    shutil.rmtree(p)
-                else:
-                    p.unlink()
-                removed.append(p)
-    return removed
+                found.append(p)
+    return _remove(found)
 
 
 def _numbered_dirs(folder: Path, name_re: re.Pattern) -> list[tuple[int, Path]]:

@@ -111,3 +111,19 @@ def test_real_slurm_array_and_sealing_job(slurm, tmp_path, monkeypatch, capsys):
     assert [s.scene_index for s in dataset.open_dataset(out).scenes] == [0, 1, 2]
     produced = {k: v for k, v in tree_bytes(out).items() if not k.startswith("slurm/")}
     assert produced == tree_bytes(local)
+
+
+def test_an_array_task_removes_only_its_own_ranges_half_written_scenes(tmp_path):
+    """Scenes 2..5 (shards of 2): their temp folders go whatever pid wrote them (ours included, as
+    a live writer on another machine would look); other ranges' and other files stay."""
+    names = {0: "scene_0000001", 1: "scene_0000002", 2: "scene_0000005", 3: "scene_0000006"}
+    made = []
+    for shard, scene in names.items():
+        folder = tmp_path / dataset.shard_name(shard) / f"{dataset.TMP_PREFIX}{scene}-{os.getpid()}"
+        folder.mkdir(parents=True)
+        made.append(folder)
+    other = tmp_path / f"{dataset.TMP_PREFIX}index.json-{os.getpid()}"
+    other.write_text("{}")
+    removed = dataset.remove_partial_scenes_in_range(tmp_path, 2, 6, scenes_per_shard=2)
+    assert removed == [made[1], made[2]]
+    assert [p.exists() for p in made] == [True, False, False, True] and other.exists()
