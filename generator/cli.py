@@ -128,10 +128,14 @@ def _run(args: argparse.Namespace) -> int:
     from generator.config import ConfigError, load_config
     from generator.pipeline import generate, main_summary, seal_run
 
-    if args.ray and (args.slurm or args.slurm_dry_run):
+    slurm = args.slurm or args.slurm_dry_run
+    if args.ray and slurm:
         raise ConfigError("--ray and --slurm: choose one")
+    if slurm and (args.no_seal or args.seal_only or args.workers):
+        raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
+                          "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
     config = load_config(args.config)
-    if args.slurm or args.slurm_dry_run:
+    if slurm:
         from generator.slurm import generate_on_slurm
 
         print(generate_on_slurm(config, args.config, args.out, args.split, args.scenes, args.start, args.seed,

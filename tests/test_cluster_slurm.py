@@ -14,7 +14,7 @@ from test_generate import TINY, run_cli
 from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.pipeline import generate, seal_run
 from generator.slurm import SlurmOptions, plan
 
 SEED = 7
@@ -92,11 +92,44 @@ def slurm(tmp_path_factory):
         pytest.skip(str(exc))
 
 
-def test_real_slurm_array_and_sealing_job(slurm, tmp_path, monkeypatch, capsys):
+@pytest.fixture(scope="module")
+def local3(tmp_path_factory):
+    """Scenes 0-2 rendered and sealed by one local run: what the array tasks must add up to."""
+    out = tmp_path_factory.mktemp("slurm-local") / "local"
+    generate(load_config(TINY), out, "train", 3, seed=SEED, progress=False)
+    return out
+
+
+def test_ranges_written_without_sealing_then_sealed_equal_one_run(local3, tmp_path):
+    """What the array tasks and the sealing job do, without Slurm: two --no-seal ranges, then
+    seal_run, which names the scenes still missing."""
+    out = tmp_path / "tasks"
+    for start, scenes in ((2, 1), (0, 2)):
+        summary = generate(load_config(TINY), out, "train", scenes, start=start, seed=SEED, progress=False,
+                           seal=False)
+        assert summary.done == scenes and not (out / dataset.INDEX_FILE).exists()
+    assert seal_run(load_config(TINY), out, "train", 4, seed=SEED).failed == [3]
+    sealed = seal_run(load_config(TINY), out, "train", 3, seed=SEED)
+    assert (sealed.skipped, sealed.failed) == (3, [])
+    assert tree_bytes(out) == tree_bytes(local3)
+
+
+def test_slurm_with_options_of_its_tasks_is_refused(tmp_path, capsys):
+    for extra in ("--workers", "--no-seal", "--seal-only"):
+        args = [extra, "2"] if extra == "--workers" else [extra]
+        assert run_cli("--config", str(TINY), "--out", str(tmp_path / "d"), "--split", "train",
+                       "--scenes", "2", "--slurm-dry-run", *args) == 2
+        assert "leave out --workers" in capsys.readouterr().err
+    assert run_cli("--config", str(TINY), "--out", str(tmp_path / "d"), "--split", "train", "--scenes", "2",
+                   "--seal-only") == 2
+    assert "no generate.json" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+def test_real_slurm_array_and_sealing_job(slurm, local3, tmp_path, monkeypatch, capsys):
     for name, value in slurm.items():
         monkeypatch.setenv(name, value)
-    local = tmp_path / "local"
-    generate(load_config(TINY), local, "train", 3, seed=SEED, progress=False)
+    local = local3
     out = tmp_path / "slurm"
     assert run_cli("--config", str(TINY), "--out", str(out), "--split", "train", "--scenes", "3",
                    "--seed", str(SEED), "--slurm", "--slurm-scenes-per-task", "2", "--slurm-time", "10") == 0
