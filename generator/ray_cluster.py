@@ -12,6 +12,7 @@ logged in DATASET/logs/ as in a local run. The driver shows progress and writes 
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import uuid
 from pathlib import Path
@@ -85,7 +86,6 @@ class RayBackend:
         self.max_in_flight = max_in_flight
         self.scenes_per_task = scenes_per_task
         self.ray = None
-        self._started_here = False
 
     # --------------------------------------------------------------------- connect and check
 
@@ -97,8 +97,9 @@ class RayBackend:
         kwargs = dict(logging_level=logging.ERROR, log_to_driver=False, configure_logging=True)
         try:
             if self.address == "local":
+                # A cluster started for one run reports no usage statistics unless asked to.
+                os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
                 ray.init(num_cpus=self.cpus, include_dashboard=False, **kwargs)
-                self._started_here = True
             else:
                 ray.init(address=self.address, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
