@@ -32,9 +32,9 @@ examples:
       --workers 2 --seed 1
   dotsim generate --config configs/tiny.toml --out /tmp/tiny --split train --scenes 2 \\
       --blender /opt/blender/blender        # Blender executable instead of the bpy module
-  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \
+  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
       --scenes 15000 --ray auto             # on the Ray cluster this machine belongs to
-  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \
+  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
       --scenes 15000 --slurm --slurm-partition cpu --slurm-cpus 8 --slurm-dry-run
 Config keys: docs/CONFIG.md.
 """
