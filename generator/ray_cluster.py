@@ -30,6 +30,7 @@ SCENES_PER_TASK = 2
 # not retried: they are logged per scene.
 NODE_FAILURE_RETRIES = 5
 CONNECT_TIMEOUT_S = 5.0
+LOCAL_OBJECT_STORE = 256 * 2**20
 
 
 def import_ray():
@@ -99,7 +100,10 @@ class RayBackend:
             if self.address == "local":
                 # A cluster started for one run reports no usage statistics unless asked to.
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-                ray.init(num_cpus=self.cpus, include_dashboard=False, **kwargs)
+                # Tasks pass a job description and scene numbers, never images: a small object
+                # store instead of Ray's default of 30% of the memory in /dev/shm.
+                ray.init(num_cpus=self.cpus, include_dashboard=False, object_store_memory=LOCAL_OBJECT_STORE,
+                         **kwargs)
             else:
                 ray.init(address=self.address, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
