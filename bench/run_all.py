@@ -22,6 +22,8 @@ BENCHMARKS = {
     "trainer_speed": ["--repeats", "1", "--no-published"],
     "trainer_accuracy": ["--minutes", "1"],
     "trainer_ddp": ["--steps", "5"],
+    "scene_cost": ["--scales", "0.1", "--scenes", "1"],
+    "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
 }
 
 
