@@ -35,6 +35,7 @@ from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
+from dotsim.dataset.seal import seal_shard
 from dotsim.file_io import json_bytes
 from dotsim.pattern_store import pattern_entry, store_pattern
 from generator.config import Config, ConfigError, check_output_dir
@@ -189,8 +190,9 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     scenes are listed in the summary (and logged), not raised.
 
     seal: seal the dataset at the end. False for one of several runs writing into `out` at once (a
-    Slurm array task): only this range's half-written scenes are removed, and one final `seal_run`
-    seals. backend: renders on other machines instead of `workers` local processes (a
+    Slurm array task): only this range's half-written scenes are removed, only the shards wholly
+    inside the range get their shard.json, and one final `seal_run` seals the dataset.
+    backend: renders on other machines instead of `workers` local processes (a
     generator.ray_cluster.RayBackend): `backend.start(out, config)` runs after every check and
     before anything is written, then `backend.render(job, todo, on_results)` renders the scene
     indices `todo`, passing each batch's SceneResults to `on_results` as they come.
@@ -238,6 +240,8 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     # to one final `seal_run` (or `dotsim seal`).
     if seal:
         _seal(summary)
+    else:
+        _seal_own_shards(out, indices, spp)
     summary.seconds = time.perf_counter() - began
     return summary
 
@@ -267,6 +271,16 @@ def seal_run(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     _seal(summary)
     summary.seconds = time.perf_counter() - began
     return summary
+
+
+def _seal_own_shards(out: Path, indices: range, scenes_per_shard: int) -> None:
+    """Seal the shards that lie wholly inside `indices` (no other run writes there): their frames
+    are hashed here, on this run's machine while they are likely still cached, so the final seal
+    of the dataset only lists them instead of hashing every frame in one process."""
+    for shard_index in range(-(-indices.start // scenes_per_shard), indices.stop // scenes_per_shard):
+        shard = out / dataset.shard_name(shard_index)
+        if shard.is_dir():
+            seal_shard(shard, shard_index, scenes_per_shard)
 
 
 def _seal(summary: RunSummary) -> None:

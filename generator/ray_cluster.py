@@ -161,7 +161,8 @@ class RayBackend:
         """Tasks the cluster can run at once."""
         return max(1, int(self.ray.cluster_resources().get("CPU", 1) // cpus_per_task))
 
-    def render(self, job: RenderJob, todo: list[int], on_results: Callable[[list[SceneResult]], None]) -> None:
+    def render(self, job: RenderJob, todo: list[int],
+               on_results: Callable[[list[SceneResult]], None]) -> None:
         """Render scene indices `todo` of `job` as tasks; `on_results` gets each task's results as
         they come (a task whose retries ran out reports its scenes failed). A full disk on any
         node cancels the tasks not yet done and raises DiskFullError."""

@@ -101,14 +101,19 @@ def local3(tmp_path_factory):
 
 
 def test_ranges_written_without_sealing_then_sealed_equal_one_run(local3, tmp_path):
-    """What the array tasks and the sealing job do, without Slurm: two --no-seal ranges, then
-    seal_run, which names the scenes still missing."""
+    """What the array tasks and the sealing job do, without Slurm: two --no-seal ranges (each
+    sealing the shards wholly its own), then seal_run, which names the scenes still missing."""
     out = tmp_path / "tasks"
     for start, scenes in ((2, 1), (0, 2)):
         summary = generate(load_config(TINY), out, "train", scenes, start=start, seed=SEED, progress=False,
                            seal=False)
         assert summary.done == scenes and not (out / dataset.INDEX_FILE).exists()
+    # Shards of 2: the range 0-1 covers shard 0 and sealed it, the range 2 only part of shard 1.
+    sealed_by_task = out / dataset.shard_name(0) / dataset.SHARD_FILE
+    assert sealed_by_task.is_file() and not (out / dataset.shard_name(1) / dataset.SHARD_FILE).exists()
+    written = sealed_by_task.stat().st_mtime_ns
     assert seal_run(load_config(TINY), out, "train", 4, seed=SEED).failed == [3]
+    assert sealed_by_task.stat().st_mtime_ns == written  # kept by the final seal, not hashed again
     sealed = seal_run(load_config(TINY), out, "train", 3, seed=SEED)
     assert (sealed.skipped, sealed.failed) == (3, [])
     assert tree_bytes(out) == tree_bytes(local3)

@@ -102,6 +102,7 @@ __all__ = [
     "check_format_version", "complete_scenes", "dataset_summary", "decode_frame", "encode_frame",
     "finalize_dataset", "frame_name", "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
-    "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name", "seal_dataset", "sha256_bytes",
-    "sha256_file", "shard_name", "verify_dataset", "write_dataset_file", "write_frame_file", "write_scene",
+    "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
+    "seal_dataset", "sha256_bytes", "sha256_file", "shard_name", "verify_dataset", "write_dataset_file",
+    "write_frame_file", "write_scene",
 ]
