@@ -83,9 +83,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     seal = parser.add_mutually_exclusive_group()
     seal.add_argument("--no-seal", action="store_true",
-                      help="do not seal at the end, and remove only this range's half-written scenes: for "
-                           "one of several runs writing into DIR at once (each Slurm array task runs it); "
-                           "seal with --seal-only or `dotsim seal DIR` once they are done")
+                      help="seal only the shards wholly inside this range (no index.json), and remove only "
+                           "this range's half-written scenes: for one of several runs writing into DIR at "
+                           "once (each Slurm array task runs it); seal with --seal-only or `dotsim seal "
+                           "DIR` once they are done")
     seal.add_argument("--seal-only", action="store_true",
                       help="render nothing: remove half-written scenes (no writer may be running), list the "
                            "scenes of the range still missing, and seal DIR (the Slurm sealing job)")
@@ -99,8 +100,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               "that runs when the array has ended; needs sbatch on PATH")
     cluster.add_argument("--slurm-dry-run", action="store_true",
                          help="print the sbatch scripts --slurm would submit and write nothing")
-    cluster.add_argument("--slurm-scenes-per-task", type=_integer_at_least(1), default=50, metavar="R",
-                         help="scenes per array task (default 50)")
+    cluster.add_argument("--slurm-scenes-per-task", type=_integer_at_least(1), default=0, metavar="R",
+                         help="scenes per array task (default: [output] scenes_per_shard); with R and "
+                              "--start multiples of scenes_per_shard each task seals its own shards")
     cluster.add_argument("--slurm-cpus", type=_integer_at_least(0), default=0, metavar="C",
                          help="CPUs per array task (default: [render] threads); the task runs "
                               "C / threads render workers")

@@ -34,7 +34,7 @@ _TIME_RE = re.compile(r"^(\d+-)?\d+(:\d{1,2}){0,2}$")
 @dataclass(frozen=True)
 class SlurmOptions:
     """What each array task asks Slurm for (`--slurm-*` options of `dotsim generate`)."""
-    scenes_per_task: int = 50
+    scenes_per_task: int = 0  # 0: [output] scenes_per_shard, so that each task seals its own shard
     cpus: int = 0          # CPUs per array task; 0: [render] threads (at least 1)
     gpus: int = 0          # GPUs per array task (--gres=gpu:N)
     partition: str = ""
@@ -60,7 +60,7 @@ class SlurmPlan:
 
 def check_options(options: SlurmOptions, scenes: int) -> None:
     """ConfigError naming the first option out of range."""
-    for name, value, low in (("--slurm-scenes-per-task", options.scenes_per_task, 1),
+    for name, value, low in (("--slurm-scenes-per-task", options.scenes_per_task, 0),
                              ("--slurm-cpus", options.cpus, 0), ("--slurm-gpus", options.gpus, 0),
                              ("--slurm-throttle", options.throttle, 0)):
         if value < low:
@@ -82,7 +82,8 @@ def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, 
     takes the task's cores itself).
     """
     folder = out / SLURM_DIR / tag
-    tasks = -(-scenes // options.scenes_per_task)
+    per_task = options.scenes_per_task or config.output.scenes_per_shard
+    tasks = -(-scenes // per_task)
     cpus = _cpus(options, config)
     workers = max(1, cpus // config.render.threads) if config.render.threads else 1
     dotsim = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(config_path),
@@ -108,12 +109,12 @@ def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, 
     array = header("dotsim-generate", "generate_%A_%a.log", cpus, options.gpus)
     array.insert(2, f"#SBATCH --array=0-{tasks - 1}{throttle}")
     array.insert(3, "#SBATCH --requeue")
-    array += [f"# Task i renders scenes {start} + i*{options.scenes_per_task} onwards, at most "
-              f"{options.scenes_per_task}, up to scene {start + scenes - 1}; rerun one with "
+    array += [f"# Task i renders scenes {start} + i*{per_task} onwards, at most "
+              f"{per_task}, up to scene {start + scenes - 1}; rerun one with "
               f"`sbatch --array=i {folder / 'generate.sbatch'}`.",
-              f"first=$(( {start} + SLURM_ARRAY_TASK_ID * {options.scenes_per_task} ))",
-              f"count=$(( {start + scenes} - first < {options.scenes_per_task} ? {start + scenes} - first : "
-              f"{options.scenes_per_task} ))",
+              f"first=$(( {start} + SLURM_ARRAY_TASK_ID * {per_task} ))",
+              f"count=$(( {start + scenes} - first < {per_task} ? {start + scenes} - first : "
+              f"{per_task} ))",
               " ".join(map(q, dotsim)) + f' --workers {workers} --start "$first" --scenes "$count" --no-seal']
     seal = header("dotsim-seal", "seal_%j.log", 1, 0)
     seal.append(" ".join(map(q, dotsim)) + f" --start {start} --scenes {scenes} --seal-only")

@@ -32,11 +32,12 @@ def task_ranges(script: str, tasks: int) -> list[range]:
     return ranges
 
 
-@pytest.mark.parametrize("scenes, per_task", [(5, 2), (4, 2), (1, 50), (101, 10)])
+@pytest.mark.parametrize("scenes, per_task", [(5, 2), (4, 2), (1, 50), (101, 10), (5, 0)])
 def test_array_tasks_cover_the_range_once(tmp_path, scenes, per_task):
     options = SlurmOptions(scenes_per_task=per_task, throttle=3, partition="gpu", gpus=1, cpus=4,
                            sbatch_args=("--account=lab",))
     p = plan(load_config(TINY), TINY, tmp_path / "d", "train", scenes, 10, SEED, options, "tag")
+    assert p.tasks == -(-scenes // (per_task or 2))  # default: one shard (tiny.toml: 2 scenes) per task
     covered = [i for r in task_ranges(p.array_script, p.tasks) for i in r]
     assert covered == list(range(10, 10 + scenes))
     header = [line for line in p.array_script.splitlines() if line.startswith("#SBATCH")]
