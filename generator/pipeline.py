@@ -236,8 +236,8 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     bar.close()
     summary.failed.sort()
     # Every run seals (a run killed after its last scene and before or during its seal left a stale
-    # seal), which is cheap because sealing is incremental; cluster array tasks leave it (seal=False)
-    # to one final `seal_run` (or `dotsim seal`).
+    # seal), which is cheap because sealing is incremental; cluster array tasks (seal=False) seal
+    # only their own shards and leave index.json to one final `seal_run` (or `dotsim seal`).
     if seal:
         _seal(summary)
     else:
