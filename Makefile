@@ -13,7 +13,7 @@ WORKERS ?= 1
 DATA ?= $(OUT)/dataset
 TEST_DATA ?= $(OUT)/testset
 
-.PHONY: setup test lint bench bench-quick dataset testset assets assets-train train eval addon clean
+.PHONY: setup ray test lint bench bench-quick dataset testset assets assets-train train eval addon clean
 
 # pyrealsense2 (a test dependency) loads libusb-1.0, and the OpenNI2 tests the native OpenNI2
 # library: Debian packages, installed here when missing and apt-get is there.
@@ -29,6 +29,10 @@ $(BIN)/dotsim: pyproject.toml
 	touch $@
 
 setup: $(BIN)/dotsim
+
+# Only what `dotsim generate --ray` needs (setup already installs it with the dev extra).
+ray: setup
+	$(BIN)/pip install -q -e ".[ray]"
 
 test: setup
 	$(BIN)/python -m pytest -q tests

@@ -28,6 +28,8 @@ BENCHMARKS = {
     "trainer_accuracy": ["--minutes", "1"],
     "trainer_ddp": ["--steps", "5"],
     "trainer_gpu": ["--repeats", "3", "--train-steps", "3", "--backbones", "conv"],  # skips without CUDA
+    "scene_cost": ["--scales", "0.1", "--scenes", "1"],
+    "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
 }
 
 

@@ -10,6 +10,8 @@ Modules (one idea each; only generator/blender/ imports bpy):
   sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
   post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
   render_scenes  render_scenes(job, indices): sample, render, post-render, write; the worker pool
-  pipeline       generate(): checks, prepare_run, resume, progress, sealing
+  pipeline       generate(): checks, prepare_run, resume, progress, sealing; seal_run for clusters
+  ray_cluster    RayBackend: generate()'s scenes as Ray tasks (`--ray`; docs/SCALE.md)
+  slurm          sbatch scripts for a job array and its sealing job (`--slurm`; docs/SCALE.md)
   cli            `dotsim generate`
 """

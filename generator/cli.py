@@ -19,6 +19,12 @@ complete scenes are skipped, half-written and damaged ones (a frame deleted) are
 dataset is sealed again (shard.json, index.json; `dotsim verify DIR` checks every checksum). A
 failing scene is logged in DIR/logs/ and the run goes on; the exit status is 1 when any scene
 failed or the disk is full, 2 on a config error.
+
+Past one machine (docs/SCALE.md): --ray renders on a Ray cluster (one task per two scenes, retried
+when a node dies); --slurm submits a Slurm job array (one task per range of scenes, each the same
+resumable command with --no-seal) and a job that seals the dataset when the array has ended
+(--seal-only). DIR must be on a filesystem every node mounts at the same path; this is checked
+before anything is written (Ray) or before a task writes anything (Slurm).
 """
 
 EPILOG = """\
@@ -28,6 +34,10 @@ examples:
       --workers 2 --seed 1
   dotsim generate --config configs/tiny.toml --out /tmp/tiny --split train --scenes 2 \\
       --blender /opt/blender/blender        # Blender executable instead of the bpy module
+  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
+      --scenes 15000 --ray auto             # on the Ray cluster this machine belongs to
+  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
+      --scenes 15000 --slurm --slurm-partition cpu --slurm-cpus 8 --slurm-dry-run
 Config keys: docs/CONFIG.md.
 """
 
@@ -60,32 +70,117 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--start", type=_integer_at_least(0), default=0, metavar="K",
                         help="index of the first scene (default 0); scene indices are global, so "
                              "ranges rendered on several machines merge into one dataset")
-    parser.add_argument("--workers", type=_integer_at_least(1), default=1, metavar="W",
+    parser.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="W",
                         help="render processes on this machine (default 1); each holds one Blender "
-                             "scene for all its scenes. Set [render] threads so W x threads fits the cores")
+                             "scene for all its scenes. Set [render] threads so W x threads fits the cores. "
+                             "With --ray: at most W tasks at once (--ray local: a cluster of W x threads "
+                             "CPUs; default: the whole cluster)")
     parser.add_argument("--seed", type=_integer_at_least(0), default=0, metavar="S",
                         help="base seed (default 0): scene k uses SeedSequence((S, k))")
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
                              "generator/blender/run_in_blender.py`) instead of the bpy module")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--no-seal", action="store_true",
-                        help="do not seal at the end (tasks of a cluster run that writes one dataset "
-                             "from many machines; run `dotsim seal DIR` once they are done)")
+    seal = parser.add_mutually_exclusive_group()
+    seal.add_argument("--no-seal", action="store_true",
+                      help="seal only the shards wholly inside this range (no index.json), and remove only "
+                           "this range's half-written scenes: for one of several runs writing into DIR at "
+                           "once (each Slurm array task runs it); seal with --seal-only or `dotsim seal "
+                           "DIR` once they are done")
+    seal.add_argument("--seal-only", action="store_true",
+                      help="render nothing: remove half-written scenes (no writer may be running), list the "
+                           "scenes of the range still missing, and seal DIR (the Slurm sealing job)")
+    cluster = parser.add_argument_group("clusters (docs/SCALE.md)")
+    cluster.add_argument("--ray", metavar="ADDRESS", default=None,
+                         help='render as Ray tasks: "auto" (the running cluster this machine is part of), '
+                              '"local" (start one here) or HOST:PORT of a head; needs '
+                              'pip install "dotsim[ray]"')
+    cluster.add_argument("--slurm", action="store_true",
+                         help="submit a Slurm job array (one task per range of scenes) and a sealing job "
+                              "that runs when the array has ended; needs sbatch on PATH")
+    cluster.add_argument("--slurm-dry-run", action="store_true",
+                         help="print the sbatch scripts --slurm would submit and write nothing")
+    cluster.add_argument("--slurm-scenes-per-task", type=_integer_at_least(1), default=0, metavar="R",
+                         help="scenes per array task (default: [output] scenes_per_shard); with R and "
+                              "--start multiples of scenes_per_shard each task seals its own shards")
+    cluster.add_argument("--slurm-cpus", type=_integer_at_least(0), default=0, metavar="C",
+                         help="CPUs per array task (default: [render] threads); the task runs "
+                              "C / threads render workers")
+    cluster.add_argument("--slurm-gpus", type=_integer_at_least(0), default=0, metavar="G",
+                         help="GPUs per array task (--gres=gpu:G; set [render] device = \"GPU\")")
+    cluster.add_argument("--slurm-partition", default="", metavar="P", help="Slurm partition")
+    cluster.add_argument("--slurm-time", default="04:00:00", metavar="T",
+                         help="time limit per array task (default 04:00:00)")
+    cluster.add_argument("--slurm-throttle", type=_integer_at_least(0), default=0, metavar="N",
+                         help="at most N array tasks running at once (default: no limit)")
+    cluster.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
+                         help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "
+                              "(repeatable)")
     parser.set_defaults(func=run)
     return parser
 
 
+def _slurm_options(args: argparse.Namespace):
+    from generator.slurm import SlurmOptions
+
+    return SlurmOptions(scenes_per_task=args.slurm_scenes_per_task, cpus=args.slurm_cpus,
+                        gpus=args.slurm_gpus,
+                        partition=args.slurm_partition, time=args.slurm_time, throttle=args.slurm_throttle,
+                        sbatch_args=tuple(args.slurm_sbatch))
+
+
+def _run(args: argparse.Namespace) -> int:
+    from generator.config import ConfigError, load_config
+    from generator.pipeline import generate, main_summary, seal_run
+
+    slurm = args.slurm or args.slurm_dry_run
+    if args.ray and slurm:
+        raise ConfigError("--ray and --slurm: choose one")
+    if slurm and (args.no_seal or args.seal_only or args.workers):
+        raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
+                          "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
+    config = load_config(args.config)
+    if slurm:
+        from generator.slurm import generate_on_slurm
+
+        print(generate_on_slurm(config, args.config, args.out, args.split, args.scenes, args.start, args.seed,
+                                _slurm_options(args), args.blender, dry_run=args.slurm_dry_run))
+        return 0
+    if args.seal_only:
+        summary = seal_run(config, args.out, args.split, args.scenes, args.start, args.seed)
+        missing = summary.failed
+        text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
+                f"{args.scenes} scenes complete")
+        if missing:
+            text += (f"; missing {missing[:10]}{' ...' if len(missing) > 10 else ''}: rerun the same command "
+                     "without --seal-only (or resubmit) to render them")
+        if summary.unsealed:
+            text += f"; {summary.unsealed}"
+        print(text, file=sys.stderr if missing or summary.unsealed else sys.stdout)
+        return 1 if missing or summary.unsealed else 0
+    backend = None
+    if args.ray:
+        from generator.ray_cluster import RayBackend
+
+        local_cpus = args.workers * max(1, config.render.threads) if args.workers else None
+        backend = RayBackend(args.ray, cpus=local_cpus if args.ray == "local" else None,
+                             max_in_flight=args.workers if args.ray != "local" else None)
+    try:
+        summary = generate(config, args.out, args.split, args.scenes, start=args.start,
+                           workers=args.workers or 1, seed=args.seed, blender=args.blender,
+                           progress=not args.no_progress, backend=backend, seal=not args.no_seal)
+    finally:
+        if backend is not None:
+            backend.close()
+    return main_summary(summary)
+
+
 def run(args: argparse.Namespace) -> int:
     from dotsim.dataset import FormatError
-    from generator.config import ConfigError, load_config
-    from generator.pipeline import generate, main_summary
+    from generator.config import ConfigError
 
     try:
-        config = load_config(args.config)
-        summary = generate(config, args.out, args.split, args.scenes, start=args.start,
-                           workers=args.workers, seed=args.seed, blender=args.blender,
-                           progress=not args.no_progress, seal=not args.no_seal)
+        return _run(args)
     except ConfigError as exc:
         print(f"dotsim generate: error: {exc}", file=sys.stderr)
         return 2
@@ -96,4 +191,3 @@ def run(args: argparse.Namespace) -> int:
         print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
               file=sys.stderr)
         return 130
-    return main_summary(summary)

@@ -11,8 +11,9 @@ Blender executable, an existing dataset's config), then:
      failing scene is logged and the run goes on);
   3. seals the dataset (dotsim.dataset.seal_dataset: incremental, so every run seals, and a run
      killed before its seal leaves nothing a rerun does not mend) and returns a RunSummary.
-Other front ends (a Ray task, a Slurm array task) call `prepare_run` once, then
-`render_scenes(job, indices)` on their shares, then seal the dataset.
+Past one machine: with a backend (generator/ray_cluster.py) step 2 runs as Ray tasks, each
+`render_scenes(job, indices)` on a share; a Slurm array task (generator/slurm.py) is this same run
+on its range with seal=False, and a final job seals what the tasks wrote (`seal_run`).
 Scene k is sampled from (config, k, base seed) alone, so the output does not depend on W.
 """
 
@@ -34,6 +35,7 @@ from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
+from dotsim.dataset.seal import seal_shard
 from dotsim.file_io import json_bytes
 from dotsim.pattern_store import pattern_entry, store_pattern
 from generator.config import Config, ConfigError, check_output_dir
@@ -129,13 +131,18 @@ def check_blender(blender: str | None) -> str | None:
 
 
 def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 0,
-                blender: str | None = None) -> RenderJob:
+                blender: str | None = None, backend=None, own: range | None = None) -> RenderJob:
     """Check a run and get its dataset folder `out` ready; the RenderJob that renders its scenes.
 
     Raises ConfigError before anything is written when an argument, the output directory, the
-    Blender executable, the pattern, the asset cache or an existing dataset in `out` does not fit.
-    Then removes scenes a crashed run left half-written, stores the pattern and the run record
-    (DATASET/generate.json) and writes the built-in textures of `split`.
+    Blender executable, the pattern, the asset cache or an existing dataset in `out` does not fit,
+    or when `backend.start(out, config)` does (a cluster that cannot be reached or whose nodes do
+    not see `out`). Then removes scenes a crashed run left half-written, stores the pattern and the
+    run record (DATASET/generate.json) and writes the built-in textures of `split`.
+
+    own: the scenes this run writes while other runs write other ranges into `out` at the same time
+    (a Slurm array task; the Slurm driver passes an empty range): only their half-written scenes are
+    removed, whatever machine left them. None: every leftover of a writer not running here.
     """
     if split not in SPLITS:
         raise ConfigError(f"--split {split!r}: allowed: train or test")
@@ -154,9 +161,14 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     # written below, once the folder is ready.
     cached = split_assets(config, split, out) if config.assets.source == "cache" else None
     software = versions(blender)
+    if backend is not None:
+        backend.start(out, config)
 
     out.mkdir(parents=True, exist_ok=True)
-    dataset.remove_partial_scenes(out)
+    if own is None:
+        dataset.remove_partial_scenes(out)
+    elif own:
+        dataset.remove_partial_scenes_in_range(out, own.start, own.stop, config.output.scenes_per_shard)
     try:
         pattern_file = store_pattern(out, pattern)
     except dataset.FormatError as exc:
@@ -170,22 +182,29 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
 
 def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
              workers: int = 1, seed: int = 0, blender: str | None = None,
-             progress: bool = True, seal: bool = True) -> RunSummary:
+             progress: bool = True, seal: bool = True, backend=None) -> RunSummary:
     """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
 
     Raises ConfigError before anything is written when an argument, the output directory, the
     Blender executable or an existing dataset in `out` does not fit (see `prepare_run`). Failed
-    scenes are listed in the summary (and logged), not raised. seal: seal the dataset at the end
-    (False for the tasks of a cluster run, which one final dotsim.dataset.seal_dataset seals).
+    scenes are listed in the summary (and logged), not raised.
+
+    seal: seal the dataset at the end. False for one of several runs writing into `out` at once (a
+    Slurm array task): only this range's half-written scenes are removed, only the shards wholly
+    inside the range get their shard.json, and one final `seal_run` seals the dataset.
+    backend: renders on other machines instead of `workers` local processes (a
+    generator.ray_cluster.RayBackend): `backend.start(out, config)` runs after every check and
+    before anything is written, then `backend.render(job, todo, on_results)` renders the scene
+    indices `todo`, passing each batch's SceneResults to `on_results` as they come.
     """
     for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1)):
         if not isinstance(value, int) or isinstance(value, bool) or value < low:
             raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
     began = time.perf_counter()
-    job = prepare_run(config, out, split, seed, blender)
+    indices = range(start, start + scenes)
+    job = prepare_run(config, out, split, seed, blender, backend, own=None if seal else indices)
     out = job.out
 
-    indices = range(start, start + scenes)
     spp = config.output.scenes_per_shard
     todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
     # A final scene folder only ever appears complete, so one that is not was damaged after the
@@ -208,20 +227,70 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
                 bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
         bar.update(len(results))
 
-    if todo:
+    if todo and backend is not None:
+        backend.render(job, todo, count)
+        # A node that died mid-scene left its temp folder there; the scene was redone elsewhere.
+        dataset.remove_partial_scenes_in_range(out, start, start + scenes, spp)
+    elif todo:
         render_pool(job, batches, min(workers, len(batches)), count)
     bar.close()
     summary.failed.sort()
     # Every run seals (a run killed after its last scene and before or during its seal left a stale
-    # seal), which is cheap because sealing is incremental; cluster array tasks leave it (seal=False)
-    # to one final `dotsim seal`.
-    if seal and (out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
-        try:
-            dataset.seal_dataset(out)
-        except dataset.DatasetChangingError as exc:  # other writers' own seals will follow
-            summary.unsealed = str(exc)
+    # seal), which is cheap because sealing is incremental; cluster array tasks (seal=False) seal
+    # only their own shards and leave index.json to one final `seal_run` (or `dotsim seal`).
+    if seal:
+        _seal(summary)
+    else:
+        _seal_own_shards(out, indices, spp)
     summary.seconds = time.perf_counter() - began
     return summary
+
+
+def seal_run(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
+             seed: int = 0) -> RunSummary:
+    """Seal what several runs wrote into `out` (the final job of a Slurm array); renders nothing.
+
+    No writer may still be running: every half-written scene is removed. Scenes of start ..
+    start+scenes-1 still missing are listed in the summary's `failed` (a rerun of the same range
+    renders them); the dataset is sealed by dotsim.dataset.seal_dataset. Raises ConfigError when
+    `out` holds no dataset of these settings.
+    """
+    began = time.perf_counter()
+    out = Path(out).absolute()
+    if not (out / RUN_FILE).is_file():
+        raise ConfigError(f"--out {out}: no {RUN_FILE} (no dataset was started here); check --out")
+    _check_existing_run(out, _run_record(config, split, seed))
+    dataset.remove_partial_scenes(out, include_live=True)
+    spp = config.output.scenes_per_shard
+    summary = RunSummary(out=out)
+    for index in range(start, start + scenes):
+        if dataset.is_scene_complete(out, index, spp):
+            summary.skipped += 1
+        else:
+            summary.failed.append(index)
+    _seal(summary)
+    summary.seconds = time.perf_counter() - began
+    return summary
+
+
+def _seal_own_shards(out: Path, indices: range, scenes_per_shard: int) -> None:
+    """Seal the shards that lie wholly inside `indices` (no other run writes there): their frames
+    are hashed here, on this run's machine while they are likely still cached, so the final seal
+    of the dataset only lists them instead of hashing every frame in one process."""
+    for shard_index in range(-(-indices.start // scenes_per_shard), indices.stop // scenes_per_shard):
+        shard = out / dataset.shard_name(shard_index)
+        if shard.is_dir():
+            seal_shard(shard, shard_index, scenes_per_shard)
+
+
+def _seal(summary: RunSummary) -> None:
+    """Seal summary.out when it has scenes; other writers still changing it are noted, not raised
+    (their own seals, or a later `dotsim seal`, will follow)."""
+    if (summary.out / dataset.LAYOUT_FILE).exists():  # the layout comes with the first scene
+        try:
+            dataset.seal_dataset(summary.out)
+        except dataset.DatasetChangingError as exc:
+            summary.unsealed = str(exc)
 
 
 def main_summary(summary: RunSummary) -> int:

@@ -74,20 +74,32 @@ def render_scenes(job: RenderJob, indices: Iterable[int]) -> list[SceneResult]:
 
     With bpy as a module the first call makes this process's SceneRenderer (a factory-reset bpy
     session) and later calls reuse it, so call it in a process of its own (a pool worker, a Ray or
-    Slurm task), not in one holding Blender data it needs. Complete scenes are rendered again: skip
-    them with `dotsim.dataset.is_scene_complete`. Seal the dataset afterwards
+    Slurm task), not in one holding Blender data it needs. A scene already complete is reported
+    done and not rendered again: a retried task (its node died after writing some of its scenes)
+    neither fails on them nor writes them twice. Seal the dataset afterwards
     (`dotsim.dataset.seal_dataset`; incremental, so sealing after every share is cheap).
     """
-    indices = list(indices)
+    spp = job.config.output.scenes_per_shard
+    done, todo = [], []
+    for index in indices:
+        (done if dataset.is_scene_complete(job.out, index, spp) else todo).append(index)
+    results = [SceneResult(index, True, _frame_count(job, index)) for index in done]
+    if not todo:
+        return results
     if job.blender is not None:
-        return _render_with_blender(job, indices)
+        return results + _render_with_blender(job, todo)
     renderer = _process_renderer()
     if isinstance(renderer, str):
-        text = f"the render worker could not start:\n{renderer}"
-        for index in indices:
-            _log_failure(job, index, text)
-        return [SceneResult(index, False, error=text) for index in indices]
-    return [_render_in_process(job, renderer, index) for index in indices]
+        return results + failed_batch(job, todo, f"the render worker could not start:\n{renderer}")
+    return results + [_render_in_process(job, renderer, index) for index in todo]
+
+
+def failed_batch(job: RenderJob, indices: list[int], text: str) -> list[SceneResult]:
+    """Log `text` as the failure of every scene of `indices` (a worker, task or node that died or
+    could not start); their failed SceneResults."""
+    for index in indices:
+        _log_failure(job, index, text)
+    return [SceneResult(index, False, error=text) for index in indices]
 
 
 def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
@@ -109,10 +121,8 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
             except DiskFullError:
                 raise
             except Exception as exc:  # a worker died (crash in Blender): its scenes failed
-                text = "".join(traceback.format_exception(exc))
-                results = [SceneResult(i, False, error=text) for i in futures[future]]
-                for result in results:
-                    _log_failure(job, result.index, f"worker process failed:\n{text}")
+                results = failed_batch(job, futures[future],
+                                       "worker process failed:\n" + "".join(traceback.format_exception(exc)))
             on_results(results)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
@@ -162,6 +172,11 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
     dataset.write_scene(job.out, index, scene_meta(job, spec), frames,
                         scenes_per_shard=job.config.output.scenes_per_shard)
     return len(frames)
+
+
+def _frame_count(job: RenderJob, index: int) -> int:
+    sdir = dataset.scene_dir(job.out, index, job.config.output.scenes_per_shard)
+    return len(dataset.read_scene_meta(sdir, verify=False)["frames"])
 
 
 def _log_failure(job: RenderJob, index: int, text: str) -> None:

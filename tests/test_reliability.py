@@ -143,10 +143,12 @@ def test_cluster_tasks_leave_the_seal_to_one_final_seal(sealed, tmp_path, capsys
     out = tmp_path / "cluster"
     shutil.copytree(sealed, out, ignore=shutil.ignore_patterns("index.json", "shard.json"))
     summary = generate(load_config(TINY), out, "train", 2, start=4, seed=3, progress=False, seal=False)
+    # The task's range is shard 2, wholly: it sealed that shard, and only that.
     assert summary.skipped == 2 and not (out / "index.json").exists()
+    assert [p.parent.name for p in sorted(out.glob("shard_*/shard.json"))] == ["shard_00002"]
     assert dotsim_main(["seal", str(out)]) == 0
-    assert f"sealed {SCENES} scenes ({4 * SCENES} frames) in 3 shard(s): 3 shard.json written, " \
-           f"{SCENES} scenes hashed" in capsys.readouterr().out
+    assert f"sealed {SCENES} scenes ({4 * SCENES} frames) in 3 shard(s): 2 shard.json written, " \
+           f"{SCENES - 2} scenes hashed" in capsys.readouterr().out
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
 
 

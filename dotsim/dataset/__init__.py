@@ -20,7 +20,7 @@ Modules, one idea each (this package re-exports their public names):
 - frames: the EXR frame codec and FRAME_CHANNELS
 - scene_meta: scene.json's required keys and its validation
 - writer: write_scene, write_dataset_file, and resume (is_scene_complete, remove_partial_scenes,
-  remove_scene)
+  remove_partial_scenes_in_range, remove_scene)
 - seal: seal_dataset (shard.json, index.json), incremental, rerunnable at any time
 - reader: open_dataset, read_scene, read_frame, dataset_summary
 - verify: verify_dataset (every checksum, the seal against the disk) and repair_dataset
@@ -72,6 +72,7 @@ from dotsim.dataset.writer import (
     is_scene_complete,
     leftovers,
     remove_partial_scenes,
+    remove_partial_scenes_in_range,
     remove_scene,
     write_dataset_file,
     write_scene,
@@ -101,6 +102,7 @@ __all__ = [
     "check_format_version", "complete_scenes", "dataset_summary", "decode_frame", "encode_frame",
     "finalize_dataset", "frame_name", "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
-    "remove_scene", "repair_dataset", "scene_dir", "scene_name", "seal_dataset", "sha256_bytes",
-    "sha256_file", "shard_name", "verify_dataset", "write_dataset_file", "write_frame_file", "write_scene",
+    "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
+    "seal_dataset", "sha256_bytes", "sha256_file", "shard_name", "verify_dataset", "write_dataset_file",
+    "write_frame_file", "write_scene",
 ]

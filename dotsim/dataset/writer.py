@@ -2,7 +2,8 @@
 
 A scene is written into ``shard_NNNNN/.tmp-scene_KKKKKKK-<pid>/`` (frames, then scene.json last)
 and renamed to ``scene_KKKKKKK`` in one step, so its final directory only ever exists complete.
-A crash leaves only ``.tmp-*`` names, which remove_partial_scenes deletes on the next run.
+A crash leaves only ``.tmp-*`` names, which remove_partial_scenes deletes on the next run
+(remove_partial_scenes_in_range: those of one range of scenes, for a writer beside others).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from dotsim.dataset.layout import (
     frame_name,
     record_layout,
     scene_dir,
+    shard_name,
 )
 from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size
 from dotsim.file_io import (
@@ -40,6 +42,7 @@ from dotsim.file_io import (
 )
 
 _TMP_PID_RE = re.compile(r"-(\d+)$")
+_TMP_SCENE_RE = re.compile(re.escape(TMP_PREFIX) + r"scene_(\d+)(-\d+)?$")
 
 
 def write_dataset_file(dataset_dir: str | os.PathLike, name: str, data: bytes) -> Path:
@@ -191,10 +194,33 @@ def remove_partial_scenes(dataset_dir: str | os.PathLike, include_live: bool = F
     Leftovers whose writer process is still running on this machine are kept unless
     include_live, so a resume never pulls files from under a concurrent worker.
     """
-    removed = leftovers(dataset_dir, include_live)
-    for p in removed:
+    return _remove(leftovers(dataset_dir, include_live))
+
+
+def remove_partial_scenes_in_range(dataset_dir: str | os.PathLike, first: int, stop: int,
+                                   scenes_per_shard: int = DEFAULT_SCENES_PER_SHARD) -> list[Path]:
+    """Delete the ``.tmp-scene_*`` leftovers of scenes first .. stop-1, whatever wrote them.
+
+    For a writer that owns a range of scenes while other machines write other ranges into the same
+    dataset (a Slurm array task, a Ray run after a node died): pids of other machines mean nothing
+    here, and only this range's writers (all finished or dead) can have left these. Lists one
+    shard folder per shard of the range. Returns the removed paths.
+    """
+    found = []
+    for shard_index in range(first // scenes_per_shard, (stop - 1) // scenes_per_shard + 1):
+        shard = Path(dataset_dir) / shard_name(shard_index)
+        for p in sorted(shard.glob(TMP_PREFIX + "scene_*")):
+            m = _TMP_SCENE_RE.match(p.name)
+            if m and first <= int(m.group(1)) < stop:
+                found.append(p)
+    return _remove(found)
+
+
+def _remove(paths: list[Path]) -> list[Path]:
+    """Delete each path (a folder with its content) and return them."""
+    for p in paths:
         if p.is_dir():
             shutil.rmtree(p)
         else:
             p.unlink(missing_ok=True)
-    return removed
+    return paths
