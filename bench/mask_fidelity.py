@@ -40,6 +40,7 @@ from dotsim.masks import edge_mask, noise_sigma, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
 from generator.config import config_from_dict
 from generator.post_render import make_frame
+from generator.scene_spec import SceneSpec
 from generator.sensor_model import exposure_gain
 
 WAYS = {"old": False, "new": True}  # name: SceneRenderer.direct_render
@@ -109,7 +110,7 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         raws = {}
         for name, direct in WAYS.items():
             renderer.direct_render = direct
-            raws[name] = renderer.render(spec)[0]
+            raws[name] = renderer.render(SceneSpec.from_dict(spec))[0]
         depth = raws["new"]["depth"]
         lit, shadow = judged_regions(depth, rig)
         ones = np.ones((rig.projector.height, rig.projector.width))
@@ -117,13 +118,14 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         old = raws["old"]
         masks = {
             "old": visibility_mask(old["ambient"], old["ambient"] + old["flood"], 0.05, depth=depth),
-            "new": make_frame(raws["new"], rig, config, np.random.default_rng(seed))["visibility"] > 0,
+            "new": make_frame(raws["new"], SceneSpec.from_dict(spec),
+                              np.random.default_rng(seed))["visibility"] > 0,
         }
         reference = None
         if seed < args.reference_scenes:
             renderer.direct_render = False
             many = dict(spec, render=dict(spec["render"], samples=args.reference_samples))
-            reference = renderer.render(many)[0]
+            reference = renderer.render(SceneSpec.from_dict(many))[0]
         for name in WAYS:
             row = fidelity(raws[name], masks[name], lit, shadow, oracle_flood, config)
             if reference is not None:
@@ -140,6 +142,7 @@ def run_timing(renderer, args, folder: Path) -> dict[int, dict[str, float]]:
         rig = bench_rig(width)
         spec = bench_spec(rig, write_inputs(rig, folder), args.timing_objects)
         spec["poses"] = scene_poses()
+        spec = SceneSpec.from_dict(spec)
         runs = {(name, clock): [] for name in WAYS for clock in ("wall", "cpu")}
         for repeat in range(args.repeats):
             order = list(WAYS) if repeat % 2 == 0 else list(WAYS)[::-1]
@@ -147,8 +150,8 @@ def run_timing(renderer, args, folder: Path) -> dict[int, dict[str, float]]:
                 renderer.direct_render = WAYS[name]
                 wall, cpu = time.perf_counter(), time.process_time()
                 renderer.render(spec)
-                runs[name, "wall"].append((time.perf_counter() - wall) / len(spec["poses"]))
-                runs[name, "cpu"].append((time.process_time() - cpu) / len(spec["poses"]))
+                runs[name, "wall"].append((time.perf_counter() - wall) / len(spec.poses))
+                runs[name, "cpu"].append((time.process_time() - cpu) / len(spec.poses))
         out[width] = {f"{name}_{clock}": statistics.median(values) for (name, clock), values in runs.items()}
         print(f"{rig.camera.width}x{rig.camera.height} s/frame per run: "
               + ", ".join(f"{name} {clock} " + " ".join(f"{v:.2f}" for v in values)
