@@ -22,7 +22,7 @@ from capture.devices import Device, DeviceError, DeviceFrame
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError
 from capture.import_frames import scene_meta
-from dotsim import dataset
+from dotsim import dataset, pattern_store
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
 
@@ -133,8 +133,8 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
         dataset.remove_partial_scenes(out_dir)
     pattern_entry = None
     if pattern is not None:
-        dataset.store_pattern(out_dir, pattern)
-        pattern_entry = dataset.pattern_entry(pattern)
+        pattern_store.store_pattern(out_dir, pattern)
+        pattern_entry = pattern_store.pattern_entry(pattern)
     channels = record_channels(device)
     settings = {"white_level": white_level, "frames_per_scene": frames_per_scene,
                 "device": device.info, "settings": device.settings(), "settle_frames": settle,
@@ -181,6 +181,6 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     if pending and not dataset.is_scene_complete(out_dir, scene_index, scenes_per_shard):
         write(scene_index)
     if written:
-        dataset.finalize_dataset(out_dir)
+        dataset.seal_dataset(out_dir)
     return {"dataset": str(out_dir), "scenes": written, "frames": frames_kept, "stopped": stopped,
             "channels": list(channels)}

@@ -272,7 +272,7 @@ def test_render_scenes_in_a_fresh_process_as_another_front_end_would(rendered, t
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "[(1, True, 4), (0, True, 4)]" in proc.stdout
-    dataset.finalize_dataset(out)
+    dataset.seal_dataset(out)
     for index in (0, 1):
         a = dataset.scene_dir(source, index, 2)
         b = dataset.scene_dir(out, index, 2)

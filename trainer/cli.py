@@ -69,7 +69,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--config", required=True, metavar="TOML",
                    help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml "
                    "(keys: docs/TRAIN_CONFIG.md)")
-    p.add_argument("--data", required=True, metavar="DIR", help="finalized dotsim dataset directory")
+    p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset directory")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "
@@ -90,7 +90,7 @@ def add_parser(subparsers) -> None:
         "estimate counts as an outlier), overall and per GT depth range. Writes OUT/eval.md, OUT/eval.csv "
         "and OUT/errors/*.png (IR | network error | SGBM error; 0-5 px turbo, outliers black, no GT grey).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
-    p.add_argument("--data", required=True, metavar="DIR", help="finalized dotsim dataset with ground truth")
+    p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")

@@ -66,7 +66,7 @@ from dotsim.dataset.reader import (
     read_scene_meta,
 )
 from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size, parse_scene_meta
-from dotsim.dataset.seal import DatasetChangingError, SealResult, finalize_dataset, seal_dataset
+from dotsim.dataset.seal import DatasetChangingError, SealResult, seal_dataset
 from dotsim.dataset.verify import Problem, RepairResult, VerifyReport, repair_dataset, verify_dataset
 from dotsim.dataset.writer import (
     is_scene_complete,
@@ -78,31 +78,20 @@ from dotsim.dataset.writer import (
     write_scene,
 )
 
-# Writing and hashing live in dotsim.file_io; these names stay importable from here for code
-# written against the single-module dotsim.dataset.
-from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, sha256_bytes, sha256_file
-
-
-def __getattr__(name: str):
-    # store_pattern / pattern_entry moved to dotsim.pattern_store; imported on first use because it
-    # needs OpenCV and SciPy, which readers of a dataset do not.
-    if name in ("store_pattern", "pattern_entry"):
-        from dotsim import pattern_store
-
-        return getattr(pattern_store, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+# Temporary names (a writer's leftovers after a crash) are part of the layout; the writer is
+# dotsim.file_io's.
+from dotsim.file_io import TMP_PREFIX
 
 __all__ = [
     "DEFAULT_SCENES_PER_SHARD", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS", "INDEX_FILE",
     "LAYOUT_FILE", "RENDERED_CHANNELS", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE",
     "SHARD_FILE",
     "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "DatasetChangingError", "FormatError", "Problem",
-    "RepairResult", "Scene", "SceneRef", "SealResult", "VerifyReport", "atomic_write_bytes", "camera_size",
+    "RepairResult", "Scene", "SceneRef", "SealResult", "VerifyReport", "camera_size",
     "check_format_version", "complete_scenes", "dataset_summary", "decode_frame", "encode_frame",
-    "finalize_dataset", "frame_name", "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta",
+    "frame_name", "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
     "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
-    "seal_dataset", "sha256_bytes", "sha256_file", "shard_name", "verify_dataset", "write_dataset_file",
+    "seal_dataset", "shard_name", "verify_dataset", "write_dataset_file",
     "write_frame_file", "write_scene",
 ]

@@ -224,8 +224,3 @@ def seal_dataset(dataset_dir: str | os.PathLike, max_rounds: int = MAX_SEAL_ROUN
     raise DatasetChangingError(f"{root}: the dataset kept changing while it was sealed ({max_rounds} "
                                f"rounds); seal it again (`dotsim seal {root}`) when its writers are done")
 
-
-def finalize_dataset(dataset_dir: str | os.PathLike) -> dict:
-    """seal_dataset(dataset_dir).index: the index dict, as this function returned before sealing
-    became incremental (kept for callers that use the old name)."""
-    return seal_dataset(dataset_dir).index
