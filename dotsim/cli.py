@@ -7,7 +7,9 @@ import sys
 from dotsim import __version__
 from dotsim.file_io import DiskFullError
 
-# Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int`.
+# Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int` and may
+# set `errors`, {error type: exit status}: the errors its command expects (bad input named in the
+# message), reported as one line on stderr instead of a traceback.
 SUBCOMMAND_MODULES = [
     "generator.cli",
     "assets_manifest.cli",
@@ -34,13 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # Any stage can run out of space: the message names the file and the space it needed, and the
+    # atomic writer left nothing half-written behind.
+    errors = {DiskFullError: 1, **getattr(args, "errors", {})}
     try:
         return int(args.func(args) or 0)
-    except DiskFullError as error:
-        # Any stage can run out of space; the message names the file and the space it needed, and
-        # the atomic writer left nothing half-written behind.
+    except tuple(errors) as error:
         print(f"dotsim {args.command}: error: {error}", file=sys.stderr)
-        return 1
+        return next(status for kind, status in errors.items() if isinstance(error, kind))
 
 
 if __name__ == "__main__":

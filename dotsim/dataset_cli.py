@@ -38,27 +38,15 @@ def add_parser(subparsers) -> None:
     verify.add_argument("--repair", action="store_true",
                         help="remove damaged scenes and leftovers and seal again, so the next "
                              "`dotsim generate` redoes exactly the removed scenes")
-    verify.set_defaults(func=_verify)
+    # no dataset there, dataset.json unreadable, a scene damaged before its first seal: exit 2
+    verify.set_defaults(func=_verify, errors={FormatError: 2})
     seal = subparsers.add_parser(
         "seal", help="write shard.json files and index.json from the scenes on disk (incremental)",
         description=SEAL_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     seal.add_argument("dataset", metavar="DIR", help="dataset directory")
-    seal.set_defaults(func=_seal)
+    seal.set_defaults(func=_seal, errors={FormatError: 2})
 
 
-def _refusing_bad_datasets(command):
-    """Report a FormatError (no dataset there, dataset.json unreadable, a scene damaged before its
-    first seal) as one line and exit status 2 instead of a traceback."""
-    def wrapper(args: argparse.Namespace) -> int:
-        try:
-            return command(args)
-        except FormatError as error:
-            print(f"dotsim {args.command}: error: {error}", file=sys.stderr)
-            return 2
-    return wrapper
-
-
-@_refusing_bad_datasets
 def _verify(args: argparse.Namespace) -> int:
     report = verify_dataset(args.dataset)
     for problem in report.problems:
@@ -87,7 +75,6 @@ def _verify(args: argparse.Namespace) -> int:
     return 0
 
 
-@_refusing_bad_datasets
 def _seal(args: argparse.Namespace) -> int:
     result = seal_dataset(args.dataset)
     print(f"{args.dataset}: {result.line()}")

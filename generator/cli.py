@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+from dotsim.dataset import FormatError
+from generator.config import ConfigError
+
 DESCRIPTION = """\
 Render scenes START .. START+N-1 of a split into DIR with headless Blender (Cycles): each scene is
 a room with hundreds of textured objects seen from four nearby rig poses; every frame stores the
@@ -116,7 +119,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     cluster.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
                          help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "
                               "(repeatable)")
-    parser.set_defaults(func=run)
+    # A bad config or argument exits 2; a dataset on disk that does not fit (e.g. a damaged scene
+    # outside this run's range) exits 1.
+    parser.set_defaults(func=run, errors={ConfigError: 2, FormatError: 1})
     return parser
 
 
@@ -176,17 +181,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from dotsim.dataset import FormatError
-    from generator.config import ConfigError
-
     try:
         return _run(args)
-    except ConfigError as exc:
-        print(f"dotsim generate: error: {exc}", file=sys.stderr)
-        return 2
-    except FormatError as exc:  # the dataset on disk: e.g. a damaged scene outside this run's range
-        print(f"dotsim generate: error: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
               file=sys.stderr)

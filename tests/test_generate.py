@@ -3,7 +3,6 @@ resume, determinism, and bad input stopping before anything is written."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 from dataclasses import replace
@@ -13,9 +12,9 @@ import numpy as np
 import pytest
 
 from dotsim import dataset
+from dotsim.cli import main as dotsim_main
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
-from generator import cli
 from generator.config import ConfigError, config_from_dict, load_config
 from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import RAW_PASSES, make_frame
@@ -26,10 +25,7 @@ TINY = REPO / "configs" / "tiny.toml"
 
 
 def run_cli(*args: str) -> int:
-    parser = argparse.ArgumentParser(prog="dotsim")
-    cli.add_parser(parser.add_subparsers())
-    parsed = parser.parse_args(["generate", "--no-progress", *args])
-    return parsed.func(parsed)
+    return dotsim_main(["generate", "--no-progress", *args])
 
 
 # ----------------------------------------------------------------------------- post-render, no Blender

@@ -3,24 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from functools import partial
 
 from dotsim.dataset import FormatError
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
-
-def _guarded(run):
-    """Report the trainer's expected errors as one line and exit status 1 instead of a traceback."""
-    def wrapper(args: argparse.Namespace) -> int:
-        try:
-            run(args)
-        except (ConfigError, DataError, FormatError, FloatingPointError) as e:
-            print(f"dotsim {args.command}: error: {e}", file=sys.stderr)
-            return 1
-        return 0
-    return wrapper
+# The trainer's expected errors: one line and exit status 1 (dotsim.cli.main prints them).
+EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointError: 1}
 
 
 def _train(args: argparse.Namespace) -> None:
@@ -80,7 +70,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--nproc", type=int, default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
                    "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
-    p.set_defaults(func=_guarded(_train))
+    p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(
         "eval", help="outlier rates o(0.5..5) of a checkpoint and of StereoSGBM, error images",
@@ -96,7 +86,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
     p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
     _add_inference_device(p)
-    p.set_defaults(func=_guarded(_eval))
+    p.set_defaults(func=_eval, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(
         "infer", help="disparity/depth EXR, colour PNG and PLY point cloud from IR frames",
@@ -109,4 +99,4 @@ def add_parser(subparsers) -> None:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     _add_inference_device(p)
-    p.set_defaults(func=_guarded(_infer))
+    p.set_defaults(func=_infer, errors=EXPECTED_ERRORS)
