@@ -35,8 +35,10 @@ def raw_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:
         depth[y:y + h // 6, x:x + w // 6] = rng.uniform(0.5, 2.5)
     flood = (0.6 / depth**2).astype(np.float32)
     dots = (rng.random((h, w)) < 0.08).astype(np.float32)
-    return {"projector": flood * dots, "flood": flood, "ambient": np.full((h, w), 0.01, np.float32),
-            "depth": depth}
+    projector = flood * dots
+    # all of it direct light (no bounces in this synthetic frame)
+    return {"projector": projector, "flood": flood, "ambient": np.full((h, w), 0.01, np.float32),
+            "depth": depth, "projector_direct": projector, "flood_direct": flood}
 
 
 def median_seconds(function, repeats: int) -> float:

@@ -122,11 +122,12 @@ def main(argv: list[str] | None = None) -> int:
     code, total = args.code.resolve(), args.base + args.extra
     args.out.mkdir(parents=True, exist_ok=True)
     base, reference_dir, trial_dir = args.out / "base", args.out / "reference", args.out / "trial"
+    # Made afresh each run: a base left by another run (other sizes, an older checkout's config)
+    # would make every rerun refuse the folder as holding other settings.
     for folder, scenes in ((base, args.base), (reference_dir, total)):
-        if not (folder / "index.json").exists():
-            shutil.rmtree(folder, ignore_errors=True)
-            status, line = run(code, folder, scenes)
-            print(f"{folder.name}: exit {status}: {line}", flush=True)
+        shutil.rmtree(folder, ignore_errors=True)
+        status, line = run(code, folder, scenes)
+        print(f"{folder.name}: exit {status}: {line}", flush=True)
     reference = frame_sums(reference_dir)
     # Time one extension, so random kills cover all of it (start-up, scenes, seal).
     shutil.rmtree(trial_dir, ignore_errors=True)
