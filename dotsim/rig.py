@@ -113,6 +113,14 @@ class Intrinsics:
             raise ValueError(f"{where}: {error}") from None
 
 
+def check_square_pixels(fx: float, fy: float) -> None:
+    """ValueError unless fx and fy agree (to 1e-6 relative): Blender renders square pixels, so a
+    camera the generator renders must have them."""
+    if abs(fx - fy) > 1e-6 * fx:
+        raise ValueError(f"camera fx = {fx:g} differs from fy = {fy:g}; allowed: equal focal lengths "
+                         "(Blender renders square pixels)")
+
+
 def rotation_matrix(rx: float, ry: float, rz: float) -> Matrix3:
     """Rotation R = Rz @ Ry @ Rx from angles in radians (about x, then y, then z; Blender's XYZ)."""
     cx, sx = math.cos(rx), math.sin(rx)

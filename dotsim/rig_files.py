@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.rig import Intrinsics, Rig, get_preset, project_to_projector, rotation_matrix
+from dotsim.rig import Intrinsics, Rig, check_square_pixels, get_preset, project_to_projector, rotation_matrix
 
 RIG_FILE_SUFFIXES = (".json", ".yaml", ".yml", ".xml")
 
@@ -102,9 +102,10 @@ def configured_rig(settings, where: str) -> Rig:
     except ValueError as error:
         raise RigFileError(f"{where}: {error}") from None
     check_rig(rig, where)
-    if abs(rig.camera.fx - rig.camera.fy) > 1e-6 * rig.camera.fx:
-        raise RigFileError(f"{where}: camera fx = {rig.camera.fx:g} differs from fy = {rig.camera.fy:g}; "
-                           "allowed: equal focal lengths (Blender renders square pixels)")
+    try:
+        check_square_pixels(rig.camera.fx, rig.camera.fy)
+    except ValueError as error:
+        raise RigFileError(f"{where}: {error}") from None
     return rig.scaled(settings.scale) if settings.scale != 1.0 else rig
 
 

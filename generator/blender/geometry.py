@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dotsim.rig import check_square_pixels
 from generator.scene_spec import PRIMITIVE_SHAPES
 
 # Right-multiplying an OpenCV pose by this flips its y and z axes into Blender's camera/light axes.
@@ -36,8 +37,7 @@ def camera_parameters(width: int, height: int, fx: float, fy: float, cx: float, 
     bottom-left corner, with pixel centres at +0.5; in OpenCV pixels that is
     cx = W/2 - 0.5 - shift_x W and cy = H/2 - 0.5 + shift_y W. Square pixels are required.
     """
-    if abs(fx - fy) > 1e-6 * fx:
-        raise ValueError(f"camera fx ({fx}) and fy ({fy}) must be equal: Blender renders square pixels")
+    check_square_pixels(fx, fy)
     return {
         "sensor_fit": "HORIZONTAL",
         "sensor_width": SENSOR_WIDTH_MM,
