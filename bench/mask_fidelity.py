@@ -40,7 +40,6 @@ from dotsim.masks import edge_mask, noise_sigma, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
 from generator.config import config_from_dict
 from generator.post_render import make_frame
-from generator.sample_scene import sensor_model
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import exposure_gain
 
@@ -108,7 +107,6 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
     for seed in tqdm(range(args.scenes), desc="fidelity scenes"):
         spec = bench_spec(rig, inputs, args.objects, seed=seed)
         spec["lights"] = random_lights(seed)
-        spec["sensor"] = sensor_model(config).to_dict()  # at this rig's scale, as the judge below
         raws = {}
         for name, direct in WAYS.items():
             renderer.direct_render = direct

@@ -91,6 +91,7 @@ def bench_spec(
         world_strength=0.05,
         lights=point_lights,
         threads=threads,
+        pixel_scale=rig.camera.width / FULL_WIDTH,
     )
     objects = ds.clutter(n_objects, seed=seed, depth_range=(0.8, 5.0), half_fov=0.55)
     for k, obj in enumerate(objects):

@@ -48,7 +48,8 @@ def pattern(tmp_path_factory):
 
 def _spec(pattern, **kwargs) -> dict:
     dots, path = pattern
-    return ds.base_spec(RIG.to_dict(), path, dots.sha256, **kwargs)
+    return ds.base_spec(RIG.to_dict(), path, dots.sha256, pixel_scale=RIG.camera.width / FULL.camera.width,
+                        **kwargs)
 
 
 def ncc(a: np.ndarray, b: np.ndarray) -> float:

@@ -32,8 +32,11 @@ def base_spec(
     lights: list | None = None,
     poses: list | None = None,
     threads: int = 0,
+    pixel_scale: float = 1.0,
 ) -> dict:
-    """A SceneSpec with no objects; add them to spec["objects"]."""
+    """A SceneSpec with no objects; add them to spec["objects"]. pixel_scale: the rig's resolution
+    over its sensor's full resolution (the sensor model's blur and bloom and the mask's dot blur
+    are in full-resolution pixels), e.g. 0.125 for a rig scaled by 0.125."""
     return {
         "scene_index": 0,
         "split": "test",
@@ -47,7 +50,7 @@ def base_spec(
         "lights": lights or [],
         "poses": poses or [IDENTITY_POSE],
         "objects": [],
-        "sensor": sensor_model(Config()).to_dict(),
+        "sensor": {**sensor_model(Config()).to_dict(), "pixel_scale": pixel_scale},
         "masks": asdict(Config().masks),
     }
 
