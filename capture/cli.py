@@ -90,7 +90,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="write projector-on/off frame pairs into the dotsim dataset format (no ground truth)",
         description="Read projector-on and projector-off frames, pair them in natural sort order "
         "(frame_2 before frame_10; the counts must be equal), check every file (readable, greyscale, "
-        "the rig camera's size, one sample type) before writing anything, and write a finalized "
+        "the rig camera's size, one sample type) before writing anything, and write a sealed "
         "dataset: channels ir (projector on), ambient (projector off) and visibility (from their "
         "difference), values = raw / white level. scene.json says has_ground_truth: false and "
         "lists every source file with its sha256. A rerun resumes; other files into the same "
@@ -152,7 +152,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     rec = actions.add_parser(
         "record",
         help="record a live sensor (RealSense, OpenNI2, OpenCV camera or video) as a dataset",
-        description="Record --scenes x --frames poses from a live sensor into a finalized dataset in "
+        description="Record --scenes x --frames poses from a live sensor into a sealed dataset in "
         "the format of `capture import`: per pose the IR frame with the projector on and, where the "
         "device can switch it (RealSense, OpenNI2), the same pose with it off (channels ir, ambient, "
         "visibility), and the device's own depth where it has one (channel device_depth, never "

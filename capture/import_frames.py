@@ -163,7 +163,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                   capture_settings: dict | None = None, pattern: DotPattern | None = None,
                   scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD,
                   progress: bool = True) -> dict:
-    """Import projector on/off frame pairs as a finalized dataset; returns a summary dict.
+    """Import projector on/off frame pairs as a sealed dataset; returns a summary dict.
 
     Pairs are grouped into scenes of `frames_per_scene` consecutive frames (the count must divide
     evenly). capture_settings (exposure, gain, ... as the user recorded them) go into every

@@ -5,7 +5,7 @@ Per pose: a projector-on frame and, where the device can switch its projector, a
 frame of the same pose; the device's own depth (of the on frame) where it has one, stored as the
 channel `device_depth`, never as `depth` (ground truth). A scene is written atomically when its
 frames are complete. Ctrl-C or a device that stops giving frames ends the recording: the frames
-already complete are kept (the last scene may have fewer frames), the dataset is finalized and the
+already complete are kept (the last scene may have fewer frames), the dataset is sealed and the
 summary says what was kept.
 """
 
