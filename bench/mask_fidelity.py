@@ -19,9 +19,11 @@ out the 2 px band at depth edges (dotsim.masks.edge_mask) and 2 px at shadow bor
   cos / r^2 predicts (scaled by the scene's median ratio, which absorbs power and albedo);
 - ambient: correlation of the ambient pass with a --reference-samples render, first
   --reference-scenes scenes.
-Timing: bench.render_speed's scene (N objects, two 50 W lights), a whole scene (build + 4 frames)
-/ 4, old and new alternating, median of --repeats, wall time and CPU time of the process (all its
-threads). Wall times on a loaded machine are not figures; CPU times are steadier there.
+Timing: bench.render_speed's scene (N objects) with two 50 W lights and without extra lights (the
+new way then takes the direct light from the path-traced render's passes: one render), a whole
+scene (build + 4 frames) / 4, old and new alternating, median of --repeats, wall time and CPU time
+of the process (all its threads). Wall times on a loaded machine are not figures; CPU times are
+steadier there.
 """
 
 from __future__ import annotations
@@ -134,13 +136,18 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
     return results
 
 
-def run_timing(renderer, args, folder: Path) -> dict[int, dict[str, float]]:
-    """Per width: median wall and CPU seconds per frame of each way. CPU time (all threads of this
-    process) is the steadier figure on a shared machine, where other work stretches wall time."""
+def _lights_label(lights: bool) -> str:
+    return "two extra lights" if lights else "no extra light"
+
+
+def run_timing(renderer, args, folder: Path) -> dict[tuple[int, bool], dict[str, float]]:
+    """Per (width, extra lights or none): median wall and CPU seconds per frame of each way. CPU
+    time (all threads of this process) is the steadier figure on a shared machine, where other work
+    stretches wall time."""
     out = {}
-    for width in (int(w) for w in args.timing_sizes.split(",")):
+    for width, lights in ((int(w), lights) for w in args.timing_sizes.split(",") for lights in (True, False)):
         rig = bench_rig(width)
-        spec = bench_spec(rig, write_inputs(rig, folder), args.timing_objects)
+        spec = bench_spec(rig, write_inputs(rig, folder), args.timing_objects, lights=lights)
         spec["poses"] = scene_poses()
         spec = SceneSpec.from_dict(spec)
         runs = {(name, clock): [] for name in WAYS for clock in ("wall", "cpu")}
@@ -152,8 +159,9 @@ def run_timing(renderer, args, folder: Path) -> dict[int, dict[str, float]]:
                 renderer.render(spec)
                 runs[name, "wall"].append((time.perf_counter() - wall) / len(spec.poses))
                 runs[name, "cpu"].append((time.process_time() - cpu) / len(spec.poses))
-        out[width] = {f"{name}_{clock}": statistics.median(values) for (name, clock), values in runs.items()}
-        print(f"{rig.camera.width}x{rig.camera.height} s/frame per run: "
+        out[width, lights] = {f"{name}_{clock}": statistics.median(values)
+                              for (name, clock), values in runs.items()}
+        print(f"{rig.camera.width}x{rig.camera.height} {_lights_label(lights)} s/frame per run: "
               + ", ".join(f"{name} {clock} " + " ".join(f"{v:.2f}" for v in values)
                           for (name, clock), values in runs.items()), flush=True)
     return out
@@ -194,11 +202,11 @@ def main(argv: list[str] | None = None) -> int:
                              if values else "-")
             print(f"{name:>4} " + " ".join(f"{cell:>14}" for cell in cells))
         print("(leak, no dot, recall, pepper in %; ambient as a correlation)")
-    for width, seconds in timing.items():
+    for (width, lights), seconds in timing.items():
         for clock in ("wall", "cpu"):
             old, new = seconds[f"old_{clock}"], seconds[f"new_{clock}"]
-            print(f"{clock} time per frame at width {width}: old {old:.2f} s, new {new:.2f} s, "
-                  f"ratio {new / old:.2f} (medians of {args.repeats})")
+            print(f"{clock} time per frame at width {width}, {_lights_label(lights)}: "
+                  f"old {old:.2f} s, new {new:.2f} s, ratio {new / old:.2f} (medians of {args.repeats})")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Render cost against object count (default settings: a path-traced and a direct render per frame).
+"""Render cost against object count (default settings: with extra lights, two renders per frame).
 
     python -m bench.render_objects [--width 640] [--counts 100,300,1000] [--repeats 3]
 

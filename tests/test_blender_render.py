@@ -129,14 +129,16 @@ def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
     assert frame["projector"][lit_core].mean() > 0.05 * direct[lit_core].mean()
 
 
-def test_direct_light_has_no_pepper_and_the_mask_no_shadow(renderer, pattern):
+@pytest.mark.parametrize("n_lights", [2, 0])
+def test_direct_light_has_no_pepper_and_the_mask_no_shadow(renderer, pattern, n_lights):
     """The box's cast shadow (analytic ray casting, as above) with two bright extra lights near the
-    wall, at 1 sample: the direct passes are 0 in the whole shadow and lit on every lit pixel (the
-    one-render way left 5-10% of them dark, docs/RENDERING.md); the mask (make_frame) marks no
-    shadow pixel visible and the lit wall visible."""
+    wall (or none: then the direct light comes from the path-traced render's own passes), at 1
+    sample: the direct passes are 0 in the whole shadow and lit on every lit pixel (the one-render
+    way left 5-10% of them dark, docs/RENDERING.md); the mask (make_frame) marks no shadow pixel
+    visible and the lit wall visible."""
     lower, upper, wall_z = (-0.1, -0.1, 0.5), (0.1, 0.1, 0.7), 1.6
     lights = [{"type": "POINT", "location": [x, -0.4, 0.8], "power": 10.0, "radius": 0.05}
-              for x in (-0.6, 0.6)]
+              for x in (-0.6, 0.6)][:n_lights]
     spec = _spec(pattern, samples=1, projector_power=100.0, flood_power=100.0, world_strength=0.05,
                  lights=lights)
     spec["objects"] = [ds.wall(wall_z), ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6))]
@@ -163,6 +165,20 @@ def test_direct_light_has_no_pepper_and_the_mask_no_shadow(renderer, pattern):
     assert visible[lit_core].mean() >= 0.97
 
 
+def test_without_extra_lights_the_direct_passes_of_one_render_equal_a_direct_render(renderer, pattern):
+    """Two ways to the spot's direct light on the same clutter: with no extra light, the path-traced
+    render's direct passes (composited); with one of 0 W, which the direct render hides, a render of
+    its own without bounces. The spot is then the only light Cycles picks, so they agree to float
+    rounding, and so do the other passes."""
+    spec = _clutter_spec(pattern, samples=1, world_strength=0.05)
+    one = renderer.render(SceneSpec.from_dict(spec))[0]
+    spec["lights"] = [{"type": "POINT", "location": [0.0, -0.5, 1.0], "power": 0.0, "radius": 0.1}]
+    two = renderer.render(SceneSpec.from_dict(spec))[0]
+    assert one["flood_direct"].max() > 0 and np.mean(one["flood_direct"] > 0) > 0.5
+    for name in ("projector", "flood", "projector_direct", "flood_direct", "ambient", "depth"):
+        np.testing.assert_allclose(one[name], two[name], rtol=1e-5, atol=1e-6, err_msg=name)
+
+
 def _clutter_spec(pattern, samples: int, seed: int = 7, **kwargs) -> dict:
     spec = _spec(pattern, samples=samples, seed=seed, **kwargs)
     spec["objects"] = [ds.wall(5.0)] + ds.clutter(25, seed=seed, depth_range=(0.8, 3.5), half_fov=0.45)
@@ -187,6 +203,28 @@ def test_clutter_projector_pass_matches_oracle(renderer, pattern):
     for name in ("projector", "flood"):
         indirect = frame[name] - frame[f"{name}_direct"]
         assert indirect.min() >= 0 and np.mean(indirect > 0) > 0.05, name
+
+
+def test_switching_to_the_one_render_way_and_back_renders_the_same(renderer, pattern):
+    """bench.mask_fidelity switches one renderer between the one-render way and the direct render.
+    A frame is the same before and after a switch there and back (Blender once left the compositor's
+    links from passes switched off dead after they came back: the indirect light read as 0). With no
+    extra light the spot is the only light picked in both ways, so the one render's projector and
+    flood (all their light at once) equal direct + indirect of the other way."""
+    spec = SceneSpec.from_dict(_clutter_spec(pattern, samples=1))
+    first = renderer.render(spec)[0]
+    renderer.direct_render = False
+    try:
+        one = renderer.render(spec)[0]
+    finally:
+        renderer.direct_render = True
+    again = renderer.render(spec)[0]
+    for name in first:
+        np.testing.assert_array_equal(first[name], again[name], err_msg=name)
+    assert "projector_direct" not in one
+    for name in ("projector", "flood", "ambient", "depth"):
+        np.testing.assert_allclose(one[name], first[name], rtol=1e-5, atol=1e-6, err_msg=name)
+    assert np.mean(first["flood"] > first["flood_direct"]) > 0.01  # indirect light is there
 
 
 def test_same_spec_renders_bit_identical_after_another_scene(renderer, pattern):

@@ -17,7 +17,10 @@ indirect passes times their colour passes, composited), and a second render with
 the extra lights hidden gives their direct light at every pixel (the world stays: it is blue and
 not light-sampled): the dots the sensor sees are direct + indirect, and the visibility mask uses
 the direct light alone. All path-traced frames of a scene render first, then all direct ones,
-because each switch between the two makes Cycles sync the scene again.
+because each switch between the two makes Cycles sync the scene again. A scene without extra
+lights needs no second render: the spot is then the only light Cycles samples, so it is picked at
+every point, and the path-traced render's own direct passes (composited alike, written by a File
+Output node) are the direct render's image (equal to 5e-7, measured).
 
 Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
@@ -106,10 +109,27 @@ def _configure_render(scene: bpy.types.Scene) -> None:
     scene.render.use_file_extension = False
 
 
-def _build_compositor(indirect_red_green: bool) -> bpy.types.NodeTree:
+def _light_of(tree: bpy.types.NodeTree, layers: bpy.types.Node, kind: str) -> bpy.types.NodeSocket:
+    """Diffuse `kind` x diffuse colour + glossy `kind` x glossy colour (kind "Direct" or "Indirect"):
+    how Cycles itself sums those passes into the combined image."""
+    terms = []
+    for light, colour in ((f"Diffuse {kind}", "Diffuse Color"), (f"Glossy {kind}", "Glossy Color")):
+        product = tree.nodes.new("ShaderNodeVectorMath")
+        product.operation = "MULTIPLY"
+        tree.links.new(layers.outputs[light], product.inputs[0])
+        tree.links.new(layers.outputs[colour], product.inputs[1])
+        terms.append(product)
+    total = tree.nodes.new("ShaderNodeVectorMath")
+    total.operation = "ADD"
+    for k, term in enumerate(terms):
+        tree.links.new(term.outputs[0], total.inputs[k])
+    return total.outputs[0]
+
+
+def _build_compositor(direct_file: Path | None) -> bpy.types.NodeTree:
     """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file.
-    indirect_red_green: R and G hold only indirect light, (DiffInd x DiffCol + GlossInd x GlossCol),
-    which is how Cycles itself sums those passes into the combined image (B stays combined)."""
+    With `direct_file`: R and G of that image hold only indirect light, and a File Output node
+    writes the direct light (R, G; B is the world's) as an RGB EXR at `direct_file`."""
     tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     layers = tree.nodes.new("CompositorNodeRLayers")
@@ -118,20 +138,21 @@ def _build_compositor(indirect_red_green: bool) -> bpy.types.NodeTree:
     combined = tree.nodes.new("CompositorNodeSeparateColor")
     tree.links.new(layers.outputs["Image"], combined.inputs[0])
     red_green = combined
-    if indirect_red_green:
-        terms = []
-        for light, colour in (("Diffuse Indirect", "Diffuse Color"), ("Glossy Indirect", "Glossy Color")):
-            product = tree.nodes.new("ShaderNodeVectorMath")
-            product.operation = "MULTIPLY"
-            tree.links.new(layers.outputs[light], product.inputs[0])
-            tree.links.new(layers.outputs[colour], product.inputs[1])
-            terms.append(product)
-        total = tree.nodes.new("ShaderNodeVectorMath")
-        total.operation = "ADD"
-        for k, term in enumerate(terms):
-            tree.links.new(term.outputs[0], total.inputs[k])
+    if direct_file is not None:
         red_green = tree.nodes.new("CompositorNodeSeparateColor")
-        tree.links.new(total.outputs[0], red_green.inputs[0])
+        tree.links.new(_light_of(tree, layers, "Indirect"), red_green.inputs[0])
+        direct = tree.nodes.new("CompositorNodeOutputFile")
+        direct.name = "direct"
+        direct.directory = str(direct_file.parent)
+        direct.file_name = direct_file.name  # Blender appends the item's name, which is empty
+        settings = direct.format
+        settings.media_type = "IMAGE"
+        settings.file_format = "OPEN_EXR"
+        settings.color_mode = "RGB"
+        settings.color_depth = "32"
+        settings.exr_codec = "NONE"
+        direct.file_output_items.new("RGBA", "")
+        tree.links.new(_light_of(tree, layers, "Direct"), direct.inputs[0])
     tree.links.new(red_green.outputs[0], combine.inputs[0])
     tree.links.new(red_green.outputs[1], combine.inputs[1])
     tree.links.new(combined.outputs[2], combine.inputs[2])
@@ -183,25 +204,36 @@ class SceneRenderer:
             bpy.ops.wm.read_factory_settings(use_empty=True)
         self.scene = bpy.context.scene
         _configure_render(self.scene)
-        self._set_indirect_passes(True)  # the compositor can only link passes that exist
-        self._combined = _build_compositor(indirect_red_green=False)
-        self._indirect = _build_compositor(indirect_red_green=True)
-        self.content = SceneContent(self.scene)
-        self.projector = ProjectorLight(self.scene.collection)
-        self.direct_render = direct_render  # applied by setup(); may change between scenes
         shm = Path("/dev/shm")
         self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
         self.scene.render.filepath = str(self._tmp / "frame.exr")
+        self._direct_file = self._tmp / "direct.exr"
+        self._compositor: tuple[bool, bpy.types.NodeTree] | None = None  # (direct_render, tree)
+        self.content = SceneContent(self.scene)
+        self.projector = ProjectorLight(self.scene.collection)
+        self.direct_render = direct_render  # applied by setup(); may change between scenes
         self.device = "CPU"
 
-    def _set_indirect_passes(self, on: bool) -> None:
+    def _set_light_passes(self, on: bool) -> None:
         layer = self.scene.view_layers[0]
-        for name in ("diffuse_indirect", "diffuse_color", "glossy_indirect", "glossy_color"):
-            setattr(layer, f"use_pass_{name}", on)
+        for light in ("diffuse", "glossy"):
+            for part in ("direct", "indirect", "color"):
+                setattr(layer, f"use_pass_{light}_{part}", on)
+
+    def _extra_lights(self) -> list[bpy.types.Object]:
+        return [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
 
     def _apply_direct_render(self) -> None:
-        self._set_indirect_passes(self.direct_render)
-        self.scene.compositing_node_group = self._indirect if self.direct_render else self._combined
+        """Passes and compositor of the way asked for. The compositor is built anew when the way
+        changes: Blender leaves links from passes that were switched off invalid after they come
+        back, and an invalid link reads as 0 (the indirect light was lost that way)."""
+        if self._compositor is None or self._compositor[0] != self.direct_render:
+            self._set_light_passes(self.direct_render)  # before building: it links existing passes
+            tree = _build_compositor(self._direct_file if self.direct_render else None)
+            self.scene.compositing_node_group = tree
+            if self._compositor is not None:
+                bpy.data.node_groups.remove(self._compositor[1])
+            self._compositor = (self.direct_render, tree)
         # With the spot's direct light from the direct render, the path-tracing render needs no
         # extra samples for it (projector.py SAMPLING_BOOST): the ambient light gets more.
         self.projector.sampling_boost = 1.0 if self.direct_render else SAMPLING_BOOST
@@ -274,23 +306,32 @@ class SceneRenderer:
             raise RuntimeError(f"Cycles wrote no image to {output}")
         return read_exr(output)
 
-    def _path_traced(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
+    def _path_traced(self, world_from_camera: np.ndarray, direct_passes: bool) -> dict[str, np.ndarray]:
+        """One path-traced frame; with `direct_passes`, also the direct light the compositor wrote."""
         self.place_rig(world_from_camera)
+        self._direct_file.unlink(missing_ok=True)
         channels = self._render_channels()
         depth = channels["A"].copy()
         depth[depth >= NO_HIT_DEPTH] = np.inf
-        return {
+        frame = {
             "projector": channels["R"].copy(),
             "flood": channels["G"].copy(),
             "ambient": channels["B"].copy(),
             "depth": depth,
         }
+        if direct_passes:
+            if not self._direct_file.is_file():
+                raise RuntimeError(f"Cycles' compositor wrote no direct light to {self._direct_file}")
+            direct = read_exr(self._direct_file)
+            frame["projector_direct"] = direct["R"].copy()
+            frame["flood_direct"] = direct["G"].copy()
+        return frame
 
     @contextlib.contextmanager
     def _projector_direct_only(self):
         """The scene lit by the spot alone, without bounces: a render gives the spot's direct light
         in R and G (the world is blue, so it may stay); no compositing, the image is the result."""
-        lights = [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
+        lights = self._extra_lights()
         self.scene.cycles.max_bounces = 0
         for obj in lights:
             obj.hide_render = True
@@ -312,18 +353,25 @@ class SceneRenderer:
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
         """render_frame for each pose: the path-traced renders first, then the direct ones (each
-        switch between the two makes Cycles sync the scene again, so it happens once)."""
-        frames = [self._path_traced(pose) for pose in poses]
+        switch between the two makes Cycles sync the scene again, so it happens once). Without
+        extra lights the spot is picked at every point, so the path-traced render's own direct
+        passes are exact and no direct render is needed."""
+        spot_alone = self.direct_render and not self._extra_lights()
+        if self.direct_render:
+            self._compositor[1].nodes["direct"].mute = not spot_alone  # nothing to write when unused
+        frames = [self._path_traced(pose, spot_alone) for pose in poses]
         if not self.direct_render:
             return frames
-        with self._projector_direct_only():
-            for frame, pose in zip(frames, poses, strict=True):
-                self.place_rig(pose)
-                direct = self._render_channels()
-                frame["projector_direct"] = direct["R"].copy()
-                frame["flood_direct"] = direct["G"].copy()
-                frame["projector"] += frame["projector_direct"]
-                frame["flood"] += frame["flood_direct"]
+        if not spot_alone:
+            with self._projector_direct_only():
+                for frame, pose in zip(frames, poses, strict=True):
+                    self.place_rig(pose)
+                    direct = self._render_channels()
+                    frame["projector_direct"] = direct["R"].copy()
+                    frame["flood_direct"] = direct["G"].copy()
+        for frame in frames:
+            frame["projector"] += frame["projector_direct"]
+            frame["flood"] += frame["flood_direct"]
         return frames
 
     def render(self, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
