@@ -22,6 +22,7 @@ BENCHMARKS = {
     "mask_fidelity": ["--scenes", "2", "--width", "160", "--objects", "40", "--reference-scenes", "1",
                       "--reference-samples", "16", "--timing-sizes", "160", "--timing-objects", "40",
                       "--repeats", "1"],
+    "second_pass": ["--sizes", "160", "--objects", "40", "--repeats", "1"],
     "render_objects": ["--repeats", "1"],
     "render_memory": ["--minutes", "1"],
     "trainer_speed": ["--repeats", "1", "--no-published"],

@@ -126,10 +126,10 @@ def _light_of(tree: bpy.types.NodeTree, layers: bpy.types.Node, kind: str) -> bp
     return total.outputs[0]
 
 
-def _build_compositor(direct_file: Path | None) -> bpy.types.NodeTree:
+def _build_compositor(indirect: bool, direct_file: Path | None) -> bpy.types.NodeTree:
     """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file.
-    With `direct_file`: R and G of that image hold only indirect light, and a File Output node
-    writes the direct light (R, G; B is the world's) as an RGB EXR at `direct_file`."""
+    indirect: R and G of that image hold only indirect light. direct_file: a File Output node also
+    writes the direct light (R, G; B is the world's) as an RGB EXR there."""
     tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     layers = tree.nodes.new("CompositorNodeRLayers")
@@ -138,9 +138,10 @@ def _build_compositor(direct_file: Path | None) -> bpy.types.NodeTree:
     combined = tree.nodes.new("CompositorNodeSeparateColor")
     tree.links.new(layers.outputs["Image"], combined.inputs[0])
     red_green = combined
-    if direct_file is not None:
+    if indirect:
         red_green = tree.nodes.new("CompositorNodeSeparateColor")
         tree.links.new(_light_of(tree, layers, "Indirect"), red_green.inputs[0])
+    if direct_file is not None:
         direct = tree.nodes.new("CompositorNodeOutputFile")
         direct.name = "direct"
         direct.directory = str(direct_file.parent)
@@ -208,35 +209,34 @@ class SceneRenderer:
         self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
         self.scene.render.filepath = str(self._tmp / "frame.exr")
         self._direct_file = self._tmp / "direct.exr"
-        self._compositor: tuple[bool, bpy.types.NodeTree] | None = None  # (direct_render, tree)
+        self._compositor: tuple[tuple[bool, bool], bpy.types.NodeTree] | None = None  # (key, tree)
+        self._spot_alone = False  # set by setup()
         self.content = SceneContent(self.scene)
         self.projector = ProjectorLight(self.scene.collection)
         self.direct_render = direct_render  # applied by setup(); may change between scenes
         self.device = "CPU"
 
-    def _set_light_passes(self, on: bool) -> None:
-        layer = self.scene.view_layers[0]
-        for light in ("diffuse", "glossy"):
-            for part in ("direct", "indirect", "color"):
-                setattr(layer, f"use_pass_{light}_{part}", on)
-
     def _extra_lights(self) -> list[bpy.types.Object]:
         return [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
 
-    def _apply_direct_render(self) -> None:
-        """Passes and compositor of the way asked for. The compositor is built anew when the way
-        changes: Blender leaves links from passes that were switched off invalid after they come
-        back, and an invalid link reads as 0 (the indirect light was lost that way)."""
-        if self._compositor is None or self._compositor[0] != self.direct_render:
-            self._set_light_passes(self.direct_render)  # before building: it links existing passes
-            tree = _build_compositor(self._direct_file if self.direct_render else None)
-            self.scene.compositing_node_group = tree
-            if self._compositor is not None:
-                bpy.data.node_groups.remove(self._compositor[1])
-            self._compositor = (self.direct_render, tree)
-        # With the spot's direct light from the direct render, the path-tracing render needs no
-        # extra samples for it (projector.py SAMPLING_BOOST): the ambient light gets more.
-        self.projector.sampling_boost = 1.0 if self.direct_render else SAMPLING_BOOST
+    def _use_compositor(self, indirect: bool, direct: bool) -> None:
+        """The light passes and compositor for R and G as indirect light only, and for the direct
+        light written apart (_build_compositor). Built anew when these change: Blender leaves links
+        from passes switched off invalid after they come back, and an invalid link reads as 0 (the
+        indirect light was lost that way). Passes are on only where used: the direct ones cost 3-6%
+        of a path-traced render (bench.second_pass)."""
+        key = (indirect, direct)
+        if self._compositor is not None and self._compositor[0] == key:
+            return
+        layer = self.scene.view_layers[0]
+        for light in ("diffuse", "glossy"):
+            for part, on in (("indirect", indirect), ("color", indirect or direct), ("direct", direct)):
+                setattr(layer, f"use_pass_{light}_{part}", on)
+        tree = _build_compositor(indirect, self._direct_file if direct else None)
+        self.scene.compositing_node_group = tree
+        if self._compositor is not None:
+            bpy.data.node_groups.remove(self._compositor[1])
+        self._compositor = (key, tree)
 
     def close(self) -> None:
         self.content.release()
@@ -270,7 +270,9 @@ class SceneRenderer:
         if not Path(spec.pattern.path).is_file():
             raise ValueError(f"scene spec: pattern.path {spec.pattern.path} does not exist")
         self._apply_render_settings(spec.render)
-        self._apply_direct_render()
+        # With the spot's direct light rendered apart, the path-tracing render needs no extra
+        # samples for it (projector.py SAMPLING_BOOST): the ambient light gets more.
+        self.projector.sampling_boost = 1.0 if self.direct_render else SAMPLING_BOOST
         rig = spec.rig
         self.content.set_camera(rig.camera)
         self.projector.set_intrinsics(astuple(rig.projector))
@@ -280,6 +282,10 @@ class SceneRenderer:
         self.projector.set_pattern(pattern.path, pattern.sha256 or pattern.path, width, self._tmp)
         self.projector.set_powers(spec.projector_power, spec.flood_power)
         self.content.build(spec)
+        # Without extra lights the spot is picked at every point, so the path-traced render's own
+        # direct passes are exact and no direct render is needed (docs/RENDERING.md).
+        self._spot_alone = self.direct_render and not self._extra_lights()
+        self._use_compositor(indirect=self.direct_render, direct=self._spot_alone)
         self.refresh()
         return spec.poses
 
@@ -353,16 +359,12 @@ class SceneRenderer:
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
         """render_frame for each pose: the path-traced renders first, then the direct ones (each
-        switch between the two makes Cycles sync the scene again, so it happens once). Without
-        extra lights the spot is picked at every point, so the path-traced render's own direct
-        passes are exact and no direct render is needed."""
-        spot_alone = self.direct_render and not self._extra_lights()
-        if self.direct_render:
-            self._compositor[1].nodes["direct"].mute = not spot_alone  # nothing to write when unused
-        frames = [self._path_traced(pose, spot_alone) for pose in poses]
+        switch between the two makes Cycles sync the scene again, so it happens once); none
+        without extra lights (setup)."""
+        frames = [self._path_traced(pose, self._spot_alone) for pose in poses]
         if not self.direct_render:
             return frames
-        if not spot_alone:
+        if not self._spot_alone:
             with self._projector_direct_only():
                 for frame, pose in zip(frames, poses, strict=True):
                     self.place_rig(pose)
