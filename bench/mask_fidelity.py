@@ -1,7 +1,8 @@
 """Visibility-mask leak, missing dots ("pepper") and render time: the one-render way ("old",
-SceneRenderer(direct_render=False), mask from flood - ambient) against the direct render ("new",
-the projector's direct light rendered apart, mask dotsim.masks.direct_visibility_mask), side by
-side on the same scenes in one run.
+SceneRenderer(direct_render=False), mask from flood - ambient) against the direct light's two ways
+("separate": rendered apart, the default; "shared": from the path-traced render, [render]
+direct_light), both with the mask dotsim.masks.direct_visibility_mask, side by side on the same
+scenes in one run.
 
     python -m bench.mask_fidelity [--scenes 20] [--width 320] [--objects 150] [--reference-scenes 3]
         [--timing-sizes 640,1216] [--timing-objects 300] [--repeats 3] [--no-timing] [--no-fidelity]
@@ -45,7 +46,13 @@ from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import exposure_gain
 
-WAYS = {"old": False, "new": True}  # name: SceneRenderer.direct_render
+# name: (SceneRenderer.direct_render, render.direct_light)
+WAYS = {"old": (False, "separate"), "separate": (True, "separate"), "shared": (True, "shared")}
+
+
+def way_spec(spec: dict, name: str) -> SceneSpec:
+    """`spec` as the way `name` renders it (set renderer.direct_render as WAYS says, too)."""
+    return SceneSpec.from_dict(dict(spec, render=dict(spec["render"], direct_light=WAYS[name][1])))
 
 
 def random_lights(seed: int) -> list[dict]:
@@ -110,19 +117,18 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         spec = bench_spec(rig, inputs, args.objects, seed=seed)
         spec["lights"] = random_lights(seed)
         raws = {}
-        for name, direct in WAYS.items():
+        for name, (direct, _) in WAYS.items():
             renderer.direct_render = direct
-            raws[name] = renderer.render(SceneSpec.from_dict(spec))[0]
-        depth = raws["new"]["depth"]
+            raws[name] = renderer.render(way_spec(spec, name))[0]
+        depth = raws["separate"]["depth"]
         lit, shadow = judged_regions(depth, rig)
         ones = np.ones((rig.projector.height, rig.projector.width))
         oracle_flood = expected_pattern_image(depth, rig, ones, supersample=1)
         old = raws["old"]
-        masks = {
-            "old": visibility_mask(old["ambient"], old["ambient"] + old["flood"], 0.05, depth=depth),
-            "new": make_frame(raws["new"], SceneSpec.from_dict(spec),
-                              np.random.default_rng(seed))["visibility"] > 0,
-        }
+        masks = {name: make_frame(raws[name], way_spec(spec, name),
+                                  np.random.default_rng(seed))["visibility"] > 0
+                 for name in WAYS if name != "old"}
+        masks["old"] = visibility_mask(old["ambient"], old["ambient"] + old["flood"], 0.05, depth=depth)
         reference = None
         if seed < args.reference_scenes:
             renderer.direct_render = False
@@ -149,16 +155,16 @@ def run_timing(renderer, args, folder: Path) -> dict[tuple[int, bool], dict[str,
         rig = bench_rig(width)
         spec = bench_spec(rig, write_inputs(rig, folder), args.timing_objects, lights=lights)
         spec["poses"] = scene_poses()
-        spec = SceneSpec.from_dict(spec)
+        specs = {name: way_spec(spec, name) for name in WAYS}
         runs = {(name, clock): [] for name in WAYS for clock in ("wall", "cpu")}
         for repeat in range(args.repeats):
             order = list(WAYS) if repeat % 2 == 0 else list(WAYS)[::-1]
             for name in order:
-                renderer.direct_render = WAYS[name]
+                renderer.direct_render = WAYS[name][0]
                 wall, cpu = time.perf_counter(), time.process_time()
-                renderer.render(spec)
-                runs[name, "wall"].append((time.perf_counter() - wall) / len(spec.poses))
-                runs[name, "cpu"].append((time.process_time() - cpu) / len(spec.poses))
+                renderer.render(specs[name])
+                runs[name, "wall"].append((time.perf_counter() - wall) / len(specs[name].poses))
+                runs[name, "cpu"].append((time.process_time() - cpu) / len(specs[name].poses))
         out[width, lights] = {f"{name}_{clock}": statistics.median(values)
                               for (name, clock), values in runs.items()}
         print(f"{rig.camera.width}x{rig.camera.height} {_lights_label(lights)} s/frame per run: "
@@ -192,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     if results:
         print(f"\nfidelity, {args.scenes} scenes at width {args.width} "
               "(mean over scenes; median in brackets)")
-        print(f"{'way':>4} {'leak':>14} {'no dot':>14} {'recall':>14} {'pepper':>14} {'ambient corr':>14}")
+        print(f"{'way':>8} {'leak':>14} {'no dot':>14} {'recall':>14} {'pepper':>14} {'ambient corr':>14}")
         for name, rows in results.items():
             cells = []
             for key in ("leak", "no_dot", "recall", "pepper", "ambient"):
@@ -200,13 +206,15 @@ def main(argv: list[str] | None = None) -> int:
                 percent = 1 if key == "ambient" else 100
                 cells.append(f"{percent * np.mean(values):6.2f} ({percent * np.median(values):5.2f})"
                              if values else "-")
-            print(f"{name:>4} " + " ".join(f"{cell:>14}" for cell in cells))
+            print(f"{name:>8} " + " ".join(f"{cell:>14}" for cell in cells))
         print("(leak, no dot, recall, pepper in %; ambient as a correlation)")
     for (width, lights), seconds in timing.items():
         for clock in ("wall", "cpu"):
-            old, new = seconds[f"old_{clock}"], seconds[f"new_{clock}"]
-            print(f"{clock} time per frame at width {width}, {_lights_label(lights)}: "
-                  f"old {old:.2f} s, new {new:.2f} s, ratio {new / old:.2f} (medians of {args.repeats})")
+            old = seconds[f"old_{clock}"]
+            print(f"{clock} time per frame at width {width}, {_lights_label(lights)} (medians of "
+                  f"{args.repeats}): old {old:.2f} s, " + ", ".join(
+                      f"{name} {seconds[f'{name}_{clock}']:.2f} s ({seconds[f'{name}_{clock}'] / old:.2f}x)"
+                      for name in WAYS if name != "old"))
     return 0
 
 

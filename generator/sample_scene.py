@@ -303,7 +303,8 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     return SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
         render=RenderSettings(samples=config.render.samples, seed=seed, max_bounces=config.render.max_bounces,
-                              device=config.render.device, threads=config.render.threads),
+                              device=config.render.device, threads=config.render.threads,
+                              direct_light=config.render.direct_light),
         rig=rig,
         pattern=PatternRef(path=resources.pattern_path, sha256=resources.pattern_sha256),
         projector_power=projector_power,

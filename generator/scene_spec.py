@@ -28,6 +28,8 @@ from dotsim.rig import Rig
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 SPLITS = ("train", "test")
 DEVICES = ("CPU", "GPU")
+# How the spot's direct light is rendered where extra lights compete with it (docs/RENDERING.md).
+DIRECT_LIGHT = ("separate", "shared")
 EXPOSURES = ("fixed", "auto")
 # A sampled scene is one static scene seen from this many nearby rig poses (frame 0 and three moves).
 FRAMES_PER_SCENE = 4
@@ -106,23 +108,27 @@ def _number(value: Any, name: str, low: float | None = None, low_open: bool = Fa
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """Cycles settings: samples per pixel, Cycles seed, maximum bounces, device, threads (0: all)."""
+    """Cycles settings: samples per pixel, Cycles seed, maximum bounces, device, threads (0: all),
+    and how the spot's direct light is rendered in a scene with extra lights: "separate" (a render
+    of its own) or "shared" (the path-traced render's passes; specs from before it are "separate")."""
     samples: int
     seed: int
     max_bounces: int
     device: str
     threads: int
+    direct_light: str = "separate"
 
     def to_dict(self) -> dict:
         return {"samples": self.samples, "seed": self.seed, "max_bounces": self.max_bounces,
-                "device": self.device, "threads": self.threads}
+                "device": self.device, "threads": self.threads, "direct_light": self.direct_light}
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "render") -> RenderSettings:
-        f = _Fields(d, where, ("samples", "seed", "max_bounces", "device", "threads"))
+        f = _Fields(d, where, ("samples", "seed", "max_bounces", "device", "threads"), ("direct_light",))
         return cls(samples=f.integer("samples", 1), seed=f.integer("seed", 0),
                    max_bounces=f.integer("max_bounces", 0), device=f.text("device", DEVICES),
-                   threads=f.integer("threads", 0))
+                   threads=f.integer("threads", 0),
+                   direct_light=f.text("direct_light", DIRECT_LIGHT) if "direct_light" in d else "separate")
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,14 @@ def _set(path: list, value):
 _DELETE = object()
 
 
+def test_direct_light_comes_from_the_config_and_older_specs_read_as_separate():
+    assert sampled().render.direct_light == "separate"
+    assert sampled(render={"direct_light": "shared"}).render.direct_light == "shared"
+    older = sampled().to_dict()
+    del older["render"]["direct_light"]  # scene.json written before the setting existed
+    assert SceneSpec.from_dict(older).render.direct_light == "separate"
+
+
 @pytest.mark.parametrize("change, message", [
     (_set(["objects", 3, "material", "albedo"], -1),
      "objects[3].material.albedo must be a number >= 0, got -1"),
@@ -57,6 +65,8 @@ _DELETE = object()
     (_set(["colour"], 1), "scene spec: colour is not a field"),
     (_set(["render", "samples"], 0), "render.samples must be an integer >= 1, got 0"),
     (_set(["render", "device"], "TPU"), "render.device must be one of ['CPU', 'GPU'], got 'TPU'"),
+    (_set(["render", "direct_light"], "both"),
+     "render.direct_light must be one of ['separate', 'shared'], got 'both'"),
     (_set(["poses", 1], [[1, 0], [0, 1]]), "poses[1] must be a finite 4x4 matrix"),
     (_set(["poses"], []), "poses must be a non-empty list"),
     (_set(["lights"], [{"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}]),

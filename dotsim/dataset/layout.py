@@ -14,7 +14,7 @@ from pathlib import Path
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim.file_io import atomic_write_json
 
-FORMAT_VERSION = "1.1"
+FORMAT_VERSION = "1.2"
 DEFAULT_SCENES_PER_SHARD = 100
 
 INDEX_FILE = "index.json"

@@ -33,6 +33,7 @@ def base_spec(
     poses: list | None = None,
     threads: int = 0,
     pixel_scale: float = 1.0,
+    direct_light: str = "separate",
 ) -> dict:
     """A SceneSpec with no objects; add them to spec["objects"]. pixel_scale: the rig's resolution
     over its sensor's full resolution (the sensor model's blur and bloom and the mask's dot blur
@@ -41,7 +42,8 @@ def base_spec(
         "scene_index": 0,
         "split": "test",
         "seed": seed,
-        "render": {"samples": samples, "seed": seed, "max_bounces": 4, "device": "CPU", "threads": threads},
+        "render": {"samples": samples, "seed": seed, "max_bounces": 4, "device": "CPU", "threads": threads,
+                   "direct_light": direct_light},
         "rig": rig,
         "pattern": {"path": pattern_path, "sha256": pattern_sha256},
         "projector": {"power": projector_power},
