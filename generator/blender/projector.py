@@ -26,7 +26,8 @@ from .pattern_filter import box_prefilter, png16_bytes
 # Declaring the spot brighter (and dividing its node gains alike: same output, unbiased) gives it
 # more samples, at the ambient pass's expense (docs/RENDERING.md has the measurements). The
 # renderer's default way takes the spot's direct light from a separate render and uses boost 1;
-# SAMPLING_BOOST serves its one-render way (SceneRenderer(direct_render=False)).
+# SAMPLING_BOOST serves the ways that take it from the one render with extra lights present
+# ([render] direct_light = "shared", and SceneRenderer(direct_render=False) for comparison).
 SAMPLING_BOOST = 3.0
 
 
