@@ -64,8 +64,9 @@ def bare_pass(renderer, percentage: int):
 
 @contextlib.contextmanager
 def direct_passes(renderer):
-    """The compositor of a scene without extra lights: direct passes on, written to a file."""
-    renderer._use_compositor(indirect=True, direct=True)
+    """The compositor of a scene without extra lights: all light in R and G, the direct passes on
+    and written to a file."""
+    renderer._use_compositor(indirect=False, direct=True)
     try:
         yield
     finally:

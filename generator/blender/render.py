@@ -222,8 +222,7 @@ class SceneRenderer:
         """The light passes and compositor for R and G as indirect light only, and for the direct
         light written apart (_build_compositor). Built anew when these change: Blender leaves links
         from passes switched off invalid after they come back, and an invalid link reads as 0 (the
-        indirect light was lost that way). Passes are on only where used: the direct ones cost 3-6%
-        of a path-traced render (bench.second_pass)."""
+        indirect light was lost that way). Passes are on only where used: each costs render time."""
         key = (indirect, direct)
         if self._compositor is not None and self._compositor[0] == key:
             return
@@ -289,7 +288,7 @@ class SceneRenderer:
         self.projector.set_powers(spec.projector_power, spec.flood_power)
         self.content.build(spec)
         # R and G are indirect light only where the direct render adds the rest; otherwise all
-        # light, with the direct light written apart (not its complement: measured 6% faster).
+        # light, with the direct light written apart (the combined image needs no compositing).
         self._use_compositor(indirect=self._separate_direct,
                              direct=self.direct_render and not self._separate_direct)
         self.refresh()
