@@ -82,7 +82,7 @@ class RenderConfig:
     direct_light: str = setting(
         "separate", "the projector's direct light in scenes with extra lights: \"separate\" = a render of "
         "its own (no missing dots; 1.6-1.8x the render time per frame), \"shared\" = from the one "
-        "path-traced render (1-9% more time than one render without it, but dots missing where Cycles "
+        "path-traced render (0.98-1.09x the time of one render without it, but dots missing where Cycles "
         "sampled an extra light instead: 13% of lit pixels, left out of the mask); docs/RENDERING.md",
         choices=("separate", "shared"))
 

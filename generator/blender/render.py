@@ -1,6 +1,6 @@
 """SceneRenderer: SceneSpec (generator/scene_spec.py) -> one frame of raw passes per pose, with
-Cycles: one path-tracing render per frame for all light, and one direct-light render of the
-projector alone (docs/RENDERING.md).
+Cycles: one path-tracing render per frame for all light and, in scenes with extra lights, one
+direct-light render of the projector alone (docs/RENDERING.md).
 
 How the passes are separated (several lights in one render are noisy, docs/RENDERING.md): materials
 are grey, so colour channels never mix. One spot light emits the pattern in red and the flood
@@ -219,10 +219,10 @@ class SceneRenderer:
         self.device = "CPU"
 
     def _use_compositor(self, indirect: bool, direct: bool) -> None:
-        """The light passes and compositor for R and G as indirect light only, and for the direct
-        light written apart (_build_compositor). Built anew when these change: Blender leaves links
-        from passes switched off invalid after they come back, and an invalid link reads as 0 (the
-        indirect light was lost that way). Passes are on only where used: each costs render time."""
+        """Passes and compositor (_build_compositor): R and G as indirect light only (`indirect`), the
+        direct light written apart (`direct`). Passes are on only where used: each costs render
+        time. Built anew when these change: Blender leaves links from passes switched off invalid
+        after they come back, and an invalid link reads as 0 (the indirect light was lost that way)."""
         key = (indirect, direct)
         if self._compositor is not None and self._compositor[0] == key:
             return
