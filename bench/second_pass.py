@@ -9,8 +9,9 @@ one SceneRenderer. Per size and round, each kind of render runs once to sync its
 Cycles, then once timed (wall seconds; median over rounds):
 - path-traced: the frame's path-traced render, as the renderer makes it (all lights, bounces,
   compositor, EXR written and read);
-- path-traced with direct passes: the same with the direct passes on and written apart, as the
-  renderer makes a scene without extra lights (which then needs no direct render);
+- path-traced with direct passes: the one render of a scene without extra lights (or with
+  [render] direct_light = "shared"), as the renderer makes it: all light as rendered, the direct
+  passes on and written apart (no direct render follows);
 - direct: the spot's direct light, as the renderer makes it (no bounces, extra lights hidden);
 - bare: the least a full-size pass can be: camera rays only (no light, no bounce, one emission
   material for every object, no compositor);
@@ -31,38 +32,6 @@ from generator.scene_spec import SceneSpec
 
 
 @contextlib.contextmanager
-def bare_pass(renderer, percentage: int):
-    """The built scene with every object shaded by one emission material, no light, no bounce."""
-    import bpy
-
-    scene = renderer.scene
-    layer = scene.view_layers[0]
-    material = bpy.data.materials.new("bench_emission")
-    nodes = material.node_tree.nodes
-    nodes.clear()
-    emission = nodes.new("ShaderNodeEmission")
-    material.node_tree.links.new(emission.outputs[0], nodes.new("ShaderNodeOutputMaterial").inputs[0])
-    lights = [obj for obj in scene.objects if obj.type == "LIGHT" and not obj.hide_render]
-    bounces = scene.cycles.max_bounces
-    layer.material_override = material
-    for obj in lights:
-        obj.hide_render = True
-    scene.cycles.max_bounces = 0
-    scene.render.use_compositing = False
-    scene.render.resolution_percentage = percentage
-    try:
-        yield
-    finally:
-        scene.render.resolution_percentage = 100
-        scene.render.use_compositing = True
-        scene.cycles.max_bounces = bounces
-        for obj in lights:
-            obj.hide_render = False
-        layer.material_override = None
-        bpy.data.materials.remove(material)
-
-
-@contextlib.contextmanager
 def direct_passes(renderer):
     """The compositor of a scene without extra lights: all light in R and G, the direct passes on
     and written to a file."""
@@ -80,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="timed rounds (default 5)")
     args = parser.parse_args(argv)
 
+    from generator.blender.bare_pass import bare_pass
     from generator.blender.render import SceneRenderer
 
     kinds = {

@@ -4,7 +4,7 @@ The only generator package that imports bpy. What run_in_blender.py needs import
 numpy, the standard library and generator.scene_spec (with dotsim.rig), so it also runs in
 Blender's own Python (demo_scenes, for tests and benchmarks, also uses the generator config).
 
-Modules (bpy only in render, scene_builder, projector, materials):
+Modules (bpy only in render, scene_builder, projector, materials, bare_pass):
   render          SceneRenderer: builds a SceneSpec, renders one frame per pose (docs/RENDERING.md)
   scene_builder   camera, world, extra lights and objects in bpy; dispatches on mesh and light types
   projector       the dot projector and the flood rectangle as one Cycles spot light
@@ -14,4 +14,5 @@ Modules (bpy only in render, scene_builder, projector, materials):
   exr             reader for the one EXR layout the renderer writes
   run_in_blender  entry script: SceneSpec JSON files -> raw .npz (`blender --python`, or bpy module)
   demo_scenes     hand-built spec dicts with known geometry, for render tests and benchmarks
+  bare_pass       the cheapest full-size pass (camera rays only): the floor bench.second_pass measures
 """
