@@ -272,11 +272,11 @@ class SceneRenderer:
         # Cycles' one light sample per point ("separate"), else from the path-traced render's own
         # passes: exact without extra lights (the spot is then picked at every point), missing
         # where an extra light was picked with "shared" (docs/RENDERING.md).
-        shared = spec.render.direct_light == "shared"
-        self._separate_direct = self.direct_render and bool(spec.lights) and not shared
+        shared, extra_lights = spec.render.direct_light == "shared", bool(spec.lights)
+        self._separate_direct = self.direct_render and extra_lights and not shared
         # Only where the path-traced render's direct light is used with extra lights does the spot
         # need extra samples (projector.py SAMPLING_BOOST); otherwise the ambient light gets them.
-        boosted = not self.direct_render or (shared and bool(spec.lights))
+        boosted = not self.direct_render or (shared and extra_lights)
         self.projector.sampling_boost = SAMPLING_BOOST if boosted else 1.0
         rig = spec.rig
         self.content.set_camera(rig.camera)
