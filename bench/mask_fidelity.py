@@ -20,10 +20,10 @@ out the 2 px band at depth edges (dotsim.masks.edge_mask) and 2 px at shadow bor
   cos / r^2 predicts (scaled by the scene's median ratio, which absorbs power and albedo);
 - ambient: correlation of the ambient pass with a --reference-samples render, first
   --reference-scenes scenes.
-Timing: bench.render_speed's scene (N objects) with two 50 W lights and without extra lights (the
-new way then takes the direct light from the path-traced render's passes: one render), a whole
-scene (build + 4 frames) / 4, old and new alternating, median of --repeats, wall time and CPU time
-of the process (all its threads). Wall times on a loaded machine are not figures; CPU times are
+Timing: bench.render_speed's scene (N objects) with two 50 W lights and without extra lights (both
+direct-light ways then take it from the path-traced render's passes: one render), a whole scene
+(build + 4 frames) / 4, the three ways alternating, median of --repeats, wall time and CPU time of
+the process (all its threads). Wall times on a loaded machine are not figures; CPU times are
 steadier there.
 """
 

@@ -35,11 +35,12 @@ from generator.scene_spec import SceneSpec
 def direct_passes(renderer):
     """The compositor of a scene without extra lights: all light in R and G, the direct passes on
     and written to a file."""
+    indirect, direct = renderer._compositor[0]
     renderer._use_compositor(indirect=False, direct=True)
     try:
         yield
     finally:
-        renderer._use_compositor(indirect=True, direct=False)
+        renderer._use_compositor(indirect=indirect, direct=direct)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,15 +53,14 @@ def main(argv: list[str] | None = None) -> int:
     from generator.blender.bare_pass import bare_pass
     from generator.blender.render import SceneRenderer
 
-    kinds = {
-        "path-traced": contextlib.nullcontext,
-        "path-traced with direct passes": lambda: direct_passes(renderer),
-        "direct": None,  # the renderer's own context, bound below
-        "bare": lambda: bare_pass(renderer, 100),
-        "bare, half size": lambda: bare_pass(renderer, 50),
-    }
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
-        kinds["direct"] = renderer._projector_direct_only
+        kinds = {
+            "path-traced": contextlib.nullcontext,
+            "path-traced with direct passes": lambda: direct_passes(renderer),
+            "direct": renderer._projector_direct_only,
+            "bare": lambda: bare_pass(renderer, 100),
+            "bare, half size": lambda: bare_pass(renderer, 50),
+        }
         for width in (int(w) for w in args.sizes.split(",")):
             rig = bench_rig(width)
             spec = SceneSpec.from_dict(bench_spec(rig, write_inputs(rig, Path(tmp)), args.objects))

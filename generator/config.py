@@ -21,7 +21,7 @@ from pathlib import Path
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
 from dotsim.rig_files import RigFileError, configured_rig
-from generator.scene_spec import PRIMITIVE_SHAPES
+from generator.scene_spec import DEVICES, DIRECT_LIGHT, PRIMITIVE_SHAPES
 
 RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
 
@@ -77,14 +77,14 @@ class RenderConfig:
     samples: int = setting(1, "Cycles samples per pixel (1 is enough for the projector pass: quality "
                            "0.98, docs/RENDERING.md)", low=1, high=4096)
     max_bounces: int = setting(4, "Cycles maximum light bounces", low=0, high=64)
-    device: str = setting("CPU", "Cycles device", choices=("CPU", "GPU"))
+    device: str = setting("CPU", "Cycles device", choices=DEVICES)
     threads: int = setting(0, "render threads per worker (0 = all cores)", low=0, high=1024)
     direct_light: str = setting(
         "separate", "the projector's direct light in scenes with extra lights: \"separate\" = a render of "
         "its own (no missing dots; 1.6-1.8x the render time per frame), \"shared\" = from the one "
         "path-traced render (0.98-1.09x the time of one render without it, but dots missing where Cycles "
         "sampled an extra light instead: 13% of lit pixels, left out of the mask); docs/RENDERING.md",
-        choices=("separate", "shared"))
+        choices=DIRECT_LIGHT)
 
 
 @dataclass(frozen=True)

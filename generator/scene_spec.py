@@ -125,10 +125,10 @@ class RenderSettings:
     @classmethod
     def from_dict(cls, d: Any, where: str = "render") -> RenderSettings:
         f = _Fields(d, where, ("samples", "seed", "max_bounces", "device", "threads"), ("direct_light",))
+        optional = {"direct_light": f.text("direct_light", DIRECT_LIGHT)} if "direct_light" in d else {}
         return cls(samples=f.integer("samples", 1), seed=f.integer("seed", 0),
                    max_bounces=f.integer("max_bounces", 0), device=f.text("device", DEVICES),
-                   threads=f.integer("threads", 0),
-                   direct_light=f.text("direct_light", DIRECT_LIGHT) if "direct_light" in d else "separate")
+                   threads=f.integer("threads", 0), **optional)
 
 
 @dataclass(frozen=True)

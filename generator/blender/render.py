@@ -317,9 +317,9 @@ class SceneRenderer:
             raise RuntimeError(f"Cycles wrote no image to {output}")
         return read_exr(output)
 
-    def _path_traced(self, world_from_camera: np.ndarray, direct_passes: bool) -> dict[str, np.ndarray]:
+    def _path_traced(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """One path-traced frame (projector and flood: all their light, or their indirect light where
-        a direct render follows); with `direct_passes`, also the direct light the compositor wrote."""
+        a direct render follows), and the direct light where the compositor writes it."""
         self.place_rig(world_from_camera)
         self._direct_file.unlink(missing_ok=True)
         channels = self._render_channels()
@@ -331,7 +331,8 @@ class SceneRenderer:
             "ambient": channels["B"].copy(),
             "depth": depth,
         }
-        if direct_passes:
+        _, direct_written = self._compositor[0]  # (indirect, direct) of _use_compositor
+        if direct_written:
             if not self._direct_file.is_file():
                 raise RuntimeError(f"Cycles' compositor wrote no direct light to {self._direct_file}")
             direct = read_exr(self._direct_file)
@@ -367,8 +368,7 @@ class SceneRenderer:
         """render_frame for each pose: the path-traced renders first, then the direct ones (each
         switch between the two makes Cycles sync the scene again, so it happens once); none
         without extra lights or with render.direct_light "shared" (setup)."""
-        from_passes = self.direct_render and not self._separate_direct
-        frames = [self._path_traced(pose, from_passes) for pose in poses]
+        frames = [self._path_traced(pose) for pose in poses]
         if not self._separate_direct:
             return frames
         with self._projector_direct_only():
