@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 # unpinned torch would pull several GB of CUDA packages. Elsewhere torch resolves as usual;
 # override with `make setup TORCH=torch==2.x.y`.
 TORCH ?= $(if $(wildcard /opt/wheels/torch-2.13.0*),torch==2.13.0,torch)
-CONFIG ?= configs/default.toml
+CONFIG ?= default
 OUT ?= out
 SCENES ?= 4
 WORKERS ?= 1
@@ -65,7 +65,7 @@ testset: assets
 RUN ?= $(OUT)/runs/tiny
 
 train: setup
-	$(BIN)/dotsim train --config configs/train_tiny.toml --data $(DATA) --out $(RUN)
+	$(BIN)/dotsim train --config train_tiny --data $(DATA) --out $(RUN)
 
 eval: testset
 	$(BIN)/dotsim eval --checkpoint $(RUN)/checkpoint.pt --data $(TEST_DATA) --out $(RUN)/eval

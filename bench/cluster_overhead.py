@@ -2,7 +2,7 @@
 the first scene written with Ray and with Slurm.
 
     python -m bench.cluster_overhead [--scenes 16] [--workers 2] [--repeats 2] [--scale 0.25]
-                                     [--config configs/structure_core.toml] [--no-slurm]
+                                     [--config dotsim/configs/structure_core.toml] [--no-slurm]
 
 (the default config draws meshes from the asset cache: build it once with `make assets-train`)
 
@@ -13,7 +13,7 @@ printed separately), alternating which goes first. Throughput is scenes per hour
 from the call to the sealed dataset; Ray's overhead is (local rate / Ray rate - 1), median over
 repeats (goal: at most 5%). Submit to first scene: from the call (Ray) or from
 `dotsim generate --slurm` (Slurm: a one-node cluster of its own, bench.one_node_slurm, needs root
-and slurm-wlm; configs/tiny.toml, two array tasks) until the first scene folder is complete.
+and slurm-wlm; dotsim/configs/tiny.toml, two array tasks) until the first scene folder is complete.
 Run on a quiet machine: other load on the cores changes both rates.
 """
 
@@ -33,7 +33,7 @@ from generator.config import load_config
 from generator.pipeline import generate
 from generator.ray_cluster import RayBackend
 
-SLURM_CONFIG = Path("configs/tiny.toml")
+SLURM_CONFIG = Path("dotsim/configs/tiny.toml")
 
 
 def first_scene_clock(out: Path, began: float) -> dict:
@@ -87,7 +87,7 @@ def slurm_first_scene(config_path: Path, scenes: int, tmp: Path) -> tuple[float,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.cluster_overhead",
                                      description=__doc__.splitlines()[0])
-    parser.add_argument("--config", type=Path, default=Path("configs/structure_core.toml"))
+    parser.add_argument("--config", type=Path, default=Path("dotsim/configs/structure_core.toml"))
     parser.add_argument("--scale", type=float, default=0.25, help="rig scale (default 0.25: 304 x 224)")
     parser.add_argument("--scenes", type=int, default=16)
     parser.add_argument("--workers", type=int, default=2)

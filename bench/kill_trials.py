@@ -2,7 +2,7 @@
 
     python -m bench.kill_trials --trials 10 --during-seal 5 --out /tmp/kill_trials
 
-1. Renders N scenes (--base, configs/tiny.toml, sealed) and, once, N + M scenes (--extra) as the
+1. Renders N scenes (--base, dotsim/configs/tiny.toml, sealed) and, once, N + M scenes (--extra) as the
    reference. Each trial copies the sealed N-scene dataset, starts `dotsim generate --scenes N+M`
    in its own process group and kills the group with SIGKILL at a random moment (uniform over the
    time a whole extension takes; --during-seal trials wait for the last scene folder and kill
@@ -43,7 +43,7 @@ except Exception as error:
 
 
 def generate(code: Path, out: Path, scenes: int, **popen) -> subprocess.Popen:
-    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(REPO / "configs/tiny.toml"),
+    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", "tiny",
                "--out", str(out), "--split", "train", "--scenes", str(scenes), "--seed", "3", "--no-progress"]
     return subprocess.Popen(command, cwd=code, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             **popen)

@@ -1,6 +1,6 @@
 """Benchmark: what one scene costs at each resolution, on one core: seconds, MB on disk, files.
 
-    python -m bench.scene_cost [--scales 0.25,0.5,1.0] [--scenes 2] [--config configs/structure_core.toml]
+    python -m bench.scene_cost [--scales 0.25,0.5,1.0] [--scenes 2] [--config structure_core]
 
 Renders --scenes scenes of the config at each rig scale with one render worker of one thread
 ([render] threads = 1), so seconds per scene are per core: a node with C cores and enough memory
@@ -53,7 +53,7 @@ def scene_cost(config_path: Path, scale: float, scenes: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.scene_cost", description=__doc__.splitlines()[0])
-    parser.add_argument("--config", type=Path, default=Path("configs/structure_core.toml"))
+    parser.add_argument("--config", type=Path, default=Path("dotsim/configs/structure_core.toml"))
     parser.add_argument("--scales", default="0.25,0.5,1.0", help="rig scales, comma-separated")
     parser.add_argument("--scenes", type=int, default=2, help="scenes per scale (default 2)")
     args = parser.parse_args(argv)

@@ -3,11 +3,11 @@ evaluate o(0.5..5) of both on a test split of disjoint scenes. Goal (issue 5): n
 half of SGBM's.
 
     python -m bench.trainer_accuracy [--data DIR] [--test-data DIR] [--minutes 10] \
-        [--config configs/train_tiny.toml]
+        [--config dotsim/configs/train_tiny.toml]
 
 Data: --data (its train split) and --test-data (its test split; default --data), else the Blender
 generator's output under out/: a folder holding a train and a test split, or sibling folders (e.g.
-out/bench_accuracy/train and out/bench_accuracy/test from configs/bench_accuracy.toml, whose header
+out/bench_accuracy/train and out/bench_accuracy/test from dotsim/configs/bench_accuracy.toml, whose header
 has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
 boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder. The output
 says which. The step count is fitted to the time budget from the time per step of two short
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     parser.add_argument("--test-data", type=Path, default=None,
                         help="dataset whose test split is evaluated (default: --data)")
     parser.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
-    parser.add_argument("--config", default="configs/train_tiny.toml")
+    parser.add_argument("--config", default="dotsim/configs/train_tiny.toml")
     parser.add_argument("--train-scenes", type=int, default=100, help="oracle dataset only")
     parser.add_argument("--test-scenes", type=int, default=8, help="oracle dataset only")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (1 is fastest when shared)")

@@ -1,7 +1,7 @@
 """Data-parallel training throughput on CPU: samples/s of one process against N gloo ranks on the same
 threads, the same config and data (the tiny oracle dataset of tests/trainer_fixtures.py).
 
-    python -m bench.trainer_ddp [--config configs/train_tiny.toml] [--nproc 2] [--threads 2] [--steps 40]
+    python -m bench.trainer_ddp [--config train_tiny] [--nproc 2] [--threads 2] [--steps 40]
 
 Measured: one process on all --threads, one process on threads / N, and N ranks on threads / N each
 (as `dotsim train --nproc` shares them out); [train].batch_size is the global batch in all three. Time is
@@ -30,7 +30,7 @@ from trainer_fixtures import make_dataset  # noqa: E402
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default="configs/train_tiny.toml")
+    parser.add_argument("--config", default="dotsim/configs/train_tiny.toml")
     parser.add_argument("--nproc", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2, help="CPU threads in all (default 2)")
     parser.add_argument("--steps", type=int, default=40, help="optimiser steps per measurement")

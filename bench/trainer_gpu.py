@@ -5,7 +5,7 @@ and a torch.profiler table of the top ops.
     python -m bench.trainer_gpu [--device cuda] [--small] [--repeats 50] [--train-run 300]
                                 [--compile] [--cuda-graph] [--profile] [--out DIR]
 
-Published config (configs/train_gigadepth.toml), batch 4 of its crop (full 1216 x 896 frames), on
+Published config (dotsim/configs/train_gigadepth.toml), batch 4 of its crop (full 1216 x 896 frames), on
 oracle-rendered frames (tests/trainer_fixtures.py: tilted walls and boxes, made once under --out).
 Inference: the network's forward on one frame already on the device, median of --repeats after
 warm-up, each timed with torch.cuda.synchronize; networks have random weights unless --train-run
@@ -14,7 +14,7 @@ replays the backbone from a captured CUDA graph (the tree's per-pixel routing ha
 shapes, so only the backbone can be captured). --train-run N trains N steps with train() in each low
 precision and reports whether the loss fell, NaNs, and end-to-end samples/s (data loading included).
 Without CUDA the bench says so and exits 0; `--device cpu --small` runs every part on CPU at 128 x 94
-with configs/train_tiny.toml, as a check that it works (not figures to report).
+with dotsim/configs/train_tiny.toml, as a check that it works (not figures to report).
 """
 
 from __future__ import annotations
@@ -206,7 +206,7 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     parser.add_argument("--small", action="store_true",
-                        help="configs/train_tiny.toml on 128 x 94 frames (a CPU check of the bench itself)")
+                        help="train_tiny on 128 x 94 frames (a CPU check of the bench itself)")
     parser.add_argument("--config", help="training config (default: the published one, or tiny with --small)")
     parser.add_argument("--precisions", default=",".join(PRECISIONS), help="comma-separated, of " +
                         ", ".join(PRECISIONS))
@@ -238,7 +238,7 @@ def main(argv=None) -> int:
     if args.cuda_graph and not graphs:
         print("--cuda-graph: CUDA only, no graph rows on CPU")
     variants = ["eager"] + ["compile"] * args.compile + ["cuda-graph"] * graphs
-    default_config = "configs/train_tiny.toml" if args.small else "configs/train_gigadepth.toml"
+    default_config = "dotsim/configs/train_tiny.toml" if args.small else "dotsim/configs/train_gigadepth.toml"
     cfg = load_config(args.config or default_config)
     scale = TINY_SCALE if args.small else 1.0
     info = {"device": torch.cuda.get_device_name() if device == "cuda" else "cpu", "torch": torch.__version__,

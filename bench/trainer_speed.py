@@ -61,9 +61,9 @@ def main(argv=None) -> int:
     n_disp = num_disparities_for(rig)
 
     results = {"StereoSGBM": median_seconds(lambda: sgbm_disparity(ir, reference, n_disp), args.repeats)}
-    configs = {"tiny": "configs/train_tiny.toml"}
+    configs = {"tiny": "dotsim/configs/train_tiny.toml"}
     if not args.no_published:
-        configs["published (377 M)"] = "configs/train_gigadepth.toml"
+        configs["published (377 M)"] = "dotsim/configs/train_gigadepth.toml"
     for name, path in configs.items():
         cfg = load_config(path)
         torch.manual_seed(0)
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
         from trainer.data import FrameDataset, list_frames, make_loader
 
         data = make_dataset(Path(tmp) / "ds", scenes=4, frames_per_scene=2)
-        cfg = load_config("configs/train_tiny.toml")
+        cfg = load_config("dotsim/configs/train_tiny.toml")
         frames, small_rig, _ = list_frames(data, "train")
         ds = FrameDataset(frames, small_rig, cfg.data, cfg.seed, augment=True)
         batch = next(iter(make_loader(ds, cfg.train.batch_size, 0, 0, 0)))

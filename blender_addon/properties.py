@@ -15,7 +15,7 @@ from .operators import SESSION, move_rig_to_frame
 class DotsimSettings(bpy.types.PropertyGroup):
     config_path: bpy.props.StringProperty(
         name="Config", subtype="FILE_PATH",
-        description="Generator config (TOML), e.g. configs/tiny.toml; keys in docs/CONFIG.md")
+        description="Generator config (TOML), e.g. dotsim/configs/tiny.toml; keys in docs/CONFIG.md")
     split: bpy.props.EnumProperty(
         name="Split", default="train",
         items=(("train", "train", "training split: its textures, assets and clutter density"),

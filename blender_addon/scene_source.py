@@ -31,7 +31,8 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
     out of range.
     """
     if not str(config_path).strip():
-        raise ConfigError("no config file chosen; allowed: a generator TOML file such as configs/tiny.toml")
+        raise ConfigError("no config chosen; allowed: a built-in config (tiny, default, ...) or a generator "
+                          "TOML file")
     if split not in SPLITS:
         raise ConfigError(f"split {split!r}: allowed: train or test")
     for name, value in (("scene index", scene_index), ("base seed", base_seed)):

@@ -7,6 +7,7 @@ import io
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,45 +17,58 @@ from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
 from capture.frames import CaptureError, list_images, read_image, recorded_images
 from capture.import_frames import import_frames
 from capture.record import record
+from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_PRESET, PRESETS, Rig, get_preset
-from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, load_rig_file
+from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
+from dotsim.rig_files import RIG_FILE_SUFFIXES, CalibratedRig, RigFileError, configured_rig, load_rig_file
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
 
-def load_rig(spec: str, scale: float = 1.0) -> Rig:
-    """A rig preset by name, or a rig file (dotsim.rig_files: dotsim rig JSON or an OpenCV
-    FileStorage calibration); then scaled. Raises CaptureError naming the file or listing the presets.
+def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
+    """A rig preset by name, a rig file (dotsim.rig_files: dotsim rig JSON, OpenCV, ROS or Kalibr
+    calibrations), or a generator config whose [rig] describes it (at scale 1, so camera_file and
+    projector_file combine as in `dotsim generate`); then scaled. The lens of a calibrated camera comes
+    with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
     """
-    if spec in PRESETS:
-        rig = get_preset(spec)
-    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-        try:
-            rig = load_rig_file(spec)
-        except RigFileError as error:
-            raise CaptureError(f"--rig {error}") from None
-    else:
-        raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}) "
-                           f"nor a rig file ({', '.join(RIG_FILE_SUFFIXES)})")
+    try:
+        if spec in PRESETS:
+            calibrated = CalibratedRig(get_preset(spec))
+        elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
+            calibrated = load_rig_file(spec)
+        elif Path(spec).suffix.lower() == ".toml":
+            from generator.config import ConfigError, load_config
+
+            try:
+                config = load_config(spec)
+            except ConfigError as error:
+                raise CaptureError(f"--rig {error}") from None
+            calibrated = configured_rig(replace(config.rig, scale=1.0), f"{config.source}: [rig]")
+        else:
+            raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}), a rig file "
+                               f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
+    except RigFileError as error:
+        raise CaptureError(f"--rig {error}") from None
     if scale != 1.0:
         try:
-            rig = rig.scaled(scale)
+            calibrated = calibrated.scaled(scale)
         except ValueError as error:
             raise CaptureError(f"--scale: {error}") from None
-    return rig
+    return calibrated
 
 
 def _rig_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", default=DEFAULT_PRESET,
-                        help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}) or a "
-                        "rig file: dotsim rig JSON (Rig.to_dict(), scene.json, `dotsim capture info`) or an "
-                        "OpenCV FileStorage calibration (docs/GEOMETRY.md); the frames must have its camera "
-                        "resolution")
+                        help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}), a rig "
+                        "file (dotsim rig JSON, OpenCV, ROS camera_info or Kalibr calibration; "
+                        "docs/GEOMETRY.md) "
+                        "or a generator config whose [rig] gives it (camera_file with a preset's projector, "
+                        "...); the frames must have its camera resolution, and a calibrated lens "
+                        "(distortion) is rectified to the rig's pinhole camera")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")
@@ -237,7 +251,8 @@ def _read_json(path: Path, what: str) -> dict:
 def _import(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
-        rig = load_rig(args.rig, args.scale)
+        calibrated = load_rig(args.rig, args.scale)
+        rig = calibrated.rig
         settings = _read_json(args.settings, "--settings") if args.settings else {}
         pattern = None
         if args.pattern:
@@ -245,7 +260,7 @@ def _import(args: argparse.Namespace) -> int:
         summary = import_frames(args.on, args.off, rig, args.out, frames_per_scene=args.frames_per_scene,
                                 split=args.split, white_level=args.white_level, dot_window=args.dot_window,
                                 visibility_threshold=args.visibility_threshold, capture_settings=settings,
-                                pattern=pattern, scenes_per_shard=args.scenes_per_shard)
+                                pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens)
     except (CaptureError, PatternError, FormatError, ValueError) as error:
         return _fail("import", error)
     print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "
@@ -282,7 +297,8 @@ def _pattern(args: argparse.Namespace) -> int:
     try:
         if args.output.suffix.lower() != ".png":
             raise CaptureError(f"-o {args.output}: the pattern is written as a .png file")
-        rig = load_rig(args.rig, args.scale)
+        calibrated = load_rig(args.rig, args.scale)
+        rig = calibrated.rig
         on = _load_wall_images(args.wall, "--wall", "ir")
         off = _load_wall_images(args.off, "--off", "ambient")
         for image in on + off:
@@ -293,9 +309,11 @@ def _pattern(args: argparse.Namespace) -> int:
             wall_depth = read_depth_map(args.depth_map, args.depth_scale)
         else:
             wall_depth = args.distance
-        result = extract_wall_pattern([image.relative() for image in on], [image.relative() for image in off],
-                                      rig, wall_depth, dot_sigma=args.dot_sigma, window=args.dot_window,
-                                      detect_threshold=args.detect_threshold)
+        rectify = rectifier(calibrated.lens, rig.camera)
+        on_images, off_images = ([image.relative() if rectify is None else rectify.image(image.relative())
+                                  for image in images] for images in (on, off))
+        result = extract_wall_pattern(on_images, off_images, rig, wall_depth, dot_sigma=args.dot_sigma,
+                                      window=args.dot_window, detect_threshold=args.detect_threshold)
         statistics = pattern_statistics(result.pattern)
     except (CaptureError, WallPatternError, PatternError, ValueError) as error:
         return _fail("pattern", error)
@@ -337,8 +355,9 @@ def _record(args: argparse.Namespace) -> int:
     try:
         pattern = load_pattern(args.pattern) if args.pattern else None
         with _open(args, exposure=args.exposure, gain=args.gain) as device:
-            rig = load_rig(args.rig) if args.rig else device.rig()
-            summary = record(device, rig, args.out, scenes=args.scenes, frames_per_scene=args.frames,
+            calibrated = load_rig(args.rig) if args.rig else CalibratedRig(device.rig())
+            summary = record(device, calibrated.rig, args.out, lens=calibrated.lens, scenes=args.scenes,
+                             frames_per_scene=args.frames,
                              split=args.split, settle=args.settle, pause_s=args.pause,
                              white_level=args.white_level, pattern=pattern,
                              dot_window=args.dot_window, visibility_threshold=args.visibility_threshold,

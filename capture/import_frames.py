@@ -29,11 +29,13 @@ import numpy as np
 
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError, check_size, list_images, pair_on_off, read_image
+from capture.rectify import Rectifier, rectifier
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset, pattern_store
 from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
+from dotsim.rig_files import Lens
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
 
@@ -83,8 +85,10 @@ def plan_import(on_spec: str, off_spec: str, rig: Rig, white_level: float | None
     return planned
 
 
-def frame_channels(pair: FramePair, dot_window: int, threshold: float) -> dict[str, np.ndarray]:
-    """Read one pair again and build its dataset channels (ir, ambient, visibility).
+def frame_channels(pair: FramePair, dot_window: int, threshold: float,
+                   rectify: Rectifier | None = None) -> dict[str, np.ndarray]:
+    """Read one pair again and build its dataset channels (ir, ambient, visibility), rectified to the
+    rig camera first when `rectify` is given (a calibrated lens; capture.rectify).
 
     The checksum is compared with the one taken by plan_import, so a file replaced between the
     check and the write is refused rather than silently stored under the old checksum.
@@ -95,6 +99,8 @@ def frame_channels(pair: FramePair, dot_window: int, threshold: float) -> dict[s
         if image.sha256 != sha:
             raise CaptureError(f"{path}: file changed during the import (sha256 differs); rerun")
         images[role] = image.relative(pair.white_level)
+        if rectify is not None:
+            images[role] = rectify.image(images[role])
     return {"ir": images["on"], "ambient": images["off"],
             "visibility": capture_visibility(images["on"], images["off"], dot_window, threshold)}
 
@@ -162,7 +168,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                   visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
                   capture_settings: dict | None = None, pattern: DotPattern | None = None,
                   scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD,
-                  progress: bool = True) -> dict:
+                  progress: bool = True, lens: Lens | None = None) -> dict:
     """Import projector on/off frame pairs as a sealed dataset; returns a summary dict.
 
     Pairs are grouped into scenes of `frames_per_scene` consecutive frames (the count must divide
@@ -170,7 +176,9 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
     scene.json; pattern (the sensor's pattern, e.g. extracted from wall captures; it must have the
     rig projector's resolution) is stored as DATASET/pattern.png and referenced by every scene.
     A rerun skips scenes already written from files with the same checksums and refuses a
-    dataset written from other files.
+    dataset written from other files. lens: the calibrated camera the frames were recorded with
+    (dotsim.rig_files.Lens), whose distortion is rectified away (capture.rectify) and recorded in
+    scene.json under capture.rectified_from.
     """
     if int(frames_per_scene) != frames_per_scene or frames_per_scene < 1:
         raise CaptureError(f"--frames-per-scene must be a positive integer, got {frames_per_scene}")
@@ -199,9 +207,10 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
         except dataset.FormatError as error:
             raise CaptureError(f"{error}; choose an empty --out") from None
         pattern_entry = pattern_store.pattern_entry(pattern)
+    rectify = rectifier(lens, rig.camera)
     settings = {"white_level": pairs[0].white_level, "frames_per_scene": frames_per_scene,
                 "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
-                "settings": capture_settings or {}}
+                "settings": capture_settings or {}, "rectified_from": lens and lens.to_dict()}
     written = skipped = 0
     for scene_index, scene_pairs in enumerate(_progress(scenes, progress, "importing scenes", "scene")):
         if dataset.is_scene_complete(out_dir, scene_index, scenes_per_shard):
@@ -211,7 +220,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                                    f"imported from other files; choose an empty --out")
             skipped += 1
             continue
-        frames = [frame_channels(pair, dot_window, visibility_threshold) for pair in scene_pairs]
+        frames = [frame_channels(pair, dot_window, visibility_threshold, rectify) for pair in scene_pairs]
         meta = scene_meta([pair.sources() for pair in scene_pairs], rig, split, settings, pattern_entry)
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
                             channels=CAPTURE_CHANNELS)

@@ -22,9 +22,11 @@ from capture.devices import Device, DeviceError, DeviceFrame
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError
 from capture.import_frames import scene_meta
+from capture.rectify import Rectifier, rectifier
 from dotsim import dataset, pattern_store
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
+from dotsim.rig_files import Lens
 
 # Frames read at most while waiting for a frame whose metadata shows the projector state asked for.
 MAX_SWITCH_FRAMES = 60
@@ -65,20 +67,25 @@ def _source(frame: DeviceFrame) -> dict:
 
 
 def pose_frame(device: Device, settle: int, white_level: float, dot_window: int,
-               threshold: float) -> tuple[dict, dict]:
-    """Record one pose: (dataset channels, where they came from); IR values are raw / white_level."""
+               threshold: float, rectify: Rectifier | None = None) -> tuple[dict, dict]:
+    """Record one pose: (dataset channels, where they came from); IR values are raw / white_level,
+    rectified to the rig camera when `rectify` is given (a calibrated lens)."""
+    def image(frame: DeviceFrame) -> np.ndarray:
+        ir = frame.ir.astype(np.float32) / np.float32(white_level)
+        return ir if rectify is None else rectify.image(ir)
+
     switch = device.can_switch_emitter
     on = grab(device, True if switch else None, settle)
-    channels = {"ir": on.ir.astype(np.float32) / np.float32(white_level)}
+    channels = {"ir": image(on)}
     source = {"on": _source(on)}
     if switch:
         off = grab(device, False, settle)
-        channels["ambient"] = off.ir.astype(np.float32) / np.float32(white_level)
+        channels["ambient"] = image(off)
         channels["visibility"] = capture_visibility(channels["ir"], channels["ambient"], dot_window,
                                                     threshold)
         source["off"] = _source(off)
     if device.has_depth:
-        channels["device_depth"] = on.depth
+        channels["device_depth"] = on.depth if rectify is None else rectify.depth(on.depth)
     return channels, source
 
 
@@ -103,13 +110,14 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
            pattern: DotPattern | None = None,
            dot_window: int = DEFAULT_DOT_WINDOW, visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
            scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD, progress: bool = True,
-           preview: bool = True) -> dict:
+           preview: bool = True, lens: Lens | None = None) -> dict:
     """Record `scenes` x `frames_per_scene` poses from an opened device into a new dataset.
 
     The rig's camera must have the stream's size. pause_s: seconds between poses (to move the sensor
     or the scene). white_level: the raw value stored as 1.0 (default: the device's full scale).
     Returns a summary: dataset, scenes, frames, channels, stopped (None, or why the recording ended
-    early: the frames recorded until then are kept).
+    early: the frames recorded until then are kept). lens: the calibrated camera (its distortion is
+    rectified away; capture.rectify).
     """
     for name, value in (("--scenes", scenes), ("--frames", frames_per_scene)):
         if int(value) != value or value < 1:
@@ -138,7 +146,9 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     channels = record_channels(device)
     settings = {"white_level": white_level, "frames_per_scene": frames_per_scene,
                 "device": device.info, "settings": device.settings(), "settle_frames": settle,
-                "visibility": {"dot_window": dot_window, "threshold": visibility_threshold}}
+                "visibility": {"dot_window": dot_window, "threshold": visibility_threshold},
+                "rectified_from": lens and lens.to_dict()}
+    rectify = rectifier(lens, rig.camera)
     show = _preview() if preview else None
     bar = None
     if progress:
@@ -164,7 +174,8 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
             for pose in range(frames_per_scene):
                 if pause_s and (scene_index or pose):
                     time.sleep(pause_s)
-                pending.append(pose_frame(device, settle, white_level, dot_window, visibility_threshold))
+                pending.append(pose_frame(device, settle, white_level, dot_window, visibility_threshold,
+                                          rectify))
                 if show is not None:
                     show(pending[-1][0]["ir"])
                 if bar is not None:

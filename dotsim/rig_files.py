@@ -1,39 +1,36 @@
-"""Rigs from files, and the checks a rig from outside must pass before anything renders with it.
+"""Rigs from files and config keys, and the checks a rig from outside must pass before anything
+renders with it.
 
-Three layouts are read (docs/GEOMETRY.md "Rig files" has examples):
-
-- dotsim's rig JSON: Rig.to_dict() itself, or any JSON object holding it under "rig" (scene.json,
-  the presets in dotsim/rigs/, the file `dotsim capture info` writes, a pattern's .json);
-- an OpenCV FileStorage file (YAML, JSON or XML, read with cv2.FileStorage) in the layout of a
-  cv2.stereoCalibrate result with the IR camera as camera 1 and the projector as camera 2: K1, K2
-  (or camera_matrix / projector_matrix), R and T (X_projector = R X_camera + T), the image sizes,
-  and optionally D1 / D2, name and max_depth.
-
-Images are rectified in dotsim (pinhole, no lens distortion): a non-zero distortion coefficient is
-refused rather than ignored.
+A rig file is any calibration layout dotsim.calibration_files reads (dotsim rig JSON, OpenCV's
+calibration samples and cv2.stereoCalibrate results, ROS camera_info, Kalibr camchains). The rig
+is always a pinhole rig (what Blender renders). A calibrated camera that is not that pinhole (lens
+distortion, or fx != fy) becomes a Lens beside the rig: the rig's camera is its square pinhole
+model (f = (fx + fy) / 2, the same principal point and size), and real frames are rectified from the
+lens to it (capture.rectify), so recordings and renders share one geometry.
 """
 
 from __future__ import annotations
 
 import json
-import math
-import os
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from dotsim.calibration_files import (
+    CALIBRATION_SUFFIXES,
+    CAMERA_MATRIX_KEYS,
+    FISHEYE,
+    PROJECTOR_MATRIX_KEYS,
+    CameraPart,
+    RigFileError,
+    read_calibration,
+)
 from dotsim.rig import Intrinsics, Rig, check_square_pixels, get_preset, project_to_projector, rotation_matrix
 
-RIG_FILE_SUFFIXES = (".json", ".yaml", ".yml", ".xml")
-
-# Accepted FileStorage names, first the cv2.stereoCalibrate / stereo_calib sample ones.
-CAMERA_MATRIX_KEYS = ("K1", "M1", "cameraMatrix1", "camera_matrix")
-PROJECTOR_MATRIX_KEYS = ("K2", "M2", "cameraMatrix2", "projector_matrix")
-CAMERA_DISTORTION_KEYS = ("D1", "distCoeffs1", "camera_distortion")
-PROJECTOR_DISTORTION_KEYS = ("D2", "distCoeffs2", "projector_distortion")
-CAMERA_SIZE_KEYS = ("image_size", "imageSize", "camera_size")
-PROJECTOR_SIZE_KEYS = ("projector_size",)
+RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
+PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
+__all__ = ["RigFileError", "Lens", "CalibratedRig", "load_rig_file", "configured_rig", "check_rig"]
 
 # Depths (m) at which a projector must light part of the camera's view: from a near surface to
 # the rig's max_depth.
@@ -41,62 +38,191 @@ _COVERAGE_NEAR = 0.3
 _COVERAGE_GRID = 17
 
 
-class RigFileError(ValueError):
-    """A rig file that cannot be read or describes an unusable rig; the message names the file."""
+@dataclass(frozen=True)
+class Lens:
+    """The IR camera as calibrated, where it differs from the rig's pinhole camera: its intrinsics
+    (fx and fy may differ), distortion coefficients in OpenCV's order and their model ("radtan":
+    cv2.undistort's k1 k2 p1 p2 [k3 ...], "fisheye": cv2.fisheye's k1 k2 k3 k4)."""
+
+    intrinsics: Intrinsics
+    distortion: tuple[float, ...]
+    model: str
+
+    def scaled(self, factor: float) -> Lens:
+        """The lens of frames recorded at `factor` times the resolution (coefficients act on
+        normalised coordinates and stay)."""
+        return replace(self, intrinsics=self.intrinsics.scaled(factor))
+
+    def to_dict(self) -> dict:
+        return {"intrinsics": self.intrinsics.to_dict(), "distortion": list(self.distortion),
+                "model": self.model}
 
 
-def load_rig_file(path: str | os.PathLike) -> Rig:
-    """The rig described by a file (dotsim rig JSON or OpenCV FileStorage), checked by check_rig.
+@dataclass(frozen=True)
+class CalibratedRig:
+    """A rig, and the lens real frames are rectified from (None: frames are the rig camera's
+    pinhole images already)."""
 
-    Raises RigFileError naming the file and the key or value at fault.
-    """
+    rig: Rig
+    lens: Lens | None = None
+
+    def scaled(self, factor: float) -> CalibratedRig:
+        return CalibratedRig(self.rig.scaled(factor), self.lens and self.lens.scaled(factor))
+
+    def rectification_note(self, where: str) -> str | None:
+        """The one line generation prints for a calibrated lens, or None."""
+        if self.lens is None:
+            return None
+        what = "lens distortion" if self.lens.distortion or self.lens.model == FISHEYE else "fx != fy"
+        camera = self.rig.camera
+        return (f"{where}: the calibrated camera has {what}; rendering its pinhole model ({camera.width} x "
+                f"{camera.height} px, f {camera.fx:.2f}, principal point ({camera.cx:.2f}, "
+                f"{camera.cy:.2f})); "
+                "real frames are rectified to it by `dotsim capture import / record` with the same rig")
+
+
+@dataclass(frozen=True)
+class _Parts:
+    """A rig being put together from a preset, files and config keys."""
+
+    camera: CameraPart
+    projector: CameraPart
+    rotation: np.ndarray  # dotsim's pose: X_projector = R (X_camera - t)
+    translation: np.ndarray  # t, the projector centre in the camera frame
+    name: str
+    max_depth: float
+    second_camera_translation: tuple | None = None
+
+
+def _rig_parts(rig: Rig, where: str) -> _Parts:
+    """A dotsim rig's parts, taken as they are (its camera is its own pinhole model, never a lens)."""
+    def part(intrinsics: Intrinsics) -> CameraPart:
+        return CameraPart(intrinsics.K, (intrinsics.width, intrinsics.height), (), PINHOLE, where)
+
+    return _Parts(part(rig.camera), part(rig.projector), rig.R, rig.t, rig.name, rig.max_depth,
+                  rig.second_camera_translation)
+
+
+def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
+    """`base` with the parts of `roles` ("camera", "projector": the projector and its pose) taken
+    from the rig file at `path`, each required there; without base every part is required."""
     path = Path(path)
-    if path.suffix.lower() not in RIG_FILE_SUFFIXES:
-        raise RigFileError(f"{path}: not a rig file; allowed: {', '.join(RIG_FILE_SUFFIXES)} "
-                           "(dotsim rig JSON or OpenCV FileStorage)")
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise RigFileError(f"{path}: rig file not found") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise RigFileError(f"{path}: cannot read the rig file ({error})") from None
-    data = None
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except ValueError as error:
-            raise RigFileError(f"{path}: not valid JSON ({error})") from None
-    if isinstance(data, dict) and ("rig" in data or "projector_translation" in data):
-        try:
-            rig = Rig.from_dict(data["rig"] if "rig" in data else data)
-        except ValueError as error:
-            raise RigFileError(f"{path}: {error}") from None
+    calibration = read_calibration(path)
+    if calibration.rig is not None:
+        parts = _rig_parts(calibration.rig, str(path))
     else:
-        rig = _rig_from_opencv(path)
-    check_rig(rig, str(path))
-    return rig
+        missing = [what for what, value, role in (
+            (f"camera matrix ({' or '.join(CAMERA_MATRIX_KEYS)}, or a camchain's cam0)", calibration.camera,
+             "camera"),
+            (f"projector matrix ({' or '.join(PROJECTOR_MATRIX_KEYS)}, or a camchain's cam1)",
+             calibration.projector, "projector"),
+            ("rotation (R)", calibration.rotation, "projector"),
+            ("translation (T)", calibration.translation, "projector")) if value is None and role in roles]
+        if missing:
+            raise RigFileError(f"{path}: missing the {', the '.join(missing)}: a {' and '.join(roles)} "
+                               "file needs them (docs/GEOMETRY.md \"Rig files\")")
+        rotation = calibration.rotation
+        # OpenCV: X_projector = R X_camera + T, so the projector centre is t = -R^T T
+        translation = None if rotation is None else -rotation.T @ calibration.translation
+        parts = _Parts(calibration.camera, calibration.projector, rotation, translation,
+                       calibration.name or path.stem,
+                       calibration.max_depth if calibration.max_depth is not None else 20.0)
+        if calibration.projector is not None and calibration.projector.distorted:
+            raise RigFileError(f"{calibration.projector.where}: projector distortion "
+                               f"{list(calibration.projector.distortion)} is not zero; dotsim's projector is "
+                               "a pinhole whose image is the pattern: give zero coefficients (a pattern "
+                               "from `dotsim capture pattern` through this rig already holds the "
+                               "projector's distortion)")
+    if base is None:
+        return parts
+    taken = {"camera": {"camera": parts.camera},
+             "projector": {"projector": parts.projector, "rotation": parts.rotation,
+                           "translation": parts.translation}}
+    return replace(base, **{key: value for role in roles for key, value in taken[role].items()})
 
 
-def configured_rig(settings, where: str) -> Rig:
+def _camera(part: CameraPart, size: tuple[int, int] | None, role: str) -> tuple[Intrinsics, Lens | None]:
+    """The pinhole intrinsics of a part and, for a camera that is not that pinhole, its Lens (a
+    projector is taken as it is: its distortion is refused when read, and it may have fx != fy)."""
+    if part.size and size and part.size != size:
+        raise RigFileError(f"{part.where}: the file gives a {part.size[0]} x {part.size[1]} px {role}, "
+                           f"[rig] {role}_width / {role}_height {size[0]} x {size[1]}; allowed: leave them "
+                           f"out (they give a size the file lacks), or add {role}_fx (an explicit {role})")
+    size = part.size or size
+    if size is None:
+        key = "image_size" if role == "camera" else "projector_size"
+        raise RigFileError(f"{part.where}: the file gives no {role} image size (stereo_calib's "
+                           f"intrinsics.yml has none); allowed: add {key}: [width, height] to the file, or "
+                           f"set [rig] {role}_width and {role}_height")
+    K = part.matrix
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    calibrated = Intrinsics(size[0], size[1], fx, fy, cx, cy)
+    if part.model == PINHOLE or role == "projector" or (not part.distorted and fx == fy):
+        return calibrated, None
+    focal = (fx + fy) / 2
+    return Intrinsics(size[0], size[1], focal, focal, cx, cy), Lens(calibrated, part.distortion, part.model)
+
+
+def _calibrated(parts: _Parts, where: str, sizes=(None, None)) -> CalibratedRig:
+    camera, lens = _camera(parts.camera, sizes[0], "camera")
+    projector, _ = _camera(parts.projector, sizes[1], "projector")
+    try:
+        # OpenCV: X_projector = R X_camera + T; dotsim: X_projector = R (X_camera - t)
+        rig = Rig(name=parts.name, camera=camera, projector=projector,
+                  projector_translation=tuple(parts.translation.tolist()),
+                  projector_rotation=tuple(tuple(row) for row in parts.rotation.tolist()),
+                  second_camera_translation=parts.second_camera_translation, max_depth=parts.max_depth)
+    except ValueError as error:
+        raise RigFileError(f"{where}: {error}") from None
+    return CalibratedRig(rig, lens)
+
+
+def load_rig_file(path) -> CalibratedRig:
+    """The whole rig a file describes (camera, projector and pose; any layout of
+    dotsim.calibration_files), checked by check_rig. Raises RigFileError naming the file and key."""
+    calibrated = _calibrated(_file_parts(path, ("camera", "projector"), None), str(path))
+    check_rig(calibrated.rig, str(path))
+    return calibrated
+
+
+def configured_rig(settings, where: str) -> CalibratedRig:
     """The rig of the generator's [rig] settings (generator.config.RigConfig; docs/CONFIG.md): the
-    preset or `file`, then explicit camera / projector intrinsics, projector offsets and rotation,
-    max_depth; checked (check_rig, and square camera pixels, which the renderer needs), then scaled.
+    preset or `file`; the camera of `camera_file`; the projector and its pose of `projector_file`;
+    sizes a file lacks from <role>_width / <role>_height; explicit camera / projector intrinsics,
+    projector offsets and rotation, max_depth; checked (check_rig, and square camera pixels, which the
+    renderer needs), then scaled.
 
     Zero means "keep": a non-zero offset replaces the base rig's, non-zero angles replace its
     rotation. Raises RigFileError naming `where` and the key.
     """
+    parts = None
+    for key, roles in (("file", ("camera", "projector")), ("camera_file", ("camera",)),
+                       ("projector_file", ("projector",))):
+        if getattr(settings, key):
+            try:
+                base = None if key == "file" else parts or _rig_parts(get_preset(settings.preset),
+                                                                    settings.preset)
+                parts = _file_parts(getattr(settings, key), roles, base)
+            except RigFileError as error:
+                raise RigFileError(f"{where} {key}: {error}") from None
+    parts = parts or _rig_parts(get_preset(settings.preset), settings.preset)
+    sizes = tuple((getattr(settings, f"{role}_width"), getattr(settings, f"{role}_height"))
+                  if getattr(settings, f"{role}_width") and not getattr(settings, f"{role}_fx") else None
+                  for role in ("camera", "projector"))
     try:
-        base = load_rig_file(settings.file) if settings.file else get_preset(settings.preset)
+        calibrated = _calibrated(parts, where, sizes)
     except RigFileError as error:
-        raise RigFileError(f"{where} file: {error}") from None
+        raise RigFileError(f"{where}: {error}") from None
+    base = calibrated.rig
     translation = [value if value != 0.0 else kept for value, kept in
                    zip((settings.baseline, settings.projector_y, settings.projector_z),
                        base.projector_translation, strict=True)]
     angles = (settings.projector_rotation_x, settings.projector_rotation_y, settings.projector_rotation_z)
     rotation = rotation_matrix(*np.radians(angles)) if any(angles) else base.projector_rotation
+    camera = _explicit_intrinsics(settings, "camera", None, where)
     try:
-        rig = replace(base, camera=_explicit_intrinsics(settings, "camera", base.camera, where),
-                      projector=_explicit_intrinsics(settings, "projector", base.projector, where),
+        rig = replace(base, camera=camera or base.camera,
+                      projector=_explicit_intrinsics(settings, "projector", None, where) or base.projector,
                       projector_translation=tuple(translation), projector_rotation=rotation,
                       max_depth=settings.max_depth)
     except ValueError as error:
@@ -106,14 +232,16 @@ def configured_rig(settings, where: str) -> Rig:
         check_square_pixels(rig.camera.fx, rig.camera.fy)
     except ValueError as error:
         raise RigFileError(f"{where}: {error}") from None
-    return rig.scaled(settings.scale) if settings.scale != 1.0 else rig
+    calibrated = CalibratedRig(rig, None if camera else calibrated.lens)
+    return calibrated.scaled(settings.scale) if settings.scale != 1.0 else calibrated
 
 
-def _explicit_intrinsics(settings, role: str, kept: Intrinsics, where: str) -> Intrinsics:
-    """<role>_width ... <role>_cy of the settings as Intrinsics, or `kept` when all are 0."""
+def _explicit_intrinsics(settings, role: str, kept, where: str) -> Intrinsics | None:
+    """<role>_width ... <role>_cy of the settings as Intrinsics, or `kept` when no focal length is
+    set (width and height alone give the size of a file's camera that lacks one)."""
     keys = ("width", "height", "fx", "fy", "cx", "cy")
     values = {key: getattr(settings, f"{role}_{key}") for key in keys}
-    if not any(values.values()):
+    if not any(values[key] for key in ("fx", "fy", "cx", "cy")):
         return kept
     if missing := [f"{role}_{key}" for key in ("width", "height", "fx") if not values[key]]:
         raise RigFileError(f"{where}: an explicit {role} needs {', '.join(missing)} as well (set "
@@ -186,116 +314,3 @@ def lit_share(rig: Rig) -> float:
                   & (yp >= -0.5) & (yp <= rig.projector.height - 0.5))
         best = max(best, float(inside.mean()))
     return best
-
-
-def _rig_from_opencv(path: Path) -> Rig:
-    """A rig from an OpenCV FileStorage calibration (names in the module docstring)."""
-    import cv2
-
-    try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except (cv2.error, SystemError) as error:  # a parse error surfaces as SystemError in cv2 4.x
-        reason = str(getattr(error, "__cause__", None) or error).strip().splitlines()[-1]
-        raise RigFileError(f"{path}: neither a dotsim rig nor an OpenCV FileStorage file "
-                           f"({reason})") from None
-    if not storage.isOpened():
-        raise RigFileError(f"{path}: neither a dotsim rig nor an OpenCV FileStorage file")
-    try:
-        return _rig_from_storage(storage, path)
-    finally:
-        storage.release()
-
-
-def _node(storage, names: tuple[str, ...], path: Path, required: bool = True):
-    for name in names:
-        node = storage.getNode(name)
-        if not node.empty() and not node.isNone():
-            return name, node
-    if required:
-        raise RigFileError(f"{path}: missing key; allowed names: {' or '.join(names)}")
-    return None, None
-
-
-def _numbers(node, name: str, path: Path) -> np.ndarray:
-    """The numbers of a FileStorage matrix, sequence or scalar node, as a flat float array."""
-    if node.isSeq():
-        values = [node.at(k).real() for k in range(node.size())]
-    elif node.isReal() or node.isInt():
-        values = [node.real()]
-    else:
-        matrix = node.mat()
-        if matrix is None:
-            raise RigFileError(f"{path}: {name} is not a matrix or a list of numbers")
-        values = matrix.ravel().tolist()
-    values = np.asarray(values, np.float64)
-    if not np.all(np.isfinite(values)):
-        raise RigFileError(f"{path}: {name} holds non-finite values {values.tolist()}")
-    return values
-
-
-def _matrix(storage, names, shape, path: Path) -> tuple[str, np.ndarray]:
-    name, node = _node(storage, names, path)
-    values = _numbers(node, name, path)
-    if values.size != math.prod(shape):
-        allowed = f"a {shape[0]} x {shape[1]} matrix" if len(shape) == 2 else f"{shape[0]} numbers"
-        raise RigFileError(f"{path}: {name} has {values.size} values; allowed: {allowed}")
-    return name, values.reshape(shape)
-
-
-def _size(storage, names: tuple[str, ...], prefix: str, path: Path) -> tuple[int, int]:
-    """(width, height) from a [width, height] entry or from <prefix>_width and <prefix>_height."""
-    name, node = _node(storage, names, path, required=False)
-    if node is not None:
-        values = _numbers(node, name, path)
-        if values.size != 2:
-            raise RigFileError(f"{path}: {name} = {values.tolist()}; allowed: [width, height] in px")
-        width, height = values
-    else:
-        pair = [storage.getNode(f"{prefix}_{axis}") for axis in ("width", "height")]
-        if any(node.empty() or node.isNone() for node in pair):
-            raise RigFileError(f"{path}: missing the {prefix} image size; allowed names: "
-                               f"{' or '.join(names)} ([width, height]), or {prefix}_width and "
-                               f"{prefix}_height")
-        name = f"{prefix}_width/{prefix}_height"
-        width, height = (_numbers(node, name, path)[0] for node in pair)
-    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
-        raise RigFileError(f"{path}: {name} = {width:g} x {height:g}; allowed: positive whole pixels")
-    return int(width), int(height)
-
-
-def _intrinsics(storage, matrix_keys, distortion_keys, size_keys, prefix, path: Path) -> Intrinsics:
-    name, K = _matrix(storage, matrix_keys, (3, 3), path)
-    if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
-        raise RigFileError(f"{path}: {name} = {K.tolist()} is not a pinhole matrix "
-                           "[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
-    for axis, value in (("fx", K[0, 0]), ("fy", K[1, 1])):
-        if value <= 0:
-            raise RigFileError(f"{path}: {name} {axis} = {value:g}; allowed: a positive focal length (px)")
-    distortion_name, distortion = _node(storage, distortion_keys, path, required=False)
-    if distortion is not None:
-        coefficients = _numbers(distortion, distortion_name, path)
-        if np.any(coefficients != 0):
-            raise RigFileError(f"{path}: {distortion_name} = {coefficients.tolist()} is not zero; dotsim "
-                               "needs rectified images: rectify them (cv2.stereoRectify) and give the "
-                               "rectified matrices with zero distortion")
-    width, height = _size(storage, size_keys, prefix, path)
-    return Intrinsics(width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
-
-
-def _rig_from_storage(storage, path: Path) -> Rig:
-    camera = _intrinsics(storage, CAMERA_MATRIX_KEYS, CAMERA_DISTORTION_KEYS, CAMERA_SIZE_KEYS, "image", path)
-    projector = _intrinsics(storage, PROJECTOR_MATRIX_KEYS, PROJECTOR_DISTORTION_KEYS, PROJECTOR_SIZE_KEYS,
-                            "projector", path)
-    _, rotation = _matrix(storage, ("R",), (3, 3), path)
-    _, translation = _matrix(storage, ("T",), (3,), path)
-    name_node = storage.getNode("name")
-    name = name_node.string() if name_node.isString() and name_node.string() else path.stem
-    _, max_depth_node = _node(storage, ("max_depth",), path, required=False)
-    extra = {} if max_depth_node is None else {"max_depth": _numbers(max_depth_node, "max_depth", path)[0]}
-    try:
-        # stereoCalibrate: X_projector = R X_camera + T; dotsim: X_projector = R (X_camera - t).
-        return Rig(name=name, camera=camera, projector=projector,
-                   projector_translation=tuple((-rotation.T @ translation).tolist()),
-                   projector_rotation=tuple(tuple(row) for row in rotation.tolist()), **extra)
-    except ValueError as error:
-        raise RigFileError(f"{path}: {error}") from None

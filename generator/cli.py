@@ -32,14 +32,14 @@ before anything is written (Ray) or before a task writes anything (Slurm).
 
 EPILOG = """\
 examples:
-  dotsim generate --config configs/default.toml --out out/dataset --split train --scenes 4
-  dotsim generate --config configs/structure_core.toml --out data/test --split test --scenes 200 \\
+  dotsim generate --config default --out out/dataset --split train --scenes 4
+  dotsim generate --config structure_core --out data/test --split test --scenes 200 \\
       --workers 2 --seed 1
-  dotsim generate --config configs/tiny.toml --out /tmp/tiny --split train --scenes 2 \\
+  dotsim generate --config tiny --out /tmp/tiny --split train --scenes 2 \\
       --blender /opt/blender/blender        # Blender executable instead of the bpy module
-  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
+  dotsim generate --config structure_core --out /shared/train --split train \\
       --scenes 15000 --ray auto             # on the Ray cluster this machine belongs to
-  dotsim generate --config configs/structure_core.toml --out /shared/train --split train \\
+  dotsim generate --config structure_core --out /shared/train --split train \\
       --scenes 15000 --slurm --slurm-partition cpu --slurm-cpus 8 --slurm-dry-run
 Config keys: docs/CONFIG.md.
 """
@@ -63,8 +63,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "generate", help="render a dataset of structured-light scenes with Blender (resumable)",
         description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", required=True, metavar="TOML",
-                        help="generator config, e.g. configs/default.toml (keys: docs/CONFIG.md)")
+    parser.add_argument("--config", required=True, metavar="NAME_OR_TOML",
+                        help="generator config: a built-in one's name (default, structure_core, kinect, "
+                             "tiny, bench_accuracy; `dotsim config show NAME` prints it) or a TOML file "
+                             "(keys: docs/CONFIG.md)")
+    parser.add_argument("--rig", metavar="PRESET_OR_FILE", default=None,
+                        help="the rig instead of the config's [rig] preset / file: a preset (structure_core, "
+                             "kinect_v1, realsense_d415) or a rig file (dotsim rig JSON, OpenCV, ROS "
+                             "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"); the "
+                             "config's other [rig] keys (scale, camera_file, ...) still apply")
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
     parser.add_argument("--split", required=True, choices=("train", "test"),
                         help="asset split and clutter density to draw from")
@@ -135,7 +142,8 @@ def _slurm_options(args: argparse.Namespace):
 
 
 def _run(args: argparse.Namespace) -> int:
-    from generator.config import ConfigError, load_config
+    from dotsim.rig_files import configured_rig
+    from generator.config import ConfigError, load_config, with_rig
     from generator.pipeline import generate, main_summary, seal_run
 
     slurm = args.slurm or args.slurm_dry_run
@@ -145,11 +153,19 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
                           "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
     config = load_config(args.config)
+    if args.rig:
+        if slurm:
+            raise ConfigError("--rig with --slurm: each array task reads the config file alone; put the rig "
+                              "into it ([rig] preset or file) and leave --rig out")
+        config = with_rig(config, args.rig)
+    note = configured_rig(config.rig, f"{config.source}: [rig]").rectification_note(f"{config.source}: [rig]")
+    if note:
+        print(note, file=sys.stderr)
     if slurm:
         from generator.slurm import generate_on_slurm
 
-        print(generate_on_slurm(config, args.config, args.out, args.split, args.scenes, args.start, args.seed,
-                                _slurm_options(args), args.blender, dry_run=args.slurm_dry_run))
+        print(generate_on_slurm(config, config.source, args.out, args.split, args.scenes, args.start,
+                                args.seed, _slurm_options(args), args.blender, dry_run=args.slurm_dry_run))
         return 0
     if args.seal_only:
         summary = seal_run(config, args.out, args.split, args.scenes, args.start, args.seed)

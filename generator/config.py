@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import os
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
-from dotsim.rig_files import RigFileError, configured_rig
+from dotsim.configs import config_path, relative_base
+from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import DEVICES, DIRECT_LIGHT, PRIMITIVE_SHAPES
 
 RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
@@ -30,9 +31,17 @@ RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
 class RigConfig:
     preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
                           "dotsim/rigs/); ignored when `file` is set", choices=RIG_PRESETS)
-    file: str = setting("", "rig file instead of the preset: dotsim rig JSON (as in scene.json or from "
-                        "`dotsim capture info`) or an OpenCV FileStorage calibration (YAML/JSON/XML; "
-                        "docs/GEOMETRY.md \"Rig files\")", path=True)
+    file: str = setting("", "rig file instead of the preset (camera, projector and pose): dotsim rig JSON "
+                        "(as in scene.json or from `dotsim capture info`), a cv2.stereoCalibrate result, "
+                        "stereo_calib's intrinsics.yml (its extrinsics.yml beside it is read too) or a "
+                        "Kalibr camchain (docs/GEOMETRY.md \"Rig files\")", path=True)
+    camera_file: str = setting("", "the IR camera from a calibration file (OpenCV's calibration sample, ROS "
+                               "camera_info, Kalibr, or camera 1 of any rig file), with the projector and "
+                               "pose of the preset, `file` or `projector_file`; its lens distortion is "
+                               "rectified away in real frames (docs/GEOMETRY.md)", path=True)
+    projector_file: str = setting("", "the projector and its pose from a rig file (dotsim rig JSON, a "
+                                  "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
+                                  path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
                            "width and height, same field of view)", low=0.02, high=1.0)
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
@@ -50,7 +59,8 @@ class RigConfig:
     max_depth: float = setting(20.0, "largest depth in metres treated as valid ground truth", low=0.5,
                                high=1000.0)
     camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
-                                "set camera_width, camera_height and camera_fx to give one)", low=0,
+                                "set camera_width, camera_height and camera_fx to give one; width and "
+                                "height alone give the size of a file's camera that has none)", low=0,
                                 high=20000)
     camera_height: int = setting(0, "explicit camera: image height, px", low=0, high=20000)
     camera_fx: float = setting(0.0, "explicit camera: focal length, px (the renderer needs square pixels)",
@@ -62,7 +72,8 @@ class RigConfig:
     camera_cy: float = setting(0.0, "explicit camera: principal point row, px", low=-1e5, high=1e5)
     projector_width: int = setting(0, "explicit projector: pattern width, px (0 = the preset's or file's "
                                    "projector; set projector_width, projector_height and projector_fx to "
-                                   "give one)", low=0, high=50000)
+                                   "give one; width and height alone give the size of a file's projector "
+                                   "that has none)", low=0, high=50000)
     projector_height: int = setting(0, "explicit projector: pattern height, px", low=0, high=50000)
     projector_fx: float = setting(0.0, "explicit projector: focal length, px", low=0.0, high=1e6)
     projector_fy: float = setting(0.0, "explicit projector: vertical focal length, px (0 = projector_fx)",
@@ -287,9 +298,28 @@ def _check_cross_fields(config: Config) -> None:
 
 
 def load_config(path: str | os.PathLike) -> Config:
-    """Read and validate a TOML config file. Raises ConfigError (naming the file) on any problem."""
-    path = Path(path)
-    return config_from_dict(config_schema.read_toml(path), source=str(path), base_dir=path.resolve().parent)
+    """Read and validate a TOML config file, or a built-in config by name (dotsim.configs). Raises
+    ConfigError (naming the file) on any problem."""
+    path = config_path(path)
+    return config_from_dict(config_schema.read_toml(path), source=str(path), base_dir=relative_base(path))
+
+
+def with_rig(config: Config, spec: str) -> Config:
+    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file: a preset
+    name, or a rig file (any layout dotsim.rig_files reads). Raises ConfigError naming --rig."""
+    if spec in RIG_PRESETS:
+        rig = replace(config.rig, preset=spec, file="")
+    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
+        rig = replace(config.rig, file=str(Path(spec).resolve()))
+    else:
+        raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(RIG_PRESETS)}) nor a rig file "
+                          f"({', '.join(RIG_FILE_SUFFIXES)})")
+    config = replace(config, rig=rig)
+    try:
+        configured_rig(config.rig, f"--rig {spec}: with {config.source}: [rig]")
+    except RigFileError as error:
+        raise ConfigError(str(error)) from None
+    return config
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:

@@ -67,7 +67,7 @@ def scene_seed(base_seed: int, scene_index: int) -> int:
 
 def build_rig(config: Config) -> Rig:
     """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution."""
-    return configured_rig(config.rig, f"{config.source}: [rig]")
+    return configured_rig(config.rig, f"{config.source}: [rig]").rig
 
 
 @dataclass(frozen=True)

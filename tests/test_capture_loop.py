@@ -59,7 +59,7 @@ def test_record_pattern_generate_train_infer(tmp_path):
                                  min_spacing=8.0, dot_sigma=1.6, seed=3)
     truth.save_png(tmp_path / "true_pattern.png")
     # scene frames: dotsim renders what the true sensor sees
-    true_config = (ROOT / "configs" / "tiny.toml").read_text().replace(
+    true_config = (ROOT / "dotsim" / "configs" / "tiny.toml").read_text().replace(
         'source = "procedural"', 'source = "file"\npath = "true_pattern.png"')
     (tmp_path / "true.toml").write_text(true_config)
     generate(load_config(tmp_path / "true.toml"), tmp_path / "world", "test", 1, seed=9, progress=False)
@@ -92,7 +92,7 @@ def test_record_pattern_generate_train_infer(tmp_path):
     assert len(found) > 100 and np.median(distances) < 0.5
 
     # 3. generate with the device's rig and the extracted pattern
-    config = (ROOT / "configs" / "tiny.toml").read_text()
+    config = (ROOT / "dotsim" / "configs" / "tiny.toml").read_text()
     config = config.replace('preset = "structure_core"\nscale = 0.1', 'file = "sensor.json"')
     config = config.replace('source = "procedural"', 'source = "file"\npath = "pattern.png"')
     (tmp_path / "sensor.toml").write_text(config)
@@ -103,7 +103,7 @@ def test_record_pattern_generate_train_infer(tmp_path):
     assert scene.meta["pattern"]["sha256"] == pattern.sha256
 
     # 4. train a few steps
-    train = tomllib.loads((ROOT / "configs" / "train_tiny.toml").read_text())
+    train = tomllib.loads((ROOT / "dotsim" / "configs" / "train_tiny.toml").read_text())
     train["model"]["lines"] = rig.camera.height // 2
     train["data"].update(crop_width=64, crop_height=48)
     train["train"].update(max_steps=3, batch_size=2, checkpoint_every=1000, image_every=1000)

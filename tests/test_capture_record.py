@@ -30,8 +30,8 @@ from realsense_software import DEPTH_UNITS, SERIAL, SoftwareStereoModule, depth_
 
 from capture.devices.realsense import RealSenseDevice, open_realsense  # noqa: E402
 
-TINY = Path(__file__).parent.parent / "configs" / "tiny.toml"
-RIG = get_preset("structure_core").scaled(0.1)  # what configs/tiny.toml renders: 122 x 90
+TINY = Path(__file__).parent.parent / "dotsim" / "configs" / "tiny.toml"
+RIG = get_preset("structure_core").scaled(0.1)  # what dotsim/configs/tiny.toml renders: 122 x 90
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:
@@ -130,7 +130,7 @@ def test_capture_info_file_is_the_device_rig(rendered, tmp_path):
         rig, data = device_rig_file(device, max_depth=6.0)
         device.close()
     (tmp_path / "rig.json").write_bytes(data)
-    assert load_rig_file(tmp_path / "rig.json") == rig and rig.max_depth == 6.0
+    assert load_rig_file(tmp_path / "rig.json").rig == rig and rig.max_depth == 6.0
     stored = json.loads(data)["device"]
     assert stored["stream"] == {"width": 122, "height": 90, "fps": 30, "format": "y8", "depth": True}
     assert stored["serial"] == SERIAL and stored["can_switch_emitter"] and stored["has_depth"]

@@ -66,9 +66,9 @@ def values_in_file(path: Path) -> dict:
 def test_shipped_generator_configs_load_as_written(name, tmp_path):
     # Shipped configs read the asset cache beside configs/ (../assets_cache, built by `make assets`),
     # which a fresh checkout lacks: load a copy that has an (empty) cache folder in that place.
-    copy = tmp_path / "configs" / name
+    copy = tmp_path / "dotsim" / "configs" / name
     copy.parent.mkdir()
-    copy.write_text((REPO / "configs" / name).read_text())
+    copy.write_text((REPO / "dotsim" / "configs" / name).read_text())
     (tmp_path / "assets_cache").mkdir()
     config = load_config(copy)
     assert config.source.endswith(name)
@@ -83,7 +83,7 @@ def test_shipped_generator_configs_load_as_written(name, tmp_path):
 
 @pytest.mark.parametrize("name", TRAINER_CONFIGS)
 def test_shipped_trainer_configs_load_as_written(name):
-    path = REPO / "configs" / name
+    path = REPO / "dotsim" / "configs" / name
     resolved = trainer_config.load_config(path).to_dict()
     for (table, key), value in values_in_file(path).items():
         assert (resolved[key] if table is None else resolved[table][key]) == value, (table, key)
@@ -168,7 +168,7 @@ def test_errors_name_key_value_and_what_is_allowed(which, text, fragments, tmp_p
 
 def test_checkpoint_configs_with_tuples_load():
     # Checkpoints of earlier versions stored the config with tuples (dataclasses.asdict).
-    config = trainer_config.load_config(REPO / "configs" / "train_cpu.toml")
+    config = trainer_config.load_config(REPO / "dotsim" / "configs" / "train_cpu.toml")
     as_tuples = dataclasses.asdict(config)
     assert isinstance(as_tuples["model"]["stage_inputs"][0], tuple)
     assert trainer_config.config_from_dict(as_tuples, "checkpoint") == config

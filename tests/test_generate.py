@@ -21,7 +21,7 @@ from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = REPO / "configs" / "tiny.toml"
+TINY = REPO / "dotsim" / "configs" / "tiny.toml"
 
 
 def run_cli(*args: str) -> int:

@@ -24,8 +24,8 @@ from generator.render_scenes import LOG_DIR
 from generator.resources import TEXTURE_DIR
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = REPO / "configs" / "tiny.toml"
-SCENES = 6  # three shards of two scenes (configs/tiny.toml)
+TINY = REPO / "dotsim" / "configs" / "tiny.toml"
+SCENES = 6  # three shards of two scenes (dotsim/configs/tiny.toml)
 
 
 def frame_sums(root: Path) -> dict[str, str]:

@@ -43,7 +43,7 @@ def write_storage(path, skip=(), **override):
 
 @pytest.mark.parametrize("suffix", [".yaml", ".json", ".xml"])
 def test_opencv_calibration_projects_points_as_cv2_does(tmp_path, suffix):
-    rig = load_rig_file(write_storage(tmp_path / f"calib{suffix}"))
+    rig = load_rig_file(write_storage(tmp_path / f"calib{suffix}")).rig
     assert rig.name == "calib"
     assert (rig.camera.width, rig.camera.height, rig.camera.cx) == (640, 480, 318.2)
     assert (rig.projector.width, rig.projector.fy, rig.projector.cy) == (1600, 1190.0, 598.0)
@@ -66,17 +66,17 @@ def test_sizes_as_separate_width_and_height_keys(tmp_path):
         storage.write(key, value)
     storage.write("name", "bench_rig")
     storage.release()
-    rig = load_rig_file(path)
+    rig = load_rig_file(path).rig
     assert rig.name == "bench_rig" and rig.max_depth == 6.5 and rig.is_rectified and rig.baseline == 0.05
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_preset_files_and_wrapped_rig_json(tmp_path, name):
-    assert load_rig_file(PRESET_DIR / f"{name}.json") == PRESETS[name]
+    assert load_rig_file(PRESET_DIR / f"{name}.json").rig == PRESETS[name]
     (tmp_path / "bare.json").write_text(json.dumps(PRESETS[name].to_dict()))
-    assert load_rig_file(tmp_path / "bare.json") == PRESETS[name]
+    assert load_rig_file(tmp_path / "bare.json").rig == PRESETS[name]
     (tmp_path / "device.json").write_bytes(rig_file_json(PRESETS[name], device={"serial": "x"}))
-    assert load_rig_file(tmp_path / "device.json") == PRESETS[name]
+    assert load_rig_file(tmp_path / "device.json").rig == PRESETS[name]
 
 
 @pytest.mark.parametrize("change, message", [
@@ -90,7 +90,7 @@ def test_preset_files_and_wrapped_rig_json(tmp_path, name):
 def test_bad_calibrations_name_the_file_and_value(tmp_path, change, message):
     path = write_storage(tmp_path / "calib.yaml", **change)
     with pytest.raises(RigFileError, match=rf"calib.yaml: .*{message}"):
-        load_rig_file(path)
+        load_rig_file(path).rig
 
 
 @pytest.mark.parametrize("skip, allowed", [(("K2",), "K2 or M2 or cameraMatrix2 or projector_matrix"),
@@ -98,7 +98,7 @@ def test_bad_calibrations_name_the_file_and_value(tmp_path, change, message):
                                            (("T",), "allowed names: T")])
 def test_missing_keys_list_the_allowed_names(tmp_path, skip, allowed):
     with pytest.raises(RigFileError, match=f"calib.yaml: missing .*{allowed}"):
-        load_rig_file(write_storage(tmp_path / "calib.yaml", skip=skip))
+        load_rig_file(write_storage(tmp_path / "calib.yaml", skip=skip)).rig
 
 
 def test_bad_dotsim_rig_json_names_the_file_and_value(tmp_path):
@@ -107,23 +107,23 @@ def test_bad_dotsim_rig_json_names_the_file_and_value(tmp_path):
     (tmp_path / "rig.json").write_text(json.dumps({"rig": rig}))
     with pytest.raises(RigFileError, match=r"rig.json: rig.camera: fx must be a finite positive number, "
                        r"got -580.0"):
-        load_rig_file(tmp_path / "rig.json")
+        load_rig_file(tmp_path / "rig.json").rig
     rig = PRESETS["kinect_v1"].to_dict()
     rig["projector_translation"] = [0.075, 0.0, -2.0]
     (tmp_path / "rig.json").write_text(json.dumps(rig))
     with pytest.raises(RigFileError, match=r"rig.json: the projector sits 2 m behind the camera"):
-        load_rig_file(tmp_path / "rig.json")
+        load_rig_file(tmp_path / "rig.json").rig
 
 
 def test_unreadable_rig_files(tmp_path):
     with pytest.raises(RigFileError, match="nope.json: rig file not found"):
-        load_rig_file(tmp_path / "nope.json")
+        load_rig_file(tmp_path / "nope.json").rig
     (tmp_path / "rig.txt").write_text("{}")
     with pytest.raises(RigFileError, match=r"rig.txt: not a rig file; allowed: .json, .yaml"):
-        load_rig_file(tmp_path / "rig.txt")
+        load_rig_file(tmp_path / "rig.txt").rig
     (tmp_path / "bad.yaml").write_text("just: [text\n")
     with pytest.raises(RigFileError, match="bad.yaml: neither a dotsim rig nor an OpenCV FileStorage"):
-        load_rig_file(tmp_path / "bad.yaml")
+        load_rig_file(tmp_path / "bad.yaml").rig
 
 
 def test_config_rig_file_is_relative_to_the_config_and_equals_the_preset(tmp_path):

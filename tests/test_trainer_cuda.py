@@ -33,7 +33,7 @@ def data(tmp_path_factory):
 
 
 def published(steps: int, amp: str):
-    d = load_config("configs/train_gigadepth.toml").to_dict()
+    d = load_config("dotsim/configs/train_gigadepth.toml").to_dict()
     d["data"]["workers"] = 2
     d["train"].update(max_steps=steps, amp=amp, checkpoint_every=10**6, image_every=10**6)
     return config_from_dict(d, "published, test length")

@@ -34,7 +34,7 @@ def data(tmp_path_factory):
 
 
 def tiny_config(steps: int, batch_size: int = 4):
-    d = load_config(ROOT / "configs/train_tiny.toml").to_dict()
+    d = load_config(ROOT / "dotsim/configs/train_tiny.toml").to_dict()
     d["data"].update(crop_width=64, crop_height=48)
     d["train"].update(max_steps=steps, batch_size=batch_size, checkpoint_every=1000, image_every=2,
                       log_every=1)
@@ -42,7 +42,7 @@ def tiny_config(steps: int, batch_size: int = 4):
 
 
 def tiny_config_file(path: Path, steps: int, batch_size: int) -> Path:
-    text = (ROOT / "configs/train_tiny.toml").read_text()
+    text = (ROOT / "dotsim/configs/train_tiny.toml").read_text()
     values = {"crop_width": 64, "crop_height": 48, "max_steps": steps, "batch_size": batch_size}
     lines = [next((f"{k} = {v}" for k, v in values.items() if line.startswith(f"{k} =")), line)
              for line in text.splitlines()]

@@ -84,7 +84,7 @@ def run(tmp_path_factory):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the shared 2-core machine: two threads were 3-10x slower per step
     data = make_dataset(tmp_path_factory.mktemp("ds"), scenes=1, frames_per_scene=2, test_scenes=1)
-    cfg = load_config("configs/train_tiny.toml").to_dict()
+    cfg = load_config("dotsim/configs/train_tiny.toml").to_dict()
     cfg["train"].update(max_steps=1, batch_size=2)
     out = tmp_path_factory.mktemp("run")
     train(config_from_dict(cfg, "t"), data, out, progress=False)
@@ -94,7 +94,7 @@ def run(tmp_path_factory):
 
 def test_empty_or_missing_data_folder(tmp_path, run):
     with pytest.raises(DataError, match=r"index\.json: missing"):
-        train(load_config("configs/train_tiny.toml"), tmp_path, tmp_path / "o", progress=False)
+        train(load_config("dotsim/configs/train_tiny.toml"), tmp_path, tmp_path / "o", progress=False)
     with pytest.raises(DataError, match="does not exist"):
         evaluate(run["ckpt"], tmp_path / "nope", tmp_path / "e", progress=False)
     with pytest.raises(DataError, match=r"no scenes with split 'val'.*'train': 1"):
@@ -133,7 +133,7 @@ def test_not_a_checkpoint(tmp_path, run):
 
 @pytest.mark.parametrize("command", ["train", "eval", "infer"])
 def test_cli_reports_errors_in_one_line_on_stderr(tmp_path, capsys, run, command):
-    args = {"train": ["--config", "configs/train_tiny.toml", "--data", str(tmp_path / "nodata"),
+    args = {"train": ["--config", "dotsim/configs/train_tiny.toml", "--data", str(tmp_path / "nodata"),
                       "--out", str(tmp_path / "r")],
             "eval": ["--checkpoint", str(tmp_path / "none.pt"), "--data", str(run["data"]),
                      "--out", str(tmp_path / "e")],
@@ -147,7 +147,7 @@ def test_cli_reports_errors_in_one_line_on_stderr(tmp_path, capsys, run, command
 
 
 def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
-    cfg = Path("configs/train_tiny.toml").read_text().replace("max_steps = 200", "max_steps = 1")
+    cfg = Path("dotsim/configs/train_tiny.toml").read_text().replace("max_steps = 200", "max_steps = 1")
     (tmp_path / "c.toml").write_text(cfg.replace("batch_size = 4", "batch_size = 2"))
     out = tmp_path / "run"
     assert dotsim_main(["train", "--config", str(tmp_path / "c.toml"), "--data", str(run["data"]),

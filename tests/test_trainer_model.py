@@ -78,7 +78,7 @@ def _count(cfg: ModelConfig) -> int:
 
 def test_parameter_count_tiny_and_published_on_meta_device():
     assert sum(p.numel() for p in GigaDepthNet(TINY, half_height=6).parameters()) == _count(TINY)
-    published = load_config("configs/train_gigadepth.toml").model
+    published = load_config("dotsim/configs/train_gigadepth.toml").model
     with torch.device("meta"):
         net = GigaDepthNet(published, half_height=448)
     n = sum(p.numel() for p in net.parameters())

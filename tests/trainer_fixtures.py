@@ -86,10 +86,11 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
 
 
 def tiny_config(steps: int, **train):
-    """configs/train_tiny.toml with 64 x 48 crops, batch 2, `steps` steps and the given [train] keys."""
+    """The built-in train_tiny config with 64 x 48 crops, batch 2, `steps` steps and the given [train]
+    keys."""
     from trainer.config import config_from_dict, load_config
 
-    d = load_config("configs/train_tiny.toml").to_dict()
+    d = load_config("dotsim/configs/train_tiny.toml").to_dict()
     d["data"].update(crop_width=64, crop_height=48)
     d["train"].update(max_steps=steps, batch_size=2, checkpoint_every=1000, image_every=10, **train)
     return config_from_dict(d, "test config")

@@ -57,8 +57,8 @@ def add_parser(subparsers) -> None:
         "trains with N data-parallel processes (DDP: gloo on CPU, NCCL on CUDA with one GPU each); "
         "[train].batch_size is the global batch, shared out among them, so N processes train as one does.")
     p.add_argument("--config", required=True, metavar="TOML",
-                   help="training config, e.g. configs/train_tiny.toml (CPU) or configs/train_gigadepth.toml "
-                   "(keys: docs/TRAIN_CONFIG.md)")
+                   help="training config: a built-in one's name, e.g. train_tiny (CPU) or train_gigadepth "
+                   "(`dotsim config show NAME`), or a TOML file (keys: docs/TRAIN_CONFIG.md)")
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset directory")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
     p.add_argument("--resume", action="store_true",

@@ -1,8 +1,8 @@
 """Training configuration: one TOML file with a top-level seed and [model], [data] and [train] tables.
 
 Every size of the network, the input pipeline and the optimisation is a value here, so the same code
-builds a tiny CPU model for tests (configs/train_tiny.toml) and the published GigaDepth network
-(configs/train_gigadepth.toml). Each key is one `setting(...)` line (dotsim.config_schema): default,
+builds a tiny CPU model for tests (dotsim/configs/train_tiny.toml) and the published GigaDepth network
+(dotsim/configs/train_gigadepth.toml). Each key is one `setting(...)` line (dotsim.config_schema): default,
 meaning and allowed values, from which come the validation, its errors (file, key, value, what is
 allowed, "did you mean") and docs/TRAIN_CONFIG.md. Rules spanning keys are in `validate`.
 Column = projector column normalised by the projector width, in [0, 1]; sizes in full-resolution
@@ -17,6 +17,7 @@ from typing import Any
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, setting
+from dotsim.configs import config_path
 
 
 @dataclass(frozen=True)
@@ -125,7 +126,9 @@ def config_from_dict(d: dict[str, Any], source: str = "<dict>") -> Config:
 
 
 def load_config(path: str | Path) -> Config:
-    """Read a training TOML file; errors name the file, the key, the value and what is allowed."""
+    """Read a training TOML file, or a built-in config by name (dotsim.configs); errors name the file,
+    the key, the value and what is allowed."""
+    path = config_path(path)
     return config_from_dict(config_schema.read_toml(path), str(path))
 
 
