@@ -319,7 +319,9 @@ def _opencv_camera(keys: _Keys, role: str) -> CameraPart | None:
     distortion_keys = CAMERA_DISTORTION_KEYS if camera else PROJECTOR_DISTORTION_KEYS
     name, K = _matrix(keys, matrix_keys, (3, 3), required=False)
     if name is None:
-        if stray := [key for key in distortion_keys if key in keys.tree]:
+        size_keys = (*(CAMERA_SIZE_KEYS if camera else PROJECTOR_SIZE_KEYS),
+                     *(f"{'image' if camera else 'projector'}_{axis}" for axis in ("width", "height")))
+        if stray := [key for key in (*distortion_keys, *size_keys) if key in keys.tree]:
             raise RigFileError(f"{keys.where}: {stray[0]} without a {role} matrix; allowed names of the "
                                f"matrix: {' or '.join(matrix_keys)}")
         return None

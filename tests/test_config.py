@@ -13,7 +13,9 @@ import pytest
 import generator.config as generator_config
 import trainer.config as trainer_config
 from dotsim import config_schema
+from dotsim.cli import main as cli_main
 from dotsim.config_schema import FloatRange, setting
+from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, load_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,27 +65,43 @@ def values_in_file(path: Path) -> dict:
 
 
 @pytest.mark.parametrize("name", GENERATOR_CONFIGS)
-def test_shipped_generator_configs_load_as_written(name, tmp_path):
-    # Shipped configs read the asset cache beside configs/ (../assets_cache, built by `make assets`),
-    # which a fresh checkout lacks: load a copy that has an (empty) cache folder in that place.
-    copy = tmp_path / "dotsim" / "configs" / name
-    copy.parent.mkdir()
-    copy.write_text((REPO / "dotsim" / "configs" / name).read_text())
+def test_shipped_generator_configs_load_as_written(name, tmp_path, monkeypatch):
+    # Built-in configs are loaded by name; their cache_dir ("assets_cache") is relative to the current
+    # directory, where `dotsim assets build` writes the cache (an empty one stands in for it here).
+    monkeypatch.chdir(tmp_path)
     (tmp_path / "assets_cache").mkdir()
-    config = load_config(copy)
-    assert config.source.endswith(name)
+    config = load_config(Path(name).stem)
+    path = BUILTIN_DIR / name
+    assert config.source == str(path)
     resolved = config.to_dict()
-    for (table, key), value in values_in_file(copy).items():
+    for (table, key), value in values_in_file(path).items():
         if key == "cache_dir":
-            assert resolved[table][key] == str((copy.parent / value).resolve())
+            assert resolved[table][key] == str((tmp_path / value).resolve())
         else:
             assert resolved[table][key] == value, (table, key)
             assert type(resolved[table][key]) is type(value) or isinstance(value, int), (table, key)
 
 
+def test_builtin_configs_by_name_and_config_show(tmp_path, capsys):
+    assert builtin_names() == sorted(Path(name).stem for name in GENERATOR_CONFIGS + TRAINER_CONFIGS)
+    assert load_config("tiny") == load_config(BUILTIN_DIR / "tiny.toml")
+    train_tiny = trainer_config.load_config(BUILTIN_DIR / "train_tiny.toml")
+    assert trainer_config.load_config("train_tiny") == train_tiny
+    assert cli_main(["config", "show", "tiny"]) == 0
+    assert capsys.readouterr().out == (BUILTIN_DIR / "tiny.toml").read_text()
+    assert cli_main(["config", "show", "tinny"]) == 2
+    error = capsys.readouterr().err
+    assert "config 'tinny': no built-in config of that name; allowed: bench_accuracy" in error
+    # a copy elsewhere is a file like any other: relative paths are relative to it
+    (tmp_path / "mine.toml").write_text((BUILTIN_DIR / "tiny.toml").read_text())
+    assert load_config(tmp_path / "mine.toml").rig == load_config("tiny").rig
+    with pytest.raises(ConfigError, match="nothere.toml: config file not found"):
+        load_config("nothere.toml")
+
+
 @pytest.mark.parametrize("name", TRAINER_CONFIGS)
 def test_shipped_trainer_configs_load_as_written(name):
-    path = REPO / "dotsim" / "configs" / name
+    path = BUILTIN_DIR / name
     resolved = trainer_config.load_config(path).to_dict()
     for (table, key), value in values_in_file(path).items():
         assert (resolved[key] if table is None else resolved[table][key]) == value, (table, key)
@@ -168,7 +186,7 @@ def test_errors_name_key_value_and_what_is_allowed(which, text, fragments, tmp_p
 
 def test_checkpoint_configs_with_tuples_load():
     # Checkpoints of earlier versions stored the config with tuples (dataclasses.asdict).
-    config = trainer_config.load_config(REPO / "dotsim" / "configs" / "train_cpu.toml")
+    config = trainer_config.load_config("train_cpu")
     as_tuples = dataclasses.asdict(config)
     assert isinstance(as_tuples["model"]["stage_inputs"][0], tuple)
     assert trainer_config.config_from_dict(as_tuples, "checkpoint") == config

@@ -1,4 +1,6 @@
-"""Rigs from files (dotsim JSON, OpenCV FileStorage) and from [rig] config keys, with their checks."""
+"""Rigs from calibration files as people have them (dotsim JSON, OpenCV samples, stereo_calib, ROS
+camera_info, Kalibr; fixtures written by cv2.FileStorage here) and from [rig] config keys, with their
+checks and every refused key."""
 
 import json
 import math
@@ -7,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim.rig import PRESET_DIR, PRESETS, Rig, project_to_projector, rotation_matrix
-from dotsim.rig_files import RigFileError, check_rig, load_rig_file, rig_file_json
+from dotsim.rig import PRESET_DIR, PRESETS, Intrinsics, Rig, project_to_projector, rotation_matrix
+from dotsim.rig_files import RigFileError, check_rig, configured_rig, load_rig_file, rig_file_json
 from generator.config import ConfigError, config_from_dict, load_config
 from generator.sample_scene import build_rig
 
@@ -80,7 +82,6 @@ def test_preset_files_and_wrapped_rig_json(tmp_path, name):
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"D1": np.array([[0.1, 0, 0, 0, 0]])}, r"D1 = \[0.1, 0.0, 0.0, 0.0, 0.0\] is not zero.*rectif"),
     ({"K2": np.array([[-1200.0, 0, 800], [0, 1200, 600], [0, 0, 1]])}, r"K2 fx = -1200.*positive focal"),
     ({"K1": np.array([[600.0, 0, 700], [0, 600, 240], [0, 0, 1]])}, r"camera cx = 700 is outside the image"),
     ({"R": np.array(rotation_matrix(0, math.pi, 0))}, r"projector points behind the camera"),
@@ -90,15 +91,18 @@ def test_preset_files_and_wrapped_rig_json(tmp_path, name):
 def test_bad_calibrations_name_the_file_and_value(tmp_path, change, message):
     path = write_storage(tmp_path / "calib.yaml", **change)
     with pytest.raises(RigFileError, match=rf"calib.yaml: .*{message}"):
-        load_rig_file(path).rig
+        load_rig_file(path)
 
 
-@pytest.mark.parametrize("skip, allowed", [(("K2",), "K2 or M2 or cameraMatrix2 or projector_matrix"),
-                                           (("projector_size",), "projector_size .* or projector_width"),
-                                           (("T",), "allowed names: T")])
+@pytest.mark.parametrize("skip, allowed", [
+    (("K2", "D2", "projector_size"), "missing the projector matrix .K2 or M2 or cameraMatrix2 or "
+     "projector_matrix"),
+    (("K2",), "D2 without a projector matrix; allowed names of the matrix: K2 or M2"),
+    (("projector_size",), "no projector image size.*projector_size"),
+    (("T",), "missing the translation .T.")])
 def test_missing_keys_list_the_allowed_names(tmp_path, skip, allowed):
-    with pytest.raises(RigFileError, match=f"calib.yaml: missing .*{allowed}"):
-        load_rig_file(write_storage(tmp_path / "calib.yaml", skip=skip)).rig
+    with pytest.raises(RigFileError, match=f"calib.yaml.*{allowed}"):
+        load_rig_file(write_storage(tmp_path / "calib.yaml", skip=skip))
 
 
 def test_bad_dotsim_rig_json_names_the_file_and_value(tmp_path):
@@ -107,23 +111,26 @@ def test_bad_dotsim_rig_json_names_the_file_and_value(tmp_path):
     (tmp_path / "rig.json").write_text(json.dumps({"rig": rig}))
     with pytest.raises(RigFileError, match=r"rig.json: rig.camera: fx must be a finite positive number, "
                        r"got -580.0"):
-        load_rig_file(tmp_path / "rig.json").rig
+        load_rig_file(tmp_path / "rig.json")
     rig = PRESETS["kinect_v1"].to_dict()
     rig["projector_translation"] = [0.075, 0.0, -2.0]
     (tmp_path / "rig.json").write_text(json.dumps(rig))
     with pytest.raises(RigFileError, match=r"rig.json: the projector sits 2 m behind the camera"):
-        load_rig_file(tmp_path / "rig.json").rig
+        load_rig_file(tmp_path / "rig.json")
 
 
 def test_unreadable_rig_files(tmp_path):
     with pytest.raises(RigFileError, match="nope.json: rig file not found"):
-        load_rig_file(tmp_path / "nope.json").rig
+        load_rig_file(tmp_path / "nope.json")
     (tmp_path / "rig.txt").write_text("{}")
     with pytest.raises(RigFileError, match=r"rig.txt: not a rig file; allowed: .json, .yaml"):
-        load_rig_file(tmp_path / "rig.txt").rig
+        load_rig_file(tmp_path / "rig.txt")
     (tmp_path / "bad.yaml").write_text("just: [text\n")
-    with pytest.raises(RigFileError, match="bad.yaml: neither a dotsim rig nor an OpenCV FileStorage"):
-        load_rig_file(tmp_path / "bad.yaml").rig
+    with pytest.raises(RigFileError, match="bad.yaml: not valid YAML"):
+        load_rig_file(tmp_path / "bad.yaml")
+    (tmp_path / "bad.xml").write_text("<opencv_storage><K1>\n")
+    with pytest.raises(RigFileError, match="bad.xml: neither a dotsim rig nor an OpenCV FileStorage"):
+        load_rig_file(tmp_path / "bad.xml")
 
 
 def test_config_rig_file_is_relative_to_the_config_and_equals_the_preset(tmp_path):
@@ -165,3 +172,239 @@ def test_check_rig_accepts_every_preset():
     for rig in PRESETS.values():
         check_rig(rig, "preset")
     assert isinstance(PRESETS["structure_core"], Rig)
+
+
+# ---- the calibration files people have, each written here by cv2.FileStorage ----
+
+def write_file_storage(path, entries: dict, flow=True):
+    """A cv2.FileStorage file of nested dicts (maps), lists (sequences), arrays and scalars."""
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+
+    def put(key, value):
+        if isinstance(value, dict):
+            storage.startWriteStruct(key, cv2.FileNode_MAP)
+            for k, v in value.items():
+                put(k, v)
+            storage.endWriteStruct()
+        elif isinstance(value, list):
+            storage.startWriteStruct(key, cv2.FileNode_SEQ | (cv2.FileNode_FLOW if flow else 0))
+            for item in value:
+                put("", item)
+            storage.endWriteStruct()
+        else:
+            storage.write(key, value)
+
+    for key, value in entries.items():
+        put(key, value)
+    storage.release()
+    return path
+
+
+def ros_matrix(array) -> dict:
+    """A matrix as ROS camera_info writes it: a mapping of rows, cols and data."""
+    array = np.atleast_2d(np.asarray(array, np.float64))
+    return {"rows": array.shape[0], "cols": array.shape[1], "data": array.ravel().tolist()}
+
+
+CAMERA_K = np.array([[602.5, 0.0, 321.3], [0.0, 598.5, 238.9], [0.0, 0.0, 1.0]])
+CAMERA_D = np.array([[0.12, -0.25, 0.001, -0.002, 0.08]])
+
+
+def single_camera_sample(path):
+    """What OpenCV's calibration sample (samples/cpp/tutorial_code/calib3d/camera_calibration) writes."""
+    return write_file_storage(path, {
+        "calibration_time": "Wed Nov 25 00:00:00 2026", "nr_of_frames": 25, "image_width": 640,
+        "image_height": 480, "board_width": 9, "board_height": 6, "square_size": 0.025, "flags": 0,
+        "fisheye_model": 0, "camera_matrix": CAMERA_K, "distortion_coefficients": CAMERA_D.T,
+        "avg_reprojection_error": 0.21, "per_view_reprojection_errors": np.full((25, 1), 0.2, np.float32),
+        "extrinsic_parameters": np.zeros((25, 6)), "image_points": np.zeros((25, 54, 2), np.float32),
+        "grid_points": np.zeros((1, 54, 3), np.float32)})
+
+
+def expected_lens_rig(rig, lens):
+    """The rig of a calibrated lens: its square pinhole model, (fx + fy) / 2, same principal point."""
+    focal = (CAMERA_K[0, 0] + CAMERA_K[1, 1]) / 2
+    assert (rig.camera.width, rig.camera.height, rig.camera.fx, rig.camera.fy) == (640, 480, focal, focal)
+    assert (rig.camera.cx, rig.camera.cy) == (CAMERA_K[0, 2], CAMERA_K[1, 2])
+    np.testing.assert_array_equal(lens.intrinsics.K, CAMERA_K)
+    assert lens.distortion == tuple(CAMERA_D.ravel()) and lens.model == "radtan"
+
+
+def test_single_camera_sample_as_camera_file_with_a_preset_projector(tmp_path):
+    single_camera_sample(tmp_path / "camera.yml")
+    (tmp_path / "a.toml").write_text('[rig]\npreset = "kinect_v1"\ncamera_file = "camera.yml"\n')
+    config = load_config(tmp_path / "a.toml")
+    calibrated = configured_rig(config.rig, "a.toml")
+    expected_lens_rig(calibrated.rig, calibrated.lens)
+    kinect = PRESETS["kinect_v1"]
+    assert calibrated.rig.projector == kinect.projector and calibrated.rig.t.tolist() == kinect.t.tolist()
+    assert calibrated.rig.name == "kinect_v1"
+    note = calibrated.rectification_note("a.toml")
+    assert note.count("\n") == 0 and "lens distortion" in note and "rectified" in note
+    # the generator renders the pinhole model
+    assert build_rig(config) == calibrated.rig
+    # as a whole rig the file lacks a projector, and says so
+    with pytest.raises(RigFileError, match=r"camera.yml: missing the projector matrix .* the rotation \(R\)"):
+        load_rig_file(tmp_path / "camera.yml")
+
+
+ROS_TEXT = """image_width: 640
+image_height: 480
+camera_name: ir_camera
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [602.5, 0, 321.3, 0, 598.5, 238.9, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.12, -0.25, 0.001, -0.002, 0.08]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [590, 0, 320, 0, 0, 590, 240, 0, 0, 0, 1, 0]
+"""
+
+
+@pytest.mark.parametrize("writer", ["cv2", "ros"])
+def test_ros_camera_info(tmp_path, writer):
+    path = tmp_path / "ir_camera.yaml"
+    if writer == "ros":  # as camera_calibration writes it: plain YAML, no %YAML:1.0 header
+        path.write_text(ROS_TEXT)
+    else:
+        write_file_storage(path, {
+            "image_width": 640, "image_height": 480, "camera_name": "ir_camera",
+            "camera_matrix": ros_matrix(CAMERA_K), "distortion_model": "plumb_bob",
+            "distortion_coefficients": ros_matrix(CAMERA_D), "rectification_matrix": ros_matrix(np.eye(3)),
+            "projection_matrix": ros_matrix(np.hstack([CAMERA_K, np.zeros((3, 1))]))})
+    calibrated = configured_rig(config_from_dict({"rig": {"camera_file": str(path)}}).rig, "x")
+    expected_lens_rig(calibrated.rig, calibrated.lens)
+    assert calibrated.rig.projector == PRESETS["structure_core"].projector
+
+
+def kalibr_camchain(path, **cam1_change):
+    """A Kalibr camchain: cam0 the IR camera, cam1 the projector, T_cn_cnm1 = [R T; 0 1]."""
+    R = np.array(ROTATION)
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = R, -R @ TRANSLATION
+    cam1 = {"T_cn_cnm1": [row.tolist() for row in transform], "cam_overlaps": [0], "camera_model": "pinhole",
+            "distortion_coeffs": [0.0, 0.0, 0.0, 0.0], "distortion_model": "radtan",
+            "intrinsics": [K2[0, 0], K2[1, 1], K2[0, 2], K2[1, 2]], "resolution": [1600, 1200],
+            "rostopic": "/projector"}
+    cam1.update(cam1_change)
+    return write_file_storage(path, {
+        "cam0": {"cam_overlaps": [1], "camera_model": "pinhole", "distortion_model": "radtan",
+                 "distortion_coeffs": CAMERA_D.ravel()[:4].tolist(),
+                 "intrinsics": [CAMERA_K[0, 0], CAMERA_K[1, 1], CAMERA_K[0, 2], CAMERA_K[1, 2]],
+                 "resolution": [640, 480], "rostopic": "/ir/image_raw"},
+        "cam1": cam1})
+
+
+def test_kalibr_camchain_is_a_whole_rig(tmp_path):
+    calibrated = load_rig_file(kalibr_camchain(tmp_path / "camchain.yaml"))
+    rig = calibrated.rig
+    assert calibrated.lens.distortion == tuple(CAMERA_D.ravel()[:4]) and calibrated.lens.model == "radtan"
+    assert rig.projector == Intrinsics(1600, 1200, 1200.0, 1190.0, 801.0, 598.0)
+    # independent: cv2.projectPoints with R and T of T_cn_cnm1 and cam1's matrix
+    points = np.array([[0.1, -0.2, 1.0], [-0.4, 0.3, 2.5]])
+    R = np.array(ROTATION)
+    expected, _ = cv2.projectPoints(points, cv2.Rodrigues(R)[0], -R @ TRANSLATION, K2, None)
+    xp, yp, _ = project_to_projector(points, rig)
+    np.testing.assert_allclose(np.stack([xp, yp], -1), expected.reshape(-1, 2), atol=1e-9)
+
+
+def test_stereo_calib_pair_with_sizes_from_the_config(tmp_path):
+    R = np.array(ROTATION)
+    write_file_storage(tmp_path / "intrinsics.yml", {"M1": CAMERA_K, "D1": CAMERA_D, "M2": K2,
+                                                      "D2": np.zeros((1, 5))})
+    write_file_storage(tmp_path / "extrinsics.yml", {
+        "R": R, "T": (-R @ TRANSLATION).reshape(3, 1), "R1": np.eye(3), "R2": np.eye(3),
+        "P1": np.zeros((3, 4)), "P2": np.zeros((3, 4)), "Q": np.zeros((4, 4))})
+    with pytest.raises(RigFileError, match=r"intrinsics.yml \(with extrinsics.yml\): M1: the file gives no "
+                       r"camera image size .*image_size.*camera_width and camera_height"):
+        load_rig_file(tmp_path / "intrinsics.yml")
+    config = config_from_dict({"rig": {"file": str(tmp_path / "intrinsics.yml"), "camera_width": 640,
+                                       "camera_height": 480, "projector_width": 1600,
+                                       "projector_height": 1200}})
+    calibrated = configured_rig(config.rig, "x")
+    expected_lens_rig(calibrated.rig, calibrated.lens)
+    np.testing.assert_allclose(calibrated.rig.t, TRANSLATION, atol=1e-12)
+    assert calibrated.rig.projector.fy == 1190.0 and calibrated.rig.name == "intrinsics"
+    with pytest.raises(ConfigError, match=r"the file gives a 640 x 480 px camera, \[rig\] camera_width / "
+                       "camera_height 320 x 240"):
+        config_from_dict({"rig": {"file": str(kalibr_camchain(tmp_path / "c.yaml")), "camera_width": 320,
+                                  "camera_height": 240}})
+
+
+def test_camera_file_with_the_projector_of_a_device_rig_file(tmp_path):
+    device = PRESETS["realsense_d415"]
+    (tmp_path / "sensor.json").write_bytes(rig_file_json(device, device={"serial": "123"}))
+    write_file_storage(tmp_path / "cam.xml", {"camera_matrix": CAMERA_K, "distortion_coefficients": CAMERA_D,
+                                              "image_width": 640, "image_height": 480})
+    calibrated = configured_rig(config_from_dict({"rig": {
+        "camera_file": str(tmp_path / "cam.xml"), "projector_file": str(tmp_path / "sensor.json")}}).rig, "x")
+    expected_lens_rig(calibrated.rig, calibrated.lens)
+    assert calibrated.rig.projector == device.projector and calibrated.rig.t.tolist() == device.t.tolist()
+
+
+def test_opencv_matrix_with_integer_literals_reads_right(tmp_path):
+    # hand-written, as docs/GEOMETRY.md's example: cv2 4.11's FileNode.mat() reads these integers as garbage
+    (tmp_path / "rig.yaml").write_text(
+        "%YAML:1.0\n"
+        "K1: !!opencv-matrix {rows: 3, cols: 3, dt: d, data: [600, 0, 319.5, 0, 600, 239.5, 0, 0, 1]}\n"
+        "K2: !!opencv-matrix {rows: 3, cols: 3, dt: d, data: [1200, 0, 799.5, 0, 1200, 599.5, 0, 0, 1]}\n"
+        "R: !!opencv-matrix {rows: 3, cols: 3, dt: d, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}\n"
+        "T: !!opencv-matrix {rows: 3, cols: 1, dt: d, data: [-0.05, 0, 0]}\n"
+        "image_size: [640, 480]\nprojector_size: [1600, 1200]\n")
+    rig = load_rig_file(tmp_path / "rig.yaml").rig
+    assert rig.camera == Intrinsics(640, 480, 600.0, 600.0, 319.5, 239.5)
+    assert rig.projector == Intrinsics(1600, 1200, 1200.0, 1200.0, 799.5, 599.5)
+    assert rig.projector_translation == (0.05, 0.0, 0.0) and rig.is_rectified
+
+
+@pytest.mark.parametrize("write, message", [
+    (lambda p: write_storage(p, foo=3.0), r"key 'foo' is neither read nor a known calibration key"),
+    (lambda p: write_storage(p, D2=np.array([[0.01, 0, 0, 0, 0]])),
+     r"K2: projector distortion \[0.01, 0.0, 0.0, 0.0, 0.0\] is not zero"),
+    (lambda p: write_storage(p, D1=np.array([[0.1, 0.2, 0.0]])),
+     r"D1 has 3 coefficients; allowed .* 4, 5, 8"),
+    (lambda p: write_storage(p, fisheye_model=2), r"fisheye_model = 2; allowed: 0 or 1"),
+    (lambda p: write_file_storage(p, {"camera_matrix": CAMERA_K, "image_width": 640, "image_height": 480,
+                                      "distortion_model": "fov"}),
+     r"distortion_model = 'fov'; allowed: plumb_bob, radtan"),
+    (lambda p: write_file_storage(p, {"camera_matrix": ros_matrix(CAMERA_K), "image_width": 640,
+                                      "image_height": 480, "rectification_matrix": ros_matrix(ROTATION)}),
+     r"rectification_matrix is not the identity"),
+    (lambda p: write_file_storage(p, {"camera_matrix": ros_matrix(CAMERA_K), "image_width": 640}),
+     r"image_width and image_height go together"),
+    (lambda p: kalibr_camchain(p, camera_model="omni"), r"cam1: camera_model = 'omni'; allowed: pinhole"),
+    (lambda p: kalibr_camchain(p, distortion_coeffs=[0.1, 0, 0, 0]), r"projector distortion \[0.1"),
+    (lambda p: kalibr_camchain(p, timeshift="x"), r"cam1: key 'timeshift' is neither read"),
+    (lambda p: write_file_storage(p, {"cam0": {"camera_model": "pinhole"}, "cam2": {}}),
+     r"cameras cam0, cam2; allowed: cam0 .* and optionally cam1"),
+])
+def test_refused_keys_name_the_file_and_key(tmp_path, write, message):
+    path = write(tmp_path / "calib.yaml")
+    with pytest.raises(RigFileError, match=rf"calib.yaml.*{message}"):
+        load_rig_file(path)
+
+
+def test_fisheye_lens_from_the_calibration_sample(tmp_path):
+    write_file_storage(tmp_path / "fish.yml", {
+        "camera_matrix": CAMERA_K, "image_width": 640, "image_height": 480, "fisheye_model": 1,
+        "distortion_coefficients": np.array([[0.01, 0.02, 0.0, 0.001]])})
+    config = config_from_dict({"rig": {"camera_file": str(tmp_path / "fish.yml")}})
+    calibrated = configured_rig(config.rig, "x")
+    assert calibrated.lens.model == "fisheye" and calibrated.lens.distortion == (0.01, 0.02, 0.0, 0.001)
+
+
+def test_square_undistorted_calibration_needs_no_lens(tmp_path):
+    assert load_rig_file(write_storage(tmp_path / "calib.yaml")).lens is None
+    calibrated = load_rig_file(write_storage(tmp_path / "calib.yaml", K1=CAMERA_K))  # fx != fy, no distortion
+    assert calibrated.lens.distortion == () and calibrated.rig.camera.fx == calibrated.rig.camera.fy == 600.5
+    assert "fx != fy" in calibrated.rectification_note("x")
