@@ -8,6 +8,7 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -15,7 +16,8 @@ from dotsim import dataset
 from dotsim.cli import main as dotsim_main
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
-from generator.config import ConfigError, config_from_dict, load_config
+from dotsim.rig_files import load_rig_file
+from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, sample_scene_spec
@@ -392,3 +394,42 @@ def test_failing_scenes_are_logged_and_the_run_goes_on(tmp_path, capsys):
     assert logs == [f"scene_000000{k}.log" for k in range(3)]
     assert "blender wrote no scene_0000001_raw.npz" in (out / LOG_DIR / logs[1]).read_text()
     assert not list(out.glob("shard_*/scene_*"))
+
+
+def test_generate_with_rig_file_renders_its_pinhole_model(tmp_path, capsys):
+    """`--rig FILE`: a stereo calibration with lens distortion (written by cv2.FileStorage) renders the
+    file's pinhole rig at the config's scale and says in one line that real frames are rectified to it."""
+    path = tmp_path / "sensor.yaml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("K1", np.array([[600.0, 0, 320.5], [0, 600.0, 240.5], [0, 0, 1]])),
+                       ("D1", np.array([[0.1, -0.2, 0.0, 0.0, 0.0]])),
+                       ("K2", np.array([[1200.0, 0, 800.0], [0, 1200.0, 600.0], [0, 0, 1]])),
+                       ("R", np.eye(3)), ("T", np.array([[-0.06], [0.0], [0.0]]))):
+        storage.write(key, value)
+    for key, value in (("image_width", 640), ("image_height", 480), ("projector_width", 1600),
+                       ("projector_height", 1200)):
+        storage.write(key, value)
+    storage.release()
+    assert run_cli("--config", "tiny", "--rig", str(path), "--out", str(tmp_path / "d"), "--split", "train",
+                   "--scenes", "1") == 0
+    note = [line for line in capsys.readouterr().err.splitlines() if "rectified" in line]
+    assert len(note) == 1 and "lens distortion" in note[0] and "64 x 48 px" in note[0]
+    scene = dataset.read_scene(dataset.open_dataset(tmp_path / "d").scenes[0].path)
+    expected = load_rig_file(path).rig.scaled(0.1)
+    rig = scene.meta["rig"]
+    assert rig["camera"] == expected.camera.to_dict() and rig["projector"] == expected.projector.to_dict()
+    assert rig["projector_translation"] == [0.06, 0.0, 0.0]
+    frame = scene.frames[0]
+    assert frame["ir"].shape == (48, 64)
+    near = np.isfinite(frame["depth"]) & (frame["depth"] <= rig["max_depth"])
+    np.testing.assert_allclose(frame["disparity"][near], 60.0 * 0.06 / frame["depth"][near], rtol=1e-5)
+
+
+def test_generate_rig_option_errors(tmp_path, capsys):
+    assert with_rig(load_config("tiny"), "kinect_v1").rig.preset == "kinect_v1"
+    for spec, message in (("nosuch", "--rig 'nosuch': neither a preset"),
+                          (str(tmp_path / "none.yaml"), "none.yaml: rig file not found")):
+        assert run_cli("--config", "tiny", "--rig", spec, "--out", str(tmp_path / "d"), "--split", "train",
+                       "--scenes", "1") == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
