@@ -61,9 +61,10 @@ def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
     return calibrated
 
 
-def _rig_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--rig", default=DEFAULT_PRESET,
-                        help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}), a rig "
+def _rig_arguments(parser: argparse.ArgumentParser, default_note: str = "") -> None:
+    parser.add_argument("--rig", default=None,
+                        help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}"
+                        f"{default_note}), a rig "
                         "file (dotsim rig JSON, OpenCV, ROS camera_info or Kalibr calibration; "
                         "docs/GEOMETRY.md) "
                         "or a generator config whose [rig] gives it (camera_file with a preset's projector, "
@@ -108,12 +109,19 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "dataset: channels ir (projector on), ambient (projector off) and visibility (from their "
         "difference), values = raw / white level. scene.json says has_ground_truth: false and "
         "lists every source file with its sha256. A rerun resumes; other files into the same "
-        "--out are refused.",
+        "--out are refused. Or read a RealSense recording (--bag): its left IR frames paired on/off by "
+        "the emitter state each frame recorded (every frame as ir when only one state was recorded), "
+        "its depth as device_depth, and by default the rig of its recorded calibration, as `capture "
+        "record` stores a live sensor.",
     )
-    imp.add_argument("--on", required=True, metavar="DIR_OR_GLOB",
-                     help="projector-on frames: a folder of .png/.exr files, one file, or a quoted glob")
-    imp.add_argument("--off", required=True, metavar="DIR_OR_GLOB", help="projector-off frames, likewise")
-    _rig_arguments(imp)
+    source = imp.add_mutually_exclusive_group(required=True)
+    source.add_argument("--on", metavar="DIR_OR_GLOB",
+                        help="projector-on frames: a folder of .png/.exr files, one file, or a quoted glob")
+    source.add_argument("--bag", type=Path, metavar="FILE",
+                        help="a RealSense recording: .bag (RealSense Viewer, SDK up to 2.55) or .db3 (SDK "
+                        "2.56 on); needs dotsim[realsense]")
+    imp.add_argument("--off", metavar="DIR_OR_GLOB", help="projector-off frames, likewise (with --on)")
+    _rig_arguments(imp, "; with --bag: the recording's own calibration")
     imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
     imp.add_argument("--frames-per-scene", type=int, default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
@@ -249,9 +257,13 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 def _import(args: argparse.Namespace) -> int:
+    if args.bag is not None:
+        return _import_recording(args)
     start = time.perf_counter()
     try:
-        calibrated = load_rig(args.rig, args.scale)
+        if args.off is None:
+            raise CaptureError("--on needs --off (the projector-off frames), or import a recording: --bag")
+        calibrated = load_rig(args.rig or DEFAULT_PRESET, args.scale)
         rig = calibrated.rig
         settings = _read_json(args.settings, "--settings") if args.settings else {}
         pattern = None
@@ -265,6 +277,38 @@ def _import(args: argparse.Namespace) -> int:
         return _fail("import", error)
     print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "
           f"{summary['dataset']} ({summary['written']} written, {summary['skipped']} already there) in "
+          f"{time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _import_recording(args: argparse.Namespace) -> int:
+    """`capture import --bag`: a RealSense recording played back through `capture record`'s writer."""
+    from capture.devices.realsense import RealSenseRecording
+
+    start = time.perf_counter()
+    try:
+        if args.off is not None or args.settings is not None:
+            raise CaptureError("--bag: leave out --off and --settings (the recording's emitter states pair "
+                               "its frames, and its options are stored from the file)")
+        pattern = load_pattern(args.pattern) if args.pattern else None
+        with RealSenseRecording(args.bag) as device:
+            calibrated = load_rig(args.rig, args.scale) if args.rig else CalibratedRig(device.rig())
+            if device.poses == 0:
+                raise CaptureError(f"--bag {args.bag}: holds no complete pose (an IR frame, and an off frame "
+                                   "after an on frame when the emitter switched)")
+            scenes = -(-device.poses // args.frames_per_scene)
+            summary = record(device, calibrated.rig, args.out, lens=calibrated.lens, scenes=scenes,
+                             frames_per_scene=args.frames_per_scene, split=args.split, settle=0,
+                             white_level=args.white_level, pattern=pattern, dot_window=args.dot_window,
+                             visibility_threshold=args.visibility_threshold,
+                             scenes_per_shard=args.scenes_per_shard, progress=False, preview=False)
+    except (CaptureError, PatternError, FormatError, ValueError) as error:
+        return _fail("import", error)
+    if summary["frames"] < device.poses:
+        return _fail("import", CaptureError(f"--bag {args.bag}: stopped after {summary['frames']} of "
+                                            f"{device.poses} poses ({summary['stopped']}); kept those"))
+    print(f"imported {summary['frames']} poses of {args.bag} as {summary['scenes']} scene(s) into "
+          f"{summary['dataset']} (channels {', '.join(summary['channels'])}) in "
           f"{time.perf_counter() - start:.1f} s")
     return 0
 
@@ -297,7 +341,7 @@ def _pattern(args: argparse.Namespace) -> int:
     try:
         if args.output.suffix.lower() != ".png":
             raise CaptureError(f"-o {args.output}: the pattern is written as a .png file")
-        calibrated = load_rig(args.rig, args.scale)
+        calibrated = load_rig(args.rig or DEFAULT_PRESET, args.scale)
         rig = calibrated.rig
         on = _load_wall_images(args.wall, "--wall", "ir")
         off = _load_wall_images(args.off, "--off", "ambient")

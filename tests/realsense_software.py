@@ -49,8 +49,9 @@ class SoftwareStereoModule:
     streams' intrinsics, its baseline the right IR camera's place."""
 
     def __init__(self, rig: Rig, poses: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 interrupt_at_pose: int | None = None):
+                 interrupt_at_pose: int | None = None, stream_right: bool = False):
         self.poses = poses
+        self.stream_right = stream_right  # push the right IR frames too (a recorder records their extrinsics)
         self.interrupt_at_pose = interrupt_at_pose  # press Ctrl-C (in the main thread) at this pose
         self.device = rs.software_device()
         self.device.register_info(rs.camera_info.serial_number, SERIAL)
@@ -58,13 +59,14 @@ class SoftwareStereoModule:
         self.sensor = self.device.add_sensor("Stereo Module")
         self.ir = _stream(self.sensor, rs.stream.infrared, 1, 1, rs.format.y8, 1,
                           rig).as_video_stream_profile()
-        right = _stream(self.sensor, rs.stream.infrared, 2, 2, rs.format.y8, 1, rig).as_video_stream_profile()
+        self.right = _stream(self.sensor, rs.stream.infrared, 2, 2, rs.format.y8, 1,
+                             rig).as_video_stream_profile()
         self.depth = _stream(self.sensor, rs.stream.depth, 0, 3, rs.format.z16, 2,
                              rig).as_video_stream_profile()
         extrinsics = rs.extrinsics()
         extrinsics.rotation = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         extrinsics.translation = [-rig.baseline, 0.0, 0.0]  # X_right = X_left + T, right camera at +b
-        self.ir.register_extrinsics_to(right, extrinsics)
+        self.ir.register_extrinsics_to(self.right, extrinsics)
         self.sensor.add_read_only_option(rs.option.depth_units, DEPTH_UNITS)
         # rs.option_range(min, max, default, step)
         self.sensor.add_option(rs.option.emitter_enabled, rs.option_range(0, 1, 1, 1), True)
@@ -113,4 +115,6 @@ class SoftwareStereoModule:
             self.pushed += 1
             self._push(self.ir, ir_on if on else ir_off, self.pushed, on)
             self._push(self.depth, depth, self.pushed, on)
+            if self.stream_right:
+                self._push(self.right, ir_on if on else ir_off, self.pushed, on)
             time.sleep(0.01)

@@ -10,7 +10,9 @@ pyrealsense2 `software_device` fed with rendered frames (tests/test_capture_reco
 
 from __future__ import annotations
 
+import hashlib
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -187,3 +189,97 @@ class RealSenseDevice(Device):
             self._sensor.close()
         except RuntimeError:  # already stopped, or the device is gone
             pass
+
+
+RECORDING_SUFFIXES = (".bag", ".db3")  # ROS1 bags (RealSense Viewer, SDK <= 2.55) and ROS2 (SDK >= 2.56)
+
+
+def _load_recording(path: Path):
+    """A playback device of a RealSense recording, played as fast as it is read."""
+    rs = _rs()
+    if path.suffix.lower() not in RECORDING_SUFFIXES:
+        raise DeviceError(f"--bag {path}: not a RealSense recording; allowed: "
+                          f"{', '.join(RECORDING_SUFFIXES)}")
+    if not path.is_file():
+        raise DeviceError(f"--bag {path}: file not found")
+    try:
+        device = rs.context().load_device(str(path))
+    except RuntimeError as error:
+        raise DeviceError(f"--bag {path}: pyrealsense2 cannot play it back ({error})") from None
+    device.as_playback().set_real_time(False)
+    return device
+
+
+def _recorded_ir_format(device, path: Path) -> str:
+    rs = _rs()
+    for name in IR_FORMATS:
+        if any(profile.stream_type() == rs.stream.infrared and profile.stream_index() == 1
+               and profile.format() == getattr(rs.format, name)
+               for sensor in device.query_sensors() for profile in sensor.get_stream_profiles()):
+            return name
+    raise DeviceError(f"--bag {path}: holds no left infrared stream (infrared 1, y8 or y16); record the IR "
+                      "stream (RealSense Viewer: Stereo Module > Infrared 1)")
+
+
+class RealSenseRecording(RealSenseDevice):
+    """A RealSense recording played back as a Device: left IR frames with the emitter state each one
+    recorded (frame_emitter_mode metadata), depth where recorded, and the recorded calibration.
+
+    Its projector cannot be switched: `set_emitter(on)` moves on to the next frame recorded in that
+    state, so recording's on/off pairs are an on frame and the next off frame. `poses` (counted by a
+    first pass over the file) is how many poses the recording gives: on/off pairs when both states
+    were recorded, else every IR frame.
+    """
+
+    def __init__(self, path, timeout_s: float = 2.0, count_poses: bool = True):
+        path = Path(path)
+        states = self._emitter_states(path) if count_poses else []
+        device = _load_recording(path)
+        super().__init__(device, ir_format=_recorded_ir_format(device, path), timeout_s=timeout_s)
+        self.name = f"recording:{path.name}"
+        self.can_switch_emitter = {True, False} <= set(states)
+        self.poses = _pose_count(states) if self.can_switch_emitter else len(states)
+        self._pending: DeviceFrame | None = None
+        if count_poses:
+            self.info.update(kind="realsense-recording", file=str(path.resolve()), sha256=_sha256(path))
+
+    @staticmethod
+    def _emitter_states(path: Path) -> list[bool | None]:
+        """The emitter state of every recorded left IR frame, in order (None where not recorded): a
+        first pass over the file (its end shows as a second without frames)."""
+        states = []
+        with RealSenseRecording(path, timeout_s=1.0, count_poses=False) as scan:
+            while True:
+                try:
+                    states.append(scan.read().emitter)
+                except DeviceGone:
+                    return states
+
+    def _fix_exposure(self, exposure, gain) -> None:
+        """A recording's exposure is what it was: nothing to set."""
+
+    def set_emitter(self, on: bool) -> None:
+        while self._pending is None or self._pending.emitter != on:
+            self._pending = super().read()
+
+    def read(self) -> DeviceFrame:
+        frame, self._pending = self._pending, None
+        return frame if frame is not None else super().read()
+
+
+def _pose_count(states: list[bool | None]) -> int:
+    """On/off pairs in a sequence of emitter states: an on frame, then the next off frame."""
+    poses, want = 0, True
+    for state in states:
+        if state is want:
+            poses += not want
+            want = not want
+    return poses
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
