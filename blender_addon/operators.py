@@ -100,8 +100,10 @@ def sample(settings):
     """The SceneSpec of the scene the settings name (ConfigError naming the file on problems)."""
     from .scene_source import load_spec
 
-    return load_spec(bpy.path.abspath(settings.config_path), settings.split, settings.scene_index,
-                     settings.base_seed, work_dir(settings))
+    config = bpy.path.abspath(settings.config_path) if settings.config == "FILE" else settings.config
+    rig = {"CONFIG": None, "FILE": bpy.path.abspath(settings.rig_path)}.get(settings.rig, settings.rig)
+    return load_spec(config, settings.split, settings.scene_index, settings.base_seed, work_dir(settings),
+                     rig)
 
 
 def _show_in_editor(context, editor: str, attribute: str, value) -> None:

@@ -14,7 +14,12 @@ class DOTSIM_PT_preview(bpy.types.Panel):
     def draw(self, context):
         settings = context.window_manager.dotsim
         layout = self.layout
-        layout.prop(settings, "config_path")
+        layout.prop(settings, "config")
+        if settings.config == "FILE":
+            layout.prop(settings, "config_path")
+        layout.prop(settings, "rig")
+        if settings.rig == "FILE":
+            layout.prop(settings, "rig_path")
         layout.prop(settings, "split")
         row = layout.row(align=True)
         row.prop(settings, "scene_index")

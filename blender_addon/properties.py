@@ -11,11 +11,46 @@ from bpy.app.handlers import persistent
 
 from .operators import SESSION, move_rig_to_frame
 
+try:  # the drop-downs list what dotsim ships; without dotsim the operators say how to install it
+    from dotsim.configs import builtin_names
+    from dotsim.rig import PRESETS
+except ImportError:
+    def builtin_names(kind=None) -> list[str]:
+        return []
+
+    PRESETS = {}
+
+FILE = "FILE"  # the drop-downs' entry for "a file of your own"
+CONFIG_RIG = "CONFIG"  # the rig drop-down's entry for "the config's own [rig]"
+
+
+def _config_items() -> list[tuple[str, str, str]]:
+    return [(name, name, f"the built-in config {name} (`dotsim config show {name}` prints it)")
+            for name in builtin_names("generator")] + [
+        (FILE, "file", "a generator config file of your own (TOML; keys in docs/CONFIG.md)")]
+
+
+def _rig_items() -> list[tuple[str, str, str]]:
+    return [(CONFIG_RIG, "config's rig", "the rig the config's [rig] section describes")] + [
+        (name, name, f"the {name} rig preset instead of the config's") for name in sorted(PRESETS)] + [
+        (FILE, "rig file", "a rig file: dotsim rig JSON, OpenCV, ROS camera_info or Kalibr calibration "
+                           "(docs/GEOMETRY.md)")]
+
 
 class DotsimSettings(bpy.types.PropertyGroup):
+    config: bpy.props.EnumProperty(
+        name="Config", items=_config_items(), default="tiny" if "tiny" in builtin_names() else FILE,
+        description="Generator config: one shipped with dotsim, or a file of your own")
     config_path: bpy.props.StringProperty(
-        name="Config", subtype="FILE_PATH",
-        description="Generator config (TOML), e.g. dotsim/configs/tiny.toml; keys in docs/CONFIG.md")
+        name="Config file", subtype="FILE_PATH",
+        description="Generator config (TOML) when Config is \"file\"; keys in docs/CONFIG.md")
+    rig: bpy.props.EnumProperty(
+        name="Rig", items=_rig_items(), default=CONFIG_RIG,
+        description="The sensor rig: the config's, a preset, or a rig file (as `dotsim generate --rig`)")
+    rig_path: bpy.props.StringProperty(
+        name="Rig file", subtype="FILE_PATH",
+        description="Rig file when Rig is \"rig file\": dotsim rig JSON, OpenCV, ROS camera_info or "
+                    "Kalibr YAML")
     split: bpy.props.EnumProperty(
         name="Split", default="train",
         items=(("train", "train", "training split: its textures, assets and clutter density"),

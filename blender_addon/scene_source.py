@@ -14,7 +14,7 @@ import os
 
 import numpy as np
 
-from generator.config import ConfigError, load_config
+from generator.config import ConfigError, load_config, with_rig
 from generator.post_render import make_frame
 from generator.resources import resources_in_folder
 from generator.sample_scene import frame_sensor_rng, sample_scene_spec
@@ -22,10 +22,11 @@ from generator.scene_spec import SPLITS, SceneSpec
 
 
 def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base_seed: int,
-              work_dir: str | os.PathLike) -> SceneSpec:
+              work_dir: str | os.PathLike, rig: str | None = None) -> SceneSpec:
     """The SceneSpec of scene `scene_index` of `split` with base seed `base_seed`, as
-    `dotsim generate --config CONFIG --split SPLIT --seed BASE_SEED` samples it; its pattern and
-    built-in textures are written under `work_dir` once.
+    `dotsim generate --config CONFIG [--rig RIG] --split SPLIT --seed BASE_SEED` samples it (CONFIG a
+    built-in config's name or a file; RIG a preset or a rig file); its pattern and built-in textures
+    are written under `work_dir` once.
 
     Raises ConfigError naming the file when the config is missing or invalid, or an argument is
     out of range.
@@ -39,6 +40,11 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
         if value < 0:
             raise ConfigError(f"{name} {value}: allowed: an integer >= 0")
     config = load_config(config_path)
+    if rig is not None:
+        if not rig.strip():
+            raise ConfigError("no rig file chosen; allowed: a rig file (dotsim rig JSON, OpenCV, ROS "
+                              "camera_info or Kalibr calibration), or the config's rig or a preset")
+        config = with_rig(config, rig)
     resources = resources_in_folder(config, split, work_dir)
     return sample_scene_spec(config, scene_index, base_seed, split, resources)
 

@@ -61,7 +61,9 @@ def main(params: dict) -> dict:
         filepath=zip_path, repo="user_default", enable_on_install=True))
     seen["enabled"] = ADDON in bpy.context.preferences.addons
     settings = bpy.context.window_manager.dotsim
-    settings.config_path = params["config"]
+    seen["config_choices"] = [item.identifier for item in settings.bl_rna.properties["config"].enum_items]
+    seen["rig_choices"] = [item.identifier for item in settings.bl_rna.properties["rig"].enum_items]
+    settings.config = params["config"]  # a built-in config, shipped inside the extension
     settings.split, settings.scene_index = params["split"], params["scene"]
     settings.base_seed = params["seed"]
     settings.work_dir = params["work_dir"]
@@ -72,14 +74,23 @@ def main(params: dict) -> dict:
     np.savez(params["images"], ir=_pixels("dotsim preview"),
              depth=_pixels("dotsim preview depth") * depth["depth_scale_m"])
     seen["bad_input"] = {}
+    settings.config = "FILE"
     for case, config in params["bad_configs"].items():
         settings.config_path = config
         seen["bad_input"][case] = {op: _run(op) for op in ("build_scene", "preview_frame", "show_spec")}
+
+    settings.config, settings.rig, settings.rig_path = params["config"], "FILE", params["rig_file"]
+    seen["rig_file"] = _run("show_spec")
+    seen["rig_file"]["rig"] = json.loads(bpy.data.texts["dotsim spec"].as_string())["rig"]
 
     import dotsim
 
     site_packages = Path(dotsim.__file__).parents[1]  # where Blender unpacked the extension's wheels
     seen["site_packages"] = str(site_packages)
+    from dotsim.configs import BUILTIN_DIR
+
+    seen["builtin_configs"] = str(BUILTIN_DIR)
+    seen["sys_path"] = sys.path
     seen["imported_files"] = _imported_files()
     seen["bundled"] = {dist.metadata["Name"]: sorted({str(f).split("/")[0] for f in dist.files})
                        for dist in importlib.metadata.distributions(path=[str(site_packages)])}

@@ -39,6 +39,7 @@ def settings(dataset_scene):
     user_scene = window.scene
     blender_addon.register()
     settings = bpy.context.window_manager.dotsim
+    settings.config = "FILE"
     settings.config_path = str(CONFIG)
     settings.split = SPLIT
     settings.scene_index = SCENE_INDEX
@@ -218,6 +219,41 @@ def test_invalid_config_value_is_named(settings, tmp_path):
         settings.config_path = str(CONFIG)
 
 
+def test_rig_drop_down_and_rig_file(settings, tmp_path):
+    """The rig choice works as `dotsim generate --rig`: a preset, or a rig file (here written by
+    cv2.FileStorage, an OpenCV stereo calibration); an empty rig file field is an error report."""
+    import cv2
+
+    from dotsim.rig import get_preset
+
+    path = tmp_path / "mine.yaml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("K1", np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])),
+                       ("K2", np.array([[1000.0, 0, 799.5], [0, 1000.0, 599.5], [0, 0, 1]])),
+                       ("R", np.eye(3)), ("T", np.array([[-0.07], [0.0], [0.0]])),
+                       ("image_width", 640), ("image_height", 480), ("projector_width", 1600),
+                       ("projector_height", 1200)):
+        storage.write(key, value)
+    storage.release()
+    try:
+        settings.rig = "kinect_v1"
+        assert bpy.ops.dotsim.show_spec() == {"FINISHED"}
+        assert _spec_from_text()["rig"]["camera"] == get_preset("kinect_v1").scaled(0.1).camera.to_dict()
+        settings.rig = "FILE"
+        settings.rig_path = ""
+        with pytest.raises(RuntimeError, match="no rig file chosen"):
+            bpy.ops.dotsim.show_spec()
+        settings.rig_path = str(path)
+        assert bpy.ops.dotsim.show_spec() == {"FINISHED"}
+        rig = _spec_from_text()["rig"]
+        assert (rig["camera"]["width"], rig["camera"]["fx"]) == (64, 50.0)
+        assert rig["projector_translation"] == [0.07, 0.0, 0.0]
+        settings.config = "tiny"  # the built-in config, by name
+        assert bpy.ops.dotsim.show_spec() == {"FINISHED"}
+    finally:
+        settings.rig, settings.config = "CONFIG", "FILE"
+
+
 def test_unregister_removes_operators_and_settings(settings):
     assert hasattr(bpy.types, "DOTSIM_PT_preview") and bpy.types.DOTSIM_PT_preview.bl_category == "dotsim"
     blender_addon.unregister()
@@ -229,3 +265,4 @@ def test_unregister_removes_operators_and_settings(settings):
             bpy.ops.dotsim.show_spec()
     finally:
         blender_addon.register()  # the fixture unregisters at the end
+

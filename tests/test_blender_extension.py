@@ -40,6 +40,25 @@ pytest.importorskip("bpy")
 
 REPO = Path(__file__).resolve().parents[1]
 FRAME = 2
+KALIBR_CAMCHAIN = """cam0:
+  camera_model: pinhole
+  intrinsics: [600.0, 600.0, 319.5, 239.5]
+  distortion_model: radtan
+  distortion_coeffs: [-0.1, 0.02, 0.0, 0.0]
+  resolution: [640, 480]
+  rostopic: /ir/image_raw
+cam1:
+  T_cn_cnm1:
+  - [1.0, 0.0, 0.0, -0.05]
+  - [0.0, 1.0, 0.0, 0.0]
+  - [0.0, 0.0, 1.0, 0.0]
+  - [0.0, 0.0, 0.0, 1.0]
+  camera_model: pinhole
+  intrinsics: [1200.0, 1200.0, 799.5, 599.5]
+  distortion_model: radtan
+  distortion_coeffs: [0.0, 0.0, 0.0, 0.0]
+  resolution: [1600, 1200]
+"""
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +105,10 @@ def session(tmp_path_factory, extension_zip, dataset_scene):
     bad_toml.write_bytes(b"\xff\xfe[rig]\x00 scale = ")
     no_cache = tmp / "no_cache.toml"
     no_cache.write_text(CONFIG.read_text() + '\n[assets]\nsource = "cache"\ncache_dir = "no_such_cache"\n')
-    params = {"zip": str(extension_zip), "config": str(CONFIG), "split": SPLIT, "scene": SCENE_INDEX,
-              "seed": BASE_SEED, "frame": FRAME, "work_dir": str(dataset_scene[0]),
+    kalibr = tmp / "camchain.yaml"  # plain YAML, as Kalibr writes it: read with the bundled PyYAML
+    kalibr.write_text(KALIBR_CAMCHAIN)
+    params = {"zip": str(extension_zip), "config": CONFIG.stem, "rig_file": str(kalibr), "split": SPLIT,
+              "scene": SCENE_INDEX, "seed": BASE_SEED, "frame": FRAME, "work_dir": str(dataset_scene[0]),
               "bad_configs": {"unreadable": str(bad_toml), "missing_cache": str(no_cache)},
               "out": str(tmp / "seen.json"), "images": str(tmp / "images.npz")}
     (tmp / "params.json").write_text(json.dumps(params))
@@ -144,6 +165,12 @@ def test_installed_extension_imports_only_its_wheels_and_what_blender_bundles(se
 
 
 def test_preview_through_installed_extension_is_the_dataset_frame(session, dataset_scene):
+    # no checkout: the built-in config comes from the extension's own dotsim, nothing from this repo
+    assert Path(session["builtin_configs"]).is_relative_to(session["site_packages"])
+    assert not [p for p in session["sys_path"] if p and Path(p).resolve().is_relative_to(REPO)]
+    assert "tiny" in session["config_choices"] and "train_tiny" not in session["config_choices"]
+    assert session["config_choices"][-1] == "FILE"
+    assert session["rig_choices"] == ["CONFIG", "kinect_v1", "realsense_d415", "structure_core", "FILE"]
     assert session["build_scene"]["result"] == ["FINISHED"], session["build_scene"]
     assert session["preview_frame"]["result"] == ["FINISHED"], session["preview_frame"]
     assert f"frame {FRAME} of scene {SCENE_INDEX}" in session["preview_frame"]["status"]
@@ -156,6 +183,14 @@ def test_preview_through_installed_extension_is_the_dataset_frame(session, datas
     assert hit.mean() > 0.5
     np.testing.assert_allclose(depth[hit], frame["depth"][hit], rtol=1e-6)
     assert np.all(depth[~hit] == 0)
+
+
+def test_rig_file_through_installed_extension(session):
+    """A Kalibr camchain chosen as the rig file: the spec renders its pinhole rig at tiny's scale."""
+    assert session["rig_file"]["result"] == ["FINISHED"], session["rig_file"]
+    rig = session["rig_file"]["rig"]
+    assert rig["camera"] == {"width": 64, "height": 48, "fx": 60.0, "fy": 60.0, "cx": 31.5, "cy": 23.5}
+    assert rig["projector_translation"] == [0.05, 0.0, 0.0] and rig["projector"]["width"] == 160
 
 
 @pytest.mark.parametrize("case, expected", [

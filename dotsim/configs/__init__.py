@@ -15,9 +15,16 @@ from pathlib import Path
 BUILTIN_DIR = Path(__file__).resolve().parent
 
 
-def builtin_names() -> list[str]:
-    """Names of the built-in configs (their file names without .toml)."""
-    return sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+TRAINING_PREFIX = "train_"  # training configs are named train_*; the others are generator configs
+
+
+def builtin_names(kind: str | None = None) -> list[str]:
+    """Names of the built-in configs (their file names without .toml): all, or only the "generator"
+    or "training" ones."""
+    names = sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+    if kind is None:
+        return names
+    return [name for name in names if name.startswith(TRAINING_PREFIX) == (kind == "training")]
 
 
 def builtin_path(name: str) -> Path | None:
