@@ -8,7 +8,8 @@ one `setting(...)` line in its section.
 Conventions: distances in metres, angles in degrees, powers in watts (Blender light power),
 pixel sizes in full-resolution sensor pixels (scaled by `[rig] scale` at render time).
 A "range" is a two-element TOML array `[low, high]` from which each scene draws a value.
-Relative paths in a config file are resolved against the directory of that file.
+Relative paths in a config file are resolved against the directory of that file; a built-in config
+(dotsim/configs, `--config NAME`) resolves them against the current directory.
 """
 
 from __future__ import annotations
@@ -354,7 +355,8 @@ def config_reference_markdown() -> str:
         "when left out. An unknown key, a value of the wrong type or out of range, a missing pattern "
         "file or asset directory stops `dotsim generate` before anything is rendered or written, with "
         "a message naming the file, the key, the value and what is allowed. A *range* `[low, high]` is "
-        "drawn from per scene. Relative paths are resolved against the config file's directory. "
+        "drawn from per scene. Relative paths are resolved against the config file's directory (a "
+        "built-in config's, named by `--config NAME`: the current directory). "
         "The full resolved config is stored in every scene's `scene.json` under `config`."))
 
 
