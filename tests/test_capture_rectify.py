@@ -108,3 +108,32 @@ def test_capture_import_with_a_calibration_file_rectifies(tmp_path, distorted):
     assert scene.meta["capture"]["rectified_from"]["distortion"] == LENS_D.tolist()
     assert corner_error(scene.frames[0]["ir"].astype(np.float32)) < 0.2
     assert corner_error(scene.frames[0]["ambient"].astype(np.float32) / 0.3) < 0.2
+
+
+def test_capture_record_rectifies_ir_and_device_depth(tmp_path, distorted):
+    """A software RealSense streams the distorted checkerboard; recording with the lens stores the
+    pinhole camera's frames (corners where the pinhole puts them, depth kept)."""
+    pytest.importorskip("pyrealsense2")
+    from realsense_software import DEPTH_UNITS, SoftwareStereoModule
+
+    from capture.devices.realsense import RealSenseDevice
+    from capture.record import record
+    from dotsim.rig_files import device_rig
+
+    rig = device_rig("pinhole", PINHOLE, (0.05, 0.0, 0.0))
+    on = np.round(distorted * 255).astype(np.uint8)
+    pose = (on, (on // 4).astype(np.uint8), np.full(on.shape, 1500, np.uint16))
+    lens = Lens(Intrinsics(WIDTH, HEIGHT, *LENS_K[[0, 1, 0, 1], [0, 1, 2, 2]]), tuple(LENS_D), "radtan")
+    with SoftwareStereoModule(rig, [pose]) as module:
+        device = RealSenseDevice(module.device)
+        summary = record(device, rig, tmp_path / "rec", scenes=1, frames_per_scene=1, progress=False,
+                         preview=False, lens=lens)
+        device.close()
+    assert summary["frames"] == 1
+    scene = read_scene(open_dataset(tmp_path / "rec").scenes[0].path)
+    frame = scene.frames[0]
+    assert corner_error(frame["ir"].astype(np.float32)) < 0.2
+    depth = frame["device_depth"]
+    # barrel distortion: every pinhole pixel's source lies inside the recorded image
+    assert np.all(depth == np.float32(1500) * np.float32(DEPTH_UNITS))
+    assert scene.meta["capture"]["rectified_from"]["model"] == "radtan"
