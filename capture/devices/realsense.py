@@ -154,25 +154,7 @@ class RealSenseDevice(Device):
 
     def read(self) -> DeviceFrame:
         rs = self._rs
-        deadline = time.monotonic() + self._timeout_s
-        while True:
-            remaining_ms = int(1000 * (deadline - time.monotonic()))
-            if remaining_ms <= 0:
-                raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)")
-            try:
-                frames = self._syncer.wait_for_frames(remaining_ms)
-            except RuntimeError:
-                raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)") \
-                    from None
-            ir = depth = None
-            for k in range(frames.size()):
-                frame = frames[k]
-                if frame.profile.stream_type() == rs.stream.infrared and frame.profile.stream_index() == 1:
-                    ir = frame
-                elif frame.profile.stream_type() == rs.stream.depth:
-                    depth = frame
-            if ir is not None and (depth is not None or not self.has_depth):
-                break  # the syncer can hand out a stream alone before its partner arrives
+        ir, depth = self._frames()
         emitter = None
         if ir.supports_frame_metadata(rs.frame_metadata_value.frame_emitter_mode):
             emitter = ir.get_frame_metadata(rs.frame_metadata_value.frame_emitter_mode) != 0
@@ -182,6 +164,35 @@ class RealSenseDevice(Device):
             metres = np.where(raw > 0, raw, np.nan).astype(np.float32)
         return DeviceFrame(np.asanyarray(ir.get_data()).copy(), float(ir.get_timestamp()),
                            int(ir.get_frame_number()), emitter, metres)
+
+    def _frames(self):
+        """The next left IR frame and its depth frame (None without depth), from one frameset."""
+        deadline = time.monotonic() + self._timeout_s
+        while True:
+            ir, depth = self._frameset(deadline)
+            if ir is not None and (depth is not None or not self.has_depth):
+                return ir, depth  # the syncer can hand out a stream alone before its partner arrives
+
+    def _frameset(self, deadline: float):
+        """(left IR, depth) frames of the syncer's next frameset, each None when it lacks it;
+        DeviceGone past the deadline."""
+        rs = self._rs
+        remaining_ms = int(1000 * (deadline - time.monotonic()))
+        try:
+            if remaining_ms <= 0:
+                raise RuntimeError
+            frames = self._syncer.wait_for_frames(remaining_ms)
+        except RuntimeError:
+            raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)") \
+                from None
+        ir = depth = None
+        for k in range(frames.size()):
+            frame = frames[k]
+            if frame.profile.stream_type() == rs.stream.infrared and frame.profile.stream_index() == 1:
+                ir = frame
+            elif frame.profile.stream_type() == rs.stream.depth:
+                depth = frame
+        return ir, depth
 
     def close(self) -> None:
         try:
@@ -234,6 +245,7 @@ class RealSenseRecording(RealSenseDevice):
     def __init__(self, path, timeout_s: float = 2.0, count_poses: bool = True):
         path = Path(path)
         states = self._emitter_states(path) if count_poses else []
+        self._irs, self._depths = {}, {}  # frames waiting for their partner, by frame number
         device = _load_recording(path)
         super().__init__(device, ir_format=_recorded_ir_format(device, path), timeout_s=timeout_s)
         self.name = f"recording:{path.name}"
@@ -257,6 +269,22 @@ class RealSenseRecording(RealSenseDevice):
 
     def _fix_exposure(self, exposure, gain) -> None:
         """A recording's exposure is what it was: nothing to set."""
+
+    def _frames(self):
+        """The next left IR frame and the depth frame of the same frame number: played back, IR and
+        depth may come in framesets of their own (ROS1 bags do), so they are paired by number."""
+        deadline = time.monotonic() + self._timeout_s
+        while True:
+            common = sorted(set(self._irs) & set(self._depths)) if self.has_depth else sorted(self._irs)
+            if common:
+                number = common[0]
+                for store in (self._irs, self._depths):  # unmatched older frames never pair any more
+                    for older in [key for key in store if key < number]:
+                        del store[older]
+                return self._irs.pop(number), self._depths.pop(number, None)
+            for store, frame in zip((self._irs, self._depths), self._frameset(deadline), strict=True):
+                if frame is not None:
+                    store[frame.get_frame_number()] = frame
 
     def set_emitter(self, on: bool) -> None:
         while self._pending is None or self._pending.emitter != on:
