@@ -187,8 +187,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
     rec.add_argument("--scenes", type=int, default=1, help="scenes to record (default 1)")
     rec.add_argument("--frames", type=int, default=4, help="poses per scene (default 4)")
-    rec.add_argument("--rig", help="rig preset or rig file for the frames (default: the device's own "
-                     "calibration, as `capture info` writes it; required for opencv devices)")
+    rec.add_argument("--rig", help="rig preset, rig file or generator config (as for import) for the frames "
+                     "(default: the device's own calibration, as `capture info` writes it; required for "
+                     "opencv devices); a calibrated lens is rectified to the rig's pinhole camera")
     rec.add_argument("--exposure", type=float, help="fixed exposure in the device's units (default: as set)")
     rec.add_argument("--gain", type=float, help="fixed gain in the device's units (default: as set)")
     rec.add_argument("--settle", type=int, default=3,

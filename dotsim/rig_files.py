@@ -30,7 +30,6 @@ from dotsim.rig import Intrinsics, Rig, check_square_pixels, get_preset, project
 
 RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
 PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
-__all__ = ["RigFileError", "Lens", "CalibratedRig", "load_rig_file", "configured_rig", "check_rig"]
 
 # Depths (m) at which a projector must light part of the camera's view: from a near surface to
 # the rig's max_depth.
