@@ -34,6 +34,9 @@ MEANINGS = {"ir": "what the sensor sees", "ambient": "projector off", "flood": "
             "depth": "ground truth", "visibility": "white: dots seen", "edge": "white: depth edge",
             "projector_column": "ground truth", "disparity": "ground truth"}
 GREY_CHANNELS = ("ir", "ambient", "flood")
+FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
+            "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
+            "their own 99th percentile. Masks: white = 1.")
 COLOUR_MAPPED = ("depth", "projector_column", "disparity")
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 TEXT_SCALE = 0.45
@@ -97,6 +100,13 @@ def _grey_scale(frames: list[dict], name: str) -> float:
     return scale if scale > 0 else float(max(values.max(), 0.0))
 
 
+def grey_for_display(image: np.ndarray, name: str) -> np.ndarray:
+    """(H, W) uint8 of one grey pass as the sheet shows it, scaled by this image alone: IR linear on
+    full scale, ambient and flood as the square root of value over their own 99th percentile."""
+    scale = _grey_scale([{name: image}], name)
+    return _grey(image, scale or 1.0, root=name != "ir")[..., 0]
+
+
 def scale_caption(name: str, scale: float) -> str:
     """The scale written above a grey column: the value its white stands for."""
     if name == "ir":
@@ -106,8 +116,23 @@ def scale_caption(name: str, scale: float) -> str:
     return f"sqrt, white = {_fmt(scale)}"
 
 
-def _text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE):
+def _text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE, width: int | None = None):
+    """Draw text at (x, y); with `width`, in a smaller font where it would be wider than that."""
+    if width is not None:
+        scale = min(scale, scale * width / max(cv2.getTextSize(text, FONT, scale, 1)[0][0], 1))
     cv2.putText(img, text, (int(x), int(y)), FONT, scale, colour, 1, cv2.LINE_AA)
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    """Words of text in lines at most `width` px wide at TEXT_SCALE."""
+    lines = [""]
+    for word in text.split():
+        candidate = f"{lines[-1]} {word}".strip()
+        if lines[-1] and cv2.getTextSize(candidate, FONT, TEXT_SCALE, 1)[0][0] > width:
+            lines.append(word)
+        else:
+            lines[-1] = candidate
+    return lines
 
 
 def _fmt(v: float) -> str:
@@ -137,24 +162,25 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
 
     top = 4 * LINE + GAP  # title line, column title, meaning, scale
     grid_w = len(channels) * (tile_w + GAP)
-    legend_h = (LINE + BAR_HEIGHT + LINE) * len(ranges) + 2 * LINE + GAP
-    sheet_h = top + len(frames) * (tile_h + GAP) + legend_h
     sheet_w = LABEL_WIDTH + grid_w + GAP
+    footnote = _wrap(FOOTNOTE, sheet_w - 2 * GAP)
+    legend_h = (LINE + BAR_HEIGHT + LINE) * len(ranges) + (len(footnote) + 1) * LINE + GAP
+    sheet_h = top + len(frames) * (tile_h + GAP) + legend_h
     sheet = np.full((sheet_h, sheet_w, 3), BACKGROUND, np.uint8)
     _text(sheet, title, GAP, LINE - 4)
 
     tiles = {}
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
-        _text(sheet, TITLES[name], x, 2 * LINE - 4)
-        _text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR)
+        _text(sheet, TITLES[name], x, 2 * LINE - 4, width=tile_w)
+        _text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         if name in scales:
             caption = scale_caption(name, scales[name])
         elif name in ranges:
             caption = f"{_fmt(ranges[name][0])}..{_fmt(ranges[name][1])} {UNITS[name]}"
         else:
             caption = "mask 0 / 1"
-        _text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR)
+        _text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         for k, frame in enumerate(frames):
             y = top + k * (tile_h + GAP)
             image = frame[name]
@@ -182,9 +208,9 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             tx = LABEL_WIDTH + int(frac * (bar_w - 1))
             _text(sheet, _fmt(low + frac * (high - low)), min(tx, sheet_w - 50), y + BAR_HEIGHT + LINE)
         y += LINE + BAR_HEIGHT + LINE
-    _text(sheet, "Each grey pass has its own scale (above its column): IR linear on the sensor's full "
-                 "scale; ambient and flood (linear radiance) as the square root of value / white, white "
-                 "at their own 99th percentile", GAP, y)
+    for line in footnote:
+        _text(sheet, line, GAP, y)
+        y += LINE
     return sheet, SheetLayout(tiles=tiles, tile_size=(tile_w, tile_h))
 
 

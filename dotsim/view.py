@@ -6,8 +6,9 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
   `world/pose_K/camera` and projector frustum `world/pose_K/projector` (placed by the rig's
   projector_translation and projector_rotation); a capture without poses shows them at the origin;
 - `world/pose_K/ground_truth`: the frame's ground-truth depth as points in the rig (camera) frame,
-  coloured by the IR grey;
-- `camera/ir`, `camera/ambient`, `camera/flood` (float values as stored), `camera/depth` (metres),
+  shaded by the flood pass (as `camera/flood`; by the IR where a frame has no flood);
+- `camera/ir` (float values as stored), `camera/ambient`, `camera/flood` (uint8 as `dotsim show`
+  draws them: square root of value over the frame's 99th percentile), `camera/depth` (metres),
   `camera/visibility`, `camera/edge` (0 / 255): the frame's passes, the IR sequence over frames;
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr): the predicted
   cloud `world/pose_K/prediction` beside the truth, coloured by its disparity error, and
@@ -26,9 +27,11 @@ from dotsim import dataset as ds
 from dotsim.file_io import temporary_name
 from dotsim.pointcloud import depth_points, grey_levels
 from dotsim.rig import Rig
-from dotsim.show import colourise, scene_path_of
+from dotsim.show import colourise, grey_for_display, scene_path_of
 
-GREY_PASSES = ("ir", "ambient", "flood")
+# Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
+# range shows as a few bright objects on black.
+DISPLAYED_PASSES = ("ambient", "flood")
 ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
 FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
 
@@ -72,6 +75,18 @@ def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
                                              image_plane_distance=FRUSTUM_DEPTH), static=True)
 
 
+def layout(rr, with_predictions: bool):
+    """The viewer's opening layout: the 3D world large, the passes in a grid beside it."""
+    import rerun.blueprint as rrb
+
+    passes = ["ir", "ambient", "flood", "depth", "visibility", "edge"]
+    passes += ["error"] if with_predictions else []
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial3DView(origin="/world", name="ground truth in the world (z up)"),
+        rrb.Grid(*(rrb.Spatial2DView(origin=f"/camera/{p}", name=p) for p in passes)),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
 def log_scene(rec, scene_path: Path, frames: list[int] | None = None, predictions: Path | None = None,
               verify: bool = True) -> dict[str, int]:
     """Log a scene directory into the recording stream `rec`; returns {entity: points or pixels}."""
@@ -89,6 +104,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
         if missing:
             raise ViewError(f"{missing[0]}: missing; --predictions takes the folder `dotsim infer` wrote "
                             f"for this scene's frames")
+    rec.send_blueprint(layout(rr, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     sizes = {}
     for k in frames:
@@ -96,13 +112,15 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
     for k in frames:
         f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
         rec.set_time("frame", sequence=k)
-        for name in GREY_PASSES:
+        rec.log("camera/ir", rr.Image(f["ir"].astype(np.float32), color_model="L"))
+        for name in DISPLAYED_PASSES:
             if name in f:
-                rec.log(f"camera/{name}", rr.Image(f[name].astype(np.float32), color_model="L"))
+                rec.log(f"camera/{name}", rr.Image(grey_for_display(f[name], name), color_model="L"))
         rec.log("camera/depth", rr.DepthImage(np.where(np.isfinite(f["depth"]), f["depth"], 0), meter=1.0))
         for name in ds.MASK_CHANNELS:
             rec.log(f"camera/{name}", rr.Image(f[name] * np.uint8(255), color_model="L"))
-        grey = grey_levels(f["ir"])
+        # shaded by the flood pass where there is one: the IR's dots leave most points black
+        grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
         points, colours = depth_points(f["depth"], rig.camera, grey)
         rec.log(f"world/pose_{k}/ground_truth", rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
                                                             radii=rr.Radius.ui_points(1.5)))
