@@ -134,3 +134,12 @@ def test_missing_rerun_is_one_clear_line(scene, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "rerun", None)
     assert cli.main(["view", str(scene[0]), "--save", "x.rrd"]) == 1
     assert 'dotsim view needs rerun-sdk: pip install "dotsim[view]"' in capsys.readouterr().err
+
+
+def test_without_save_it_spawns_the_viewer(scene, monkeypatch, capsys, tmp_path):
+    spawned = []
+    monkeypatch.setattr(rr.RecordingStream, "spawn", lambda self, **kw: spawned.append(self))  # no GUI here
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["view", str(scene[0]), "--frame", "1"]) == 0
+    assert len(spawned) == 1 and "sent to the Rerun viewer" in capsys.readouterr().out
+    assert not list(tmp_path.iterdir())  # nothing written
