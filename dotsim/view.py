@@ -11,7 +11,8 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
   draws them: square root of value over the frame's 99th percentile), `camera/depth` (metres),
   `camera/visibility`, `camera/edge` (0 / 255): the frame's passes, the IR sequence over frames;
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr): the predicted
-  cloud `world/pose_K/prediction` beside the truth, coloured by its disparity error, and
+  cloud `world/pose_K/prediction` beside the truth (up to the rig's max_depth), coloured by its
+  disparity error, and
   `camera/error`, that error as an image (turbo over 0..5 camera px, black where no ground truth).
 """
 
@@ -82,7 +83,8 @@ def layout(rr, with_predictions: bool):
     passes = ["ir", "ambient", "flood", "depth", "visibility", "edge"]
     passes += ["error"] if with_predictions else []
     return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial3DView(origin="/world", name="ground truth in the world (z up)"),
+        rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
+                                                 else "ground truth") + " in the world (z up)"),
         rrb.Grid(*(rrb.Spatial2DView(origin=f"/camera/{p}", name=p) for p in passes)),
         column_shares=[3, 2]), collapse_panels=True)
 
@@ -130,9 +132,12 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
                                  channels=("disparity", "depth"))
             error = disparity_error(pred["disparity"], f["disparity"])
             rec.log("camera/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
-            # the predicted cloud beside the truth, coloured by its error (grey where no truth)
-            points, _ = depth_points(pred["depth"], rig.camera, grey)
-            keep = np.isfinite(pred["depth"]) & (pred["depth"] > 0)
+            # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
+            # beyond the rig's range are left out (a few near-zero disparities would put points
+            # hundreds of metres away and the viewer's camera with them)
+            depth = np.where(pred["depth"] <= rig.max_depth, pred["depth"], np.inf)
+            points, _ = depth_points(depth, rig.camera, grey)
+            keep = np.isfinite(depth) & (depth > 0)
             colours = _rgb(colourise(error, 0.0, ERROR_RANGE_PX)[keep][:, None])[:, 0]
             colours[~np.isfinite(error[keep])] = 128
             rec.log(f"world/pose_{k}/prediction", rr.Points3D(points, colors=colours,

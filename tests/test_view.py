@@ -113,6 +113,7 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     preds.mkdir()
     frame = ds.read_frame(path / ds.frame_name(2))
     disparity = frame["disparity"] + 1.0  # 1 px off everywhere
+    disparity[0, :5] = 0.01  # and hundreds of metres away: beyond the rig's range, not drawn
     depth = RIG.camera.fx * RIG.baseline / disparity
     write_exr(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
     out = tmp_path / "pred.rrd"
@@ -121,7 +122,7 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     assert "/world/pose_2/prediction" in entities and "/camera/error" in entities
     assert not any(e.startswith("/world/pose_0") for e in entities)  # --frame 2 only
     predicted = array(component(out, "/world/pose_2/prediction", "Position3D")[2], width=3)
-    assert len(predicted) == int(np.isfinite(depth).sum())
+    assert len(predicted) == int(np.isfinite(depth).sum()) - 5 and (depth[0, :5] > RIG.max_depth).all()
     fmt = component(out, "/camera/error", "ImageFormat")[2][0].as_py()
     assert (fmt["width"], fmt["height"]) == (W, H)
     # frame 0 has no prediction there
