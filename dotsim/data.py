@@ -61,6 +61,11 @@ def _local(text: str) -> str:
     return text.removeprefix("file://")
 
 
+def _names_shards(text: str) -> bool:
+    """Whether a path that is not a folder names shards (a .tar file or a brace pattern)."""
+    return "{" in text or text.endswith(".tar") or Path(_local(text)).is_file()
+
+
 def _expand(text: str) -> list[str]:
     """Brace expansion of a shard pattern (the braceexpand package, a dependency of webdataset;
     a pattern without braces needs nothing)."""
@@ -81,15 +86,12 @@ def resolve(source) -> Source:
     items = [str(s) for s in source] if isinstance(source, (list, tuple)) else [str(source)]
     if not items:
         raise ds.FormatError("no data source given")
-    if len(items) == 1 and not _is_url(items[0]) and Path(_local(items[0])).is_dir():
-        folder = Path(_local(items[0]))
+    folder = Path(_local(items[0]))
+    if len(items) == 1 and not _is_url(items[0]) and (folder.is_dir() or not _names_shards(items[0])):
         index = folder / INDEX_NAME
-        if not index.is_file():
-            raise ds.FormatError(f"{folder}: no {INDEX_NAME} (neither a sealed dotsim dataset nor a "
-                                 f"`dotsim export` folder)")
+        if not index.is_file() or load_json(index).get("format") != WEBDATASET_FORMAT:
+            return Source(folder=folder)  # a dataset folder; open_dataset names what is missing
         meta = load_json(index)
-        if meta.get("format") != WEBDATASET_FORMAT:
-            return Source(folder=folder)
         shards = tuple(str(folder / s["name"]) for s in meta["shards"])
         return Source(None, shards, tuple((str(folder / s["name"]), s["sha256"]) for s in meta["shards"]))
     shards = []
