@@ -57,6 +57,7 @@ assets-train: setup
 dataset: assets-train
 	$(BIN)/dotsim generate --config $(CONFIG) --out $(DATA) --split train --scenes $(SCENES) --workers $(WORKERS)
 	$(BIN)/dotsim show $(DATA) -o $(OUT)/contact_sheet.png
+	$(BIN)/dotsim show $(DATA) --overview -o $(OUT)/overview.png
 
 # The test split: disjoint assets (test cache), its own clutter density, another seed.
 testset: assets

@@ -14,6 +14,8 @@ SUBCOMMAND_MODULES = [
     "generator.cli",
     "assets_manifest.cli",
     "dotsim.show",
+    "dotsim.view",
+    "dotsim.export",
     "dotsim.pattern_cli",
     "dotsim.dataset_cli",
     "dotsim.config_cli",

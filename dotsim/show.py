@@ -1,15 +1,18 @@
-"""`dotsim show`: a labelled contact sheet of every pass of every frame of a scene (PNG).
+"""`dotsim show`: a labelled contact sheet of every pass of every frame of a scene (PNG), an
+overview of the IR of many scenes, and a frame's ground-truth point cloud (PLY).
 
-Rows are frames, columns the stored passes (docs/FORMAT.md): IR, ambient, flood as grey images,
-depth, projector column and disparity colour-mapped (turbo) with a colour bar in their units
-under the grid, the visibility and edge masks white where set. Black in a colour-mapped tile
-means no value there (no hit / invalid). numpy + OpenCV only.
+Sheet: rows are frames, columns the stored passes (docs/FORMAT.md), each column on its own scale,
+written above it: IR linear on the sensor's full scale, ambient and flood each as the square root
+of value / its own 99th percentile (ambient is often 50x darker than flood, and radiance falls as
+1 / r^2, so a linear scale shows near objects only), depth, projector column and disparity
+colour-mapped (turbo) with a colour bar in their units under the grid, the visibility and edge
+masks white where set. Black in a colour-mapped tile means no value there (no hit / invalid).
+numpy + OpenCV only.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,12 +21,22 @@ import numpy as np
 
 from dotsim import dataset as ds
 from dotsim.images import write_image
+from dotsim.pointcloud import depth_points, grey_levels, write_ply
+from dotsim.rig import Rig
 
 COLUMNS = ("ir", "ambient", "flood", "depth", "visibility", "edge", "projector_column", "disparity")
 TITLES = {"ir": "IR", "ambient": "ambient", "flood": "flood", "depth": "depth",
           "visibility": "visibility", "edge": "edge", "projector_column": "projector column",
           "disparity": "disparity"}
 UNITS = {"depth": "m", "projector_column": "projector px", "disparity": "camera px"}
+# One line under each column's title, for a reader who has not read docs/FORMAT.md.
+MEANINGS = {"ir": "what the sensor sees", "ambient": "projector off", "flood": "uniform projector",
+            "depth": "ground truth", "visibility": "white: dots seen", "edge": "white: depth edge",
+            "projector_column": "ground truth", "disparity": "ground truth"}
+GREY_CHANNELS = ("ir", "ambient", "flood")
+FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
+            "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
+            "their own 99th percentile. Masks: white = 1.")
 COLOUR_MAPPED = ("depth", "projector_column", "disparity")
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 TEXT_SCALE = 0.45
@@ -33,6 +46,7 @@ LABEL_WIDTH = 70  # left column with the frame labels, px
 BAR_HEIGHT = 14
 BACKGROUND = (40, 40, 40)
 TEXT_COLOUR = (235, 235, 235)
+SUBTLE_COLOUR = (170, 200, 230)
 
 
 @dataclass
@@ -43,10 +57,11 @@ class SheetLayout:
     tile_size: tuple[int, int]  # (width, height)
 
 
-def _grey(image: np.ndarray, scale: float) -> np.ndarray:
-    """Linear grey: value / scale clipped to [0, 1] -> 0..255; non-finite -> black."""
-    x = np.where(np.isfinite(image), image.astype(np.float64) / scale, 0.0)
-    return np.repeat(np.rint(np.clip(x, 0, 1) * 255).astype(np.uint8)[..., None], 3, axis=2)
+def _grey(image: np.ndarray, scale: float, root: bool = False) -> np.ndarray:
+    """Grey: value / scale clipped to [0, 1] (its square root with `root`) -> 0..255; non-finite ->
+    black."""
+    x = np.clip(np.where(np.isfinite(image), image.astype(np.float64) / scale, 0.0), 0, 1)
+    return np.repeat(np.rint((np.sqrt(x) if root else x) * 255).astype(np.uint8)[..., None], 3, axis=2)
 
 
 def colourise(image: np.ndarray, low: float, high: float) -> np.ndarray:
@@ -66,19 +81,58 @@ def _finite_range(arrays: list[np.ndarray]) -> tuple[float, float]:
     return float(values.min()), float(values.max())
 
 
+def full_scale(image: np.ndarray) -> float:
+    """The value that means full scale for an IR image: 1.0 for floats (fraction of full scale),
+    the dtype's maximum for integer codes."""
+    return float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else 1.0
+
+
 def _grey_scale(frames: list[dict], name: str) -> float:
-    """Display scale of a grey pass: IR is already in [0, 1] of full scale; ambient and flood share
-    the flood pass's 99th percentile so their brightness can be compared tile to tile."""
+    """Display scale (the value shown white) of a grey pass: IR its full scale; ambient and flood
+    each its own 99th percentile over the frames (its maximum where that is 0), so a dark pass is
+    not shown black; 0 for a pass that is 0 everywhere."""
     if name == "ir":
-        return 1.0
-    source = "flood" if "flood" in frames[0] else name
-    values = np.concatenate([f[source][np.isfinite(f[source])].ravel() for f in frames]).astype(np.float64)
-    scale = float(np.percentile(values, 99)) if values.size else 1.0
-    return scale if scale > 0 else 1.0
+        return full_scale(frames[0]["ir"])
+    values = np.concatenate([f[name][np.isfinite(f[name])].ravel() for f in frames]).astype(np.float64)
+    if values.size == 0:
+        return 0.0
+    scale = float(np.percentile(values, 99))
+    return scale if scale > 0 else float(max(values.max(), 0.0))
 
 
-def _text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE):
+def grey_for_display(image: np.ndarray, name: str) -> np.ndarray:
+    """(H, W) uint8 of one grey pass as the sheet shows it, scaled by this image alone: IR linear on
+    full scale, ambient and flood as the square root of value over their own 99th percentile."""
+    scale = _grey_scale([{name: image}], name)
+    return _grey(image, scale or 1.0, root=name != "ir")[..., 0]
+
+
+def scale_caption(name: str, scale: float) -> str:
+    """The scale written above a grey column: the value its white stands for."""
+    if name == "ir":
+        return "linear, white = full scale"
+    if scale == 0:
+        return "0 everywhere (no light)"
+    return f"sqrt, white = {_fmt(scale)}"
+
+
+def _text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE, width: int | None = None):
+    """Draw text at (x, y); with `width`, in a smaller font where it would be wider than that."""
+    if width is not None:
+        scale = min(scale, scale * width / max(cv2.getTextSize(text, FONT, scale, 1)[0][0], 1))
     cv2.putText(img, text, (int(x), int(y)), FONT, scale, colour, 1, cv2.LINE_AA)
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    """Words of text in lines at most `width` px wide at TEXT_SCALE."""
+    lines = [""]
+    for word in text.split():
+        candidate = f"{lines[-1]} {word}".strip()
+        if lines[-1] and cv2.getTextSize(candidate, FONT, TEXT_SCALE, 1)[0][0] > width:
+            lines.append(word)
+        else:
+            lines[-1] = candidate
+    return lines
 
 
 def _fmt(v: float) -> str:
@@ -103,22 +157,30 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     tile_w = int(tile_width)
     tile_h = max(1, round(tile_w * h / w))
     ranges = {c: _finite_range([f[c] for f in frames]) for c in channels if c in COLOUR_MAPPED}
-    scales = {c: _grey_scale(frames, c) for c in channels if c in ("ir", "ambient", "flood")}
+    scales = {c: _grey_scale(frames, c) for c in channels if c in GREY_CHANNELS}
     labels = frame_labels or [f"frame {k}" for k in range(len(frames))]
 
-    top = 2 * LINE + GAP  # title line, column headers
+    top = 4 * LINE + GAP  # title line, column title, meaning, scale
     grid_w = len(channels) * (tile_w + GAP)
-    legend_h = (LINE + BAR_HEIGHT + LINE) * len(ranges) + 2 * LINE + GAP
-    sheet_h = top + len(frames) * (tile_h + GAP) + legend_h
     sheet_w = LABEL_WIDTH + grid_w + GAP
+    footnote = _wrap(FOOTNOTE, sheet_w - 2 * GAP)
+    legend_h = (LINE + BAR_HEIGHT + LINE) * len(ranges) + (len(footnote) + 1) * LINE + GAP
+    sheet_h = top + len(frames) * (tile_h + GAP) + legend_h
     sheet = np.full((sheet_h, sheet_w, 3), BACKGROUND, np.uint8)
     _text(sheet, title, GAP, LINE - 4)
 
     tiles = {}
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
-        header = TITLES[name] + (f" /{_fmt(scales[name])}" if name in ("ambient", "flood") else "")
-        _text(sheet, header, x, 2 * LINE - 4)
+        _text(sheet, TITLES[name], x, 2 * LINE - 4, width=tile_w)
+        _text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        if name in scales:
+            caption = scale_caption(name, scales[name])
+        elif name in ranges:
+            caption = f"{_fmt(ranges[name][0])}..{_fmt(ranges[name][1])} {UNITS[name]}"
+        else:
+            caption = "mask 0 / 1"
+        _text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         for k, frame in enumerate(frames):
             y = top + k * (tile_h + GAP)
             image = frame[name]
@@ -126,8 +188,10 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
                 tile = colourise(image, *ranges[name])
             elif name in ds.MASK_CHANNELS:
                 tile = _grey(image, 1.0)
-            else:
+            elif name == "ir":
                 tile = _grey(image, scales[name])
+            else:  # radiance falls off as 1 / r^2: a square root shows far walls beside near objects
+                tile = _grey(image, scales[name] or 1.0, root=True)
             tile = cv2.resize(tile, (tile_w, tile_h), interpolation=cv2.INTER_AREA)
             sheet[y:y + tile_h, x:x + tile_w] = tile
             tiles[(k, name)] = (x, y, tile_w, tile_h)
@@ -144,9 +208,31 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             tx = LABEL_WIDTH + int(frac * (bar_w - 1))
             _text(sheet, _fmt(low + frac * (high - low)), min(tx, sheet_w - 50), y + BAR_HEIGHT + LINE)
         y += LINE + BAR_HEIGHT + LINE
-    _text(sheet, "IR: 0..1 of full scale; ambient, flood: divided by the flood's 99th percentile; "
-                 "masks: white = 1", GAP, y)
+    for line in footnote:
+        _text(sheet, line, GAP, y)
+        y += LINE
     return sheet, SheetLayout(tiles=tiles, tile_size=(tile_w, tile_h))
+
+
+def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:
+    """The scene directory PATH names: PATH itself when it holds scene.json, else scene
+    `scene_index` (default the first) of the dataset PATH; FormatError naming what is there."""
+    path = Path(path)
+    if (path / ds.SCENE_FILE).is_file():
+        return path
+    if not path.is_dir():
+        raise ds.FormatError(f"{path}: no such file or directory")
+    scenes = ds.complete_scenes(path)
+    if not scenes:
+        raise ds.FormatError(f"{path}: no complete scene found (neither a scene directory with "
+                             f"{ds.SCENE_FILE}, nor a dataset with shard_*/scene_* inside)")
+    if scene_index is None:
+        return scenes[0][1]
+    found = dict(scenes)
+    if scene_index not in found:
+        raise ds.FormatError(f"{path}: no scene {scene_index}; it has scenes "
+                             f"{scenes[0][0]}..{scenes[-1][0]} ({len(scenes)} in all)")
+    return found[scene_index]
 
 
 def load_for_sheet(path: str | Path, scene_index: int | None = None,
@@ -158,23 +244,7 @@ def load_for_sheet(path: str | Path, scene_index: int | None = None,
         frame = ds.read_frame(path, verify=verify)
         h, w = next(iter(frame.values())).shape
         return [frame], f"{path}  ({w} x {h})", [path.stem]
-    if (path / ds.SCENE_FILE).is_file():
-        scene_path = path
-    elif path.is_dir():
-        scenes = ds.complete_scenes(path)
-        if not scenes:
-            raise ds.FormatError(f"{path}: no complete scene found (neither a scene directory with "
-                                 f"{ds.SCENE_FILE}, nor a dataset with shard_*/scene_* inside)")
-        if scene_index is None:
-            scene_path = scenes[0][1]
-        else:
-            found = dict(scenes)
-            if scene_index not in found:
-                raise ds.FormatError(f"{path}: no scene {scene_index}; it has scenes "
-                                     f"{scenes[0][0]}..{scenes[-1][0]} ({len(scenes)} in all)")
-            scene_path = found[scene_index]
-    else:
-        raise ds.FormatError(f"{path}: no such file or directory")
+    scene_path = scene_path_of(path, scene_index)
     scene = ds.read_scene(scene_path, verify=verify)
     meta = scene.meta
     h, w = ds.camera_size(meta)
@@ -183,14 +253,93 @@ def load_for_sheet(path: str | Path, scene_index: int | None = None,
     return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))]
 
 
+def overview_sheet(tiles: list[tuple[str, np.ndarray]], title: str, tile_width: int = 240,
+                   columns: int = 6) -> tuple[np.ndarray, dict[str, tuple[int, int, int, int]]]:
+    """A grid of IR images (label, (H, W) IR), each on the sensor's full scale, labelled under it.
+
+    Returns the sheet (BGR uint8) and label -> (x, y, width, height) of its tile."""
+    if not tiles:
+        raise ValueError("an overview needs at least one image")
+    if int(tile_width) < 16 or int(columns) < 1:
+        raise ValueError(f"tile width must be at least 16 px and columns at least 1, got {tile_width}, "
+                         f"{columns}")
+    h, w = tiles[0][1].shape
+    tile_w = int(tile_width)
+    tile_h = max(1, round(tile_w * h / w))
+    columns = min(int(columns), len(tiles))
+    rows = -(-len(tiles) // columns)
+    top = 2 * LINE + GAP
+    cell_h = tile_h + LINE + GAP
+    sheet = np.full((top + rows * cell_h + GAP, GAP + columns * (tile_w + GAP), 3), BACKGROUND, np.uint8)
+    _text(sheet, title, GAP, LINE - 4)
+    _text(sheet, "IR (projector on, as the sensor sees it); white = the sensor's full scale", GAP,
+          2 * LINE - 4, SUBTLE_COLOUR)
+    where = {}
+    for n, (label, ir) in enumerate(tiles):
+        x = GAP + (n % columns) * (tile_w + GAP)
+        y = top + (n // columns) * cell_h
+        tile = cv2.resize(_grey(ir, full_scale(ir)), (tile_w, tile_h), interpolation=cv2.INTER_AREA)
+        sheet[y:y + tile_h, x:x + tile_w] = tile
+        _text(sheet, label, x, y + tile_h + LINE - 4)
+        where[label] = (x, y, tile_w, tile_h)
+    return sheet, where
+
+
+def load_overview(path: str | Path, frame: int = 0, max_scenes: int = 24,
+                  verify: bool = True) -> tuple[list[tuple[str, np.ndarray]], str]:
+    """(label, IR of frame `frame`) of the first `max_scenes` complete scenes of dataset PATH, and a
+    title naming how many of how many are shown."""
+    path = Path(path)
+    scenes = ds.complete_scenes(path)
+    if not scenes:
+        raise ds.FormatError(f"{path}: no complete scene found (an overview needs a dataset directory "
+                             f"with shard_*/scene_* inside)")
+    if max_scenes < 1:
+        raise ValueError(f"--scenes {max_scenes}: show at least 1 scene")
+    tiles = []
+    for index, scene_path in scenes[:max_scenes]:
+        meta = ds.read_scene_meta(scene_path, verify=verify)
+        if not 0 <= frame < len(meta["frames"]):
+            raise ds.FormatError(f"{scene_path}: no frame {frame}; it has {len(meta['frames'])}")
+        ir = ds.read_frame(scene_path / ds.frame_name(frame), verify=verify, channels=("ir",), meta=meta)
+        tiles.append((f"scene {index} ({meta['split']})", ir["ir"]))
+    title = f"{path}: IR of frame {frame} of {len(tiles)} of {len(scenes)} scene(s)"
+    return tiles, title
+
+
+def write_ground_truth_ply(path: str | Path, out: str | Path, scene_index: int | None = None,
+                           frame: int = 0, verify: bool = True) -> int:
+    """Write the ground-truth cloud of frame `frame` of the scene PATH names (scene_path_of) to
+    `out` (PLY, camera frame, IR grey); returns the number of points."""
+    scene_path = scene_path_of(path, scene_index)
+    meta = ds.read_scene_meta(scene_path, verify=verify)
+    if not 0 <= frame < len(meta["frames"]):
+        raise ds.FormatError(f"{scene_path}: no frame {frame}; it has {len(meta['frames'])}")
+    f = ds.read_frame(scene_path / ds.frame_name(frame), verify=verify, channels=("ir", "depth"), meta=meta)
+    rig = Rig.from_dict(meta["rig"])
+    points, grey = depth_points(f["depth"], rig.camera, grey_levels(f["ir"]))
+    write_ply(out, points, grey)
+    return len(points)
+
+
 def run(args: argparse.Namespace) -> int:
-    try:
-        frames, title, labels = load_for_sheet(args.path, args.scene, verify=not args.no_verify)
-        sheet, layout = contact_sheet(frames, title, args.tile_width, labels)
+    verify = not args.no_verify
+    if args.ply:
+        if Path(args.path).is_file():
+            raise ds.FormatError(f"{args.path}: --ply needs the scene's rig: give a scene or dataset "
+                                 f"directory")
+        n = write_ground_truth_ply(args.path, args.ply, args.scene, args.frame, verify)
+        print(f"wrote {args.ply}: {n} ground-truth points of frame {args.frame} (metres, camera frame)")
+        return 0
+    if args.overview:
+        tiles, title = load_overview(args.path, args.frame, args.scenes, verify)
+        sheet, _ = overview_sheet(tiles, title, args.tile_width)
         out = write_image(args.output, sheet)
-    except (ds.FormatError, ValueError) as e:
-        print(f"dotsim show: error: {e}", file=sys.stderr)
-        return 1
+        print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): IR of {len(tiles)} scene(s)")
+        return 0
+    frames, title, labels = load_for_sheet(args.path, args.scene, verify=verify)
+    sheet, layout = contact_sheet(frames, title, args.tile_width, labels)
+    out = write_image(args.output, sheet)
     print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): {len(frames)} frame(s) x "
           f"{len({c for _, c in layout.tiles})} pass(es)")
     return 0
@@ -198,19 +347,30 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
-        "show", help="draw a contact sheet of every pass of a scene or frame (PNG)",
+        "show", help="contact sheet of a scene's passes, an IR overview of many scenes, or a GT point cloud",
         description="Draw a labelled contact sheet: one row per frame, one column per stored pass "
-        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity), "
-        "colour bars in metres / pixels for the colour-mapped passes. PATH is a dataset directory "
-        "(shows its first scene, or --scene N), a scene directory (shard_*/scene_*), or one frame EXR.")
+        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity), each on "
+        "its own scale written above it, colour bars in metres / pixels for the colour-mapped passes. "
+        "PATH is a dataset directory (shows its first scene, or --scene N), a scene directory "
+        "(shard_*/scene_*), or one frame EXR. --overview draws the IR of many scenes of a dataset in "
+        "one grid instead; --ply writes a frame's ground-truth point cloud instead.")
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
     parser.add_argument("-o", "--output", default="contact_sheet.png",
                         help="image to write, .png or .jpg (default: contact_sheet.png)")
     parser.add_argument("--scene", type=int, default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
+    parser.add_argument("--frame", type=int, default=0, metavar="K",
+                        help="the frame --overview and --ply use (default: 0)")
+    parser.add_argument("--overview", action="store_true",
+                        help="a grid of the IR of the first --scenes scenes of the dataset PATH")
+    parser.add_argument("--scenes", type=int, default=24, metavar="N",
+                        help="how many scenes --overview shows (default: 24)")
+    parser.add_argument("--ply", default=None, metavar="OUT.ply",
+                        help="write the ground-truth point cloud of --frame (metres, OpenCV camera frame, "
+                        "IR grey colours; through trimesh) instead of a sheet")
     parser.add_argument("--tile-width", type=int, default=320, metavar="PX",
                         help="width of each tile in pixels (default: 320)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip sha256 verification of the files read (faster; see docs/FORMAT.md)")
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=run, errors={ds.FormatError: 1, ValueError: 1})
     return parser

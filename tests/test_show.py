@@ -1,13 +1,11 @@
 """`dotsim show`: a real scene written with the dataset writer, drawn, and checked pixel by pixel."""
 
-import argparse
-
 import cv2
 import numpy as np
 import pytest
 
+from dotsim import cli, show
 from dotsim import dataset as ds
-from dotsim import show
 from dotsim.rig import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45
@@ -29,10 +27,7 @@ def write_scene(root, index=0):
 
 
 def run_cli(*argv):
-    parser = argparse.ArgumentParser()
-    show.add_parser(parser.add_subparsers())
-    args = parser.parse_args(["show", *map(str, argv)])
-    return args.func(args)
+    return cli.main(["show", *map(str, argv)])
 
 
 def test_sheet_layout_and_known_pixels(tmp_path):
@@ -56,8 +51,8 @@ def test_sheet_layout_and_known_pixels(tmp_path):
         assert (tile(k, "visibility") == 255).all()  # mask of ones: white
         assert (tile(k, "edge") == 0).all()  # mask of zeros: black
         assert (tile(k, "ir") == round(0.5 * 255)).all()  # IR is shown on its 0..1 full scale
-        # ambient and flood share the flood's scale: flood at 1.0 -> 255, ambient 0.1/0.4 -> 64
-        assert (tile(k, "flood") == 255).all() and (tile(k, "ambient") == round(0.25 * 255)).all()
+        # ambient and flood each on its own scale (its 99th percentile): both constant -> white
+        assert (tile(k, "flood") == 255).all() and (tile(k, "ambient") == 255).all()
         depth = tile(k, "depth")
         assert (depth[:18, :18] == 0).all()  # the inf block (10 of 61 px -> 20 of 122) is black
         assert (depth[30:, 30:].sum(axis=2) > 0).all()
@@ -90,3 +85,57 @@ def test_contact_sheet_rejects_empty():
         show.contact_sheet([], "t")
     with pytest.raises(ValueError, match="tile width must be at least 16 px, got 0"):
         show.contact_sheet([constant_frame(0)], "t", tile_width=0)
+
+
+def test_each_grey_pass_has_its_own_scale_written_above_it(tmp_path):
+    frames = [constant_frame(0)]
+    rng = np.random.default_rng(0)
+    frames[0]["ambient"] = rng.uniform(0, 5, (H, W))  # ambient peaks near 5, flood near 266
+    frames[0]["flood"] = rng.uniform(0, 266, (H, W))
+    scales = {name: show._grey_scale(frames, name) for name in ("ambient", "flood")}
+    for name, scale in scales.items():  # independently: the 99th percentile of the pass itself
+        assert scale == pytest.approx(np.percentile(frames[0][name], 99))
+    assert show.scale_caption("ambient", scales["ambient"]) == f"sqrt, white = {scales['ambient']:.4g}"
+    assert show.scale_caption("ambient", 0.0) == "0 everywhere (no light)"
+    sheet, layout = show.contact_sheet(frames, "t", 122)
+    x, y, w, h = layout.tiles[(0, "ambient")]
+    ambient = sheet[y:y + h, x:x + w].astype(float)
+    assert ambient.mean() > 100  # not black: half of its own p99 on average
+    header = sheet[y - 3 * show.LINE:y, x:x + w]
+    assert (header.max(axis=2) > 150).any()  # the title, meaning and scale lines are drawn
+
+
+def test_overview_grid_of_the_ir_of_many_scenes(tmp_path, capsys):
+    for index in range(5):
+        write_scene(tmp_path, index)
+    out = tmp_path / "overview.png"
+    assert run_cli(tmp_path, "--overview", "--scenes", 4, "--tile-width", 100, "-o", out) == 0
+    assert "IR of 4 scene(s)" in capsys.readouterr().out
+    tiles, title = show.load_overview(tmp_path, frame=1, max_scenes=4)
+    assert [label for label, _ in tiles] == [f"scene {k} (test)" for k in range(4)]
+    assert "4 of 5 scene(s)" in title
+    sheet, where = show.overview_sheet(tiles, title, 100, columns=3)
+    assert len(where) == 4 and where["scene 3 (test)"][1] > where["scene 0 (test)"][1]  # second row
+    x, y, w, h = where["scene 2 (test)"]
+    assert (sheet[y:y + h, x:x + w] == round(0.5 * 255)).all()  # IR 0.5 of full scale
+    assert run_cli(tmp_path, "--overview", "--frame", 9, "-o", out) == 1
+    assert "no frame 9; it has 3" in capsys.readouterr().err
+
+
+def test_ground_truth_point_cloud_ply(tmp_path, capsys):
+    import trimesh
+
+    scene = write_scene(tmp_path, 0)
+    out = tmp_path / "gt.ply"
+    assert run_cli(tmp_path, "--ply", out, "--frame", 2) == 0
+    assert f"{H * W - 100} ground-truth points" in capsys.readouterr().out
+    cloud = trimesh.load(out)
+    depth = constant_frame(2)["depth"]
+    v, u = np.nonzero(np.isfinite(depth))  # the 10 x 10 block without a hit has no points
+    cam = RIG.camera  # pinhole by hand: x = (u - cx) z / fx
+    expected = np.stack([(u - cam.cx) * depth[v, u] / cam.fx, (v - cam.cy) * depth[v, u] / cam.fy,
+                         depth[v, u]], axis=1)
+    np.testing.assert_allclose(cloud.vertices, expected, rtol=1e-6)
+    assert (cloud.colors[:, :3] == 255).all()  # constant IR: its own 99.5th percentile, white
+    assert run_cli(scene / "frame_0.exr", "--ply", out) == 1
+    assert "--ply needs the scene's rig" in capsys.readouterr().err

@@ -59,7 +59,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--config", required=True, metavar="TOML",
                    help="training config: a built-in one's name, e.g. train_tiny (CPU) or train_gigadepth "
                    "(`dotsim config show NAME`), or a TOML file (keys: docs/TRAIN_CONFIG.md)")
-    p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset directory")
+    p.add_argument("--data", required=True, metavar="DATA",
+                   help="sealed dotsim dataset directory, or its WebDataset shards from `dotsim export`: the "
+                   "export folder, a shard, a brace pattern (shards/shard-{000000..000009}.tar) or URLs "
+                   "(http(s)://, pipe:; copied once to $DOTSIM_CACHE, default ~/.cache/dotsim); both forms "
+                   "give the same run")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
+from dotsim.data import IndexedSample, index_shards, read_indexed, resolve, stage_shards
 from dotsim.dataset import FormatError, open_dataset, read_frame, read_scene_meta
 from dotsim.rig import Rig
 from trainer.config import DataConfig
@@ -29,41 +30,83 @@ class DataError(ValueError):
 
 @dataclass(frozen=True)
 class FrameRef:
+    """One frame: its EXR in a dataset folder, or its sample in a WebDataset shard (`sample`)."""
+
     path: Path
     scene_index: int
     frame_index: int
+    sample: IndexedSample | None = None
+
+    def read(self, channels) -> dict[str, np.ndarray]:
+        if self.sample is None:
+            return read_frame(self.path, channels=channels)
+        frame = read_indexed(self.sample, channels)
+        return {c: frame[c] for c in channels}
 
 
-def list_frames(data_dir: str | Path, split: str) -> tuple[list[FrameRef], Rig, dict]:
+def _no_split_error(data: str, split: str, splits: list) -> DataError:
+    present: dict[str, int] = {}
+    for s in splits:
+        present[str(s)] = present.get(str(s), 0) + 1
+    return DataError(f"{data}: no scenes with split {split!r} "
+                     f"(splits present: {present or 'none, empty dataset'}); choose one of those or 'all'")
+
+
+def list_frames(data: str | Path, split: str, cache_dir: str | Path | None = None
+                ) -> tuple[list[FrameRef], Rig, dict]:
     """Frames of the scenes of `split` ("all" for every scene) and the one rig they share.
 
-    Returns (frames, rig, pattern meta of the first scene). Errors name the folder, the split and the
-    splits present, or the scene whose rig differs from the first one's.
+    data: a dataset folder, or WebDataset shards of `dotsim export` (its folder, shard paths, a brace
+    pattern, URLs: dotsim.data.resolve); shards behind URLs are first copied to `cache_dir`
+    (dotsim.data.stage_shards). Frames keep the dataset's order either way, so a seeded run sees the
+    same samples from both forms. Returns (frames, rig, pattern meta of the first scene). Errors name
+    the data, the split and the splits present, or the scene whose rig differs from the first one's.
     """
-    data_dir = Path(data_dir)
     try:
-        ds = open_dataset(data_dir)
+        source = resolve(data)
+        if source.folder is None:
+            return _list_shard_frames(str(data), stage_shards(source, cache_dir), split)
+        ds = open_dataset(source.folder)
     except FormatError as e:
-        raise DataError(f"{data_dir}: not a usable dotsim dataset: {e}") from e
+        raise DataError(f"{data}: not a usable dotsim dataset: {e}") from e
     scenes = ds.scenes if split == "all" else ds.split(split)
     if not scenes:
-        present: dict[str, int] = {}
-        for s in ds.scenes:
-            present[str(s.split)] = present.get(str(s.split), 0) + 1
-        raise DataError(
-            f"{data_dir}: no scenes with split {split!r} "
-            f"(splits present: {present or 'none, empty dataset'}); choose one of those or 'all'"
-        )
-    frames, rig, pattern, first = [], None, None, None
+        raise _no_split_error(str(data), split, [s.split for s in ds.scenes])
+    frames, rigs = [], _OneRig()
     for s in scenes:
-        meta = read_scene_meta(s.path)
-        scene_rig = Rig.from_dict(meta["rig"])
-        if rig is None:
-            rig, pattern, first = scene_rig, meta["pattern"], s.path
-        elif scene_rig != rig:
-            raise DataError(f"{s.path}: its rig differs from {first}'s; a dataset for training has one rig")
+        rigs.check(read_scene_meta(s.path), s.path)
         frames += [FrameRef(p, s.scene_index, k) for k, p in enumerate(s.frame_paths)]
-    return frames, rig, pattern
+    return frames, rigs.rig, rigs.pattern
+
+
+class _OneRig:
+    """The rig and pattern of the first scene seen; DataError for a scene with another rig."""
+
+    rig = pattern = first = None
+
+    def check(self, meta: dict, where) -> None:
+        scene_rig = Rig.from_dict(meta["rig"])
+        if self.rig is None:
+            self.rig, self.pattern, self.first = scene_rig, meta["pattern"], where
+        elif scene_rig != self.rig:
+            raise DataError(f"{where}: its rig differs from {self.first}'s; a dataset for training has "
+                            "one rig")
+
+
+def _list_shard_frames(data: str, source, split: str) -> tuple[list[FrameRef], Rig, dict]:
+    frames, rigs, splits = [], _OneRig(), {}
+    for sample in index_shards(source):
+        info = read_indexed(sample, channels=())
+        if split != "all" and info["split"] != split:
+            splits[info["scene_index"]] = info["split"]
+            continue
+        if info["scene_index"] not in splits:
+            splits[info["scene_index"]] = info["split"]
+            rigs.check(info["meta"], f"{sample.shard} ({sample.key})")
+        frames.append(FrameRef(Path(sample.shard), info["scene_index"], info["frame_index"], sample))
+    if not frames:
+        raise _no_split_error(data, split, list(splits.values()))
+    return frames, rigs.rig, rigs.pattern
 
 
 def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarray]:
@@ -94,7 +137,7 @@ class FrameDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         ref = self.frames[i]
-        t = frame_targets(read_frame(ref.path, channels=TRAIN_CHANNELS), self.rig)
+        t = frame_targets(ref.read(TRAIN_CHANNELS), self.rig)
         h, w = t["ir"].shape
         rng = np.random.default_rng([self.seed, self.epoch, i])
         y0 = x0 = jitter = 0

@@ -4,7 +4,8 @@ Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
 Outputs per input, named after it: NAME.exr (float32 channels disparity [camera px] and depth [m], nan
 where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none),
-NAME.ply (binary little-endian: x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue).
+NAME.ply (dotsim.pointcloud: binary, through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey
+as red/green/blue).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from tqdm import tqdm
 from dotsim.dataset import FormatError, read_frame
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
-from dotsim.rig import Rig, backproject
+from dotsim.pointcloud import depth_points, grey_levels, write_ply
+from dotsim.rig import Rig
 from dotsim.show import colourise
 from trainer.data import DataError
 from trainer.evaluate import load_model, predict_disparity
@@ -59,24 +61,6 @@ def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     atomic_write_bytes(path, stream.getvalue())
 
 
-def ply_bytes(points: np.ndarray, grey: np.ndarray) -> bytes:
-    """Binary PLY of (N, 3) float32 points with (N,) uint8 grey colours."""
-    vertex = np.empty(len(points), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                          ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    for k, axis in enumerate("xyz"):
-        vertex[axis] = points[:, k]
-    for c in ("red", "green", "blue"):
-        vertex[c] = grey
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(points)}\n"
-              "property float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
-    buf = io.BytesIO()
-    buf.write(header.encode("ascii"))
-    buf.write(vertex.tobytes())
-    return buf.getvalue()
-
-
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
           progress: bool = True, precision: str = "float32") -> list[Path]:
     """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
@@ -96,10 +80,7 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
         write_image(out_dir / f"{name}.png", colourise(disparity, lo, hi))
-        points = backproject(depth, rig.camera)
-        keep = np.isfinite(depth) & (depth > 0)
-        grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
-        atomic_write_bytes(out_dir / f"{name}.ply", ply_bytes(points[keep].astype(np.float32), grey[keep]))
+        write_ply(out_dir / f"{name}.ply", *depth_points(depth, rig.camera, grey_levels(ir)))
         written.append(out_dir / f"{name}.exr")
     if progress:
         print(f"wrote disparity/depth EXR, PNG and PLY for {len(written)} frame(s) to {out_dir}")

@@ -1,0 +1,303 @@
+"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (dotsim.export).
+
+`Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
+arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
+`split` and `meta` (the scene.json dict: rig, pattern, poses). It needs no trainer config:
+
+    from torch.utils.data import DataLoader
+    from dotsim.data import Frames
+    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=None, num_workers=4)
+
+A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
+dotsim.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
+URL the `webdataset` library opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`),
+or a list of these. Work is split first over ranks (torch.distributed's, or the RANK and
+WORLD_SIZE environment variables), then over the DataLoader's workers: shards for shard sources,
+frames for a folder. Local shards listed in an export's index.json are checked against their sha256
+before they are read.
+
+For random access (a trainer's seeded shuffle), `index_shards` lists every sample of local shards
+with the byte ranges of its members, and `read_indexed` reads one sample by seeking to them;
+`stage_shards` first copies shards behind URLs to a local cache.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import tarfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dotsim import dataset as ds
+from dotsim.dataset.layout import load_json
+from dotsim.export import INDEX_NAME, WEBDATASET_FORMAT, sample_key
+from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
+
+FRAME_KEYS = ("key", "scene_index", "frame_index", "split", "meta")
+
+
+@dataclass(frozen=True)
+class Source:
+    """What a source names: a dataset folder, or shard locations (paths or URLs) with the checksums
+    an export's index.json lists for them (name -> sha256; empty when unknown)."""
+
+    folder: Path | None
+    shards: tuple[str, ...] = ()
+    checksums: tuple[tuple[str, str], ...] = ()
+
+
+def _is_url(text: str) -> bool:
+    return "://" in text and not text.startswith("file://") or text.startswith("pipe:")
+
+
+def _local(text: str) -> str:
+    return text.removeprefix("file://")
+
+
+def _names_shards(text: str) -> bool:
+    """Whether a path that is not a folder names shards (a .tar file or a brace pattern)."""
+    return "{" in text or text.endswith(".tar") or Path(_local(text)).is_file()
+
+
+def _expand(text: str) -> list[str]:
+    """Brace expansion of a shard pattern (the braceexpand package, a dependency of webdataset;
+    a pattern without braces needs nothing)."""
+    if "{" not in text:
+        return [text]
+    try:
+        from braceexpand import braceexpand
+    except ImportError:
+        raise ds.FormatError(f"{text}: brace patterns need braceexpand: "
+                             f"pip install \"dotsim[webdataset]\"") from None
+    return list(braceexpand(text))
+
+
+def resolve(source) -> Source:
+    """The Source that `source` (see the module docstring) names; FormatError naming what is wrong."""
+    if isinstance(source, Source):
+        return source
+    items = [str(s) for s in source] if isinstance(source, (list, tuple)) else [str(source)]
+    if not items:
+        raise ds.FormatError("no data source given")
+    folder = Path(_local(items[0]))
+    if len(items) == 1 and not _is_url(items[0]) and (folder.is_dir() or not _names_shards(items[0])):
+        index = folder / INDEX_NAME
+        if not index.is_file() or load_json(index).get("format") != WEBDATASET_FORMAT:
+            return Source(folder=folder)  # a dataset folder; open_dataset names what is missing
+        meta = load_json(index)
+        shards = tuple(str(folder / s["name"]) for s in meta["shards"])
+        return Source(None, shards, tuple((str(folder / s["name"]), s["sha256"]) for s in meta["shards"]))
+    shards = []
+    for item in items:
+        for name in _expand(item):
+            if not _is_url(name) and not Path(_local(name)).is_file():
+                raise ds.FormatError(f"{name}: no such shard (give a dataset or export folder, .tar "
+                                     f"shards, a brace pattern of them, or URLs)")
+            shards.append(name if _is_url(name) else _local(name))
+    return Source(None, tuple(shards))
+
+
+def open_shard(location: str, checksums: dict[str, str] | None = None):
+    """A binary stream of a shard: a local file (its sha256 checked first when `checksums` lists it)
+    or a URL through webdataset.gopen."""
+    if not _is_url(location):
+        expected = (checksums or {}).get(location)
+        if expected is not None and sha256_file(location) != expected:
+            raise ds.FormatError(f"{location}: sha256 differs from the one in {INDEX_NAME} (file changed "
+                                 f"or corrupt)")
+        return open(location, "rb")
+    try:
+        import webdataset
+    except ImportError:
+        raise ds.FormatError(f"{location}: reading URLs needs webdataset: "
+                             f"pip install \"dotsim[webdataset]\"") from None
+    return webdataset.gopen(location)
+
+
+def _split_name(name: str) -> tuple[str, str]:
+    """'scene_0000001_frame_2.ir.npy' -> ('scene_0000001_frame_2', 'ir.npy') (WebDataset's rule)."""
+    base = name.rsplit("/", 1)[-1]
+    key, _, ext = base.partition(".")
+    return name[: len(name) - len(base)] + key, ext
+
+
+def iter_tar_samples(stream, where: str) -> Iterator[tuple[str, dict[str, bytes]]]:
+    """(key, {extension: bytes}) of each sample of a tar stream, members grouped by key in order."""
+    key, files = None, {}
+    try:
+        with tarfile.open(fileobj=stream, mode="r|") as tar:
+            for member in tar:
+                if not member.isfile():
+                    continue
+                k, ext = _split_name(member.name)
+                if k != key and files:
+                    yield key, files
+                    files = {}
+                key = k
+                files[ext] = tar.extractfile(member).read()
+    except tarfile.TarError as e:
+        raise ds.FormatError(f"{where}: not a readable tar shard ({e})") from None
+    if files:
+        yield key, files
+
+
+def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str = "") -> dict:
+    """A frame dict from a sample's files (dotsim.export's layout); channels: keep only these."""
+    for needed in ("scene.json", "frame.json"):
+        if needed not in files:
+            raise ds.FormatError(f"{where}: sample {key} has no {needed} (not a dotsim export)")
+    info = json.loads(files["frame.json"])
+    out = {"key": key, "scene_index": info["scene_index"], "frame_index": info["frame_index"],
+           "split": info["split"], "meta": json.loads(files["scene.json"])}
+    names = [e.removesuffix(".npy") for e in files if e.endswith(".npy")]
+    wanted = names if channels is None else list(channels)
+    missing = [c for c in wanted if c not in names]
+    if missing:
+        raise ds.FormatError(f"{where}: sample {key} has no channel(s) {missing}; it has {names}")
+    for name in wanted:
+        out[name] = np.load(io.BytesIO(files[f"{name}.npy"]), allow_pickle=False)
+    return out
+
+
+def rank_and_world() -> tuple[int, int]:
+    """This process's rank and the number of ranks: torch.distributed's when it is initialised,
+    else RANK and WORLD_SIZE from the environment (torchrun sets them), else 0 and 1."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+
+
+def share(items: list, rank: int, world: int, worker: int, workers: int) -> list:
+    """The items of (rank, worker): item i goes to the (i mod world*workers)-th of them, rank-major."""
+    slot, slots = rank * workers + worker, world * workers
+    return items[slot::slots]
+
+
+class Frames(torch.utils.data.IterableDataset):
+    """The frames of a source (see the module docstring) as dicts; `split` keeps one scene split,
+    `channels` some channels (default all), `shuffle` with `seed` reorders the shards (or frames of a
+    folder) per epoch (set_epoch)."""
+
+    def __init__(self, source, channels=None, split: str | None = None, shuffle: bool = False,
+                 seed: int = 0, rank: int | None = None, world: int | None = None, verify: bool = True):
+        self.source = resolve(source)
+        self.channels = None if channels is None else tuple(channels)
+        self.split, self.shuffle, self.seed, self.verify = split, shuffle, seed, verify
+        self.rank, self.world = rank, world
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def _units(self) -> list:
+        if self.source.folder is None:
+            units = list(self.source.shards)
+        else:
+            dataset = ds.open_dataset(self.source.folder, verify=self.verify)
+            scenes = dataset.scenes if self.split is None else dataset.split(self.split)
+            units = [(ref, k) for ref in scenes for k in range(ref.frame_count)]
+        if self.shuffle:
+            order = np.random.default_rng([self.seed, self.epoch]).permutation(len(units))
+            units = [units[i] for i in order]
+        rank, world = rank_and_world()
+        rank = rank if self.rank is None else self.rank
+        world = world if self.world is None else self.world
+        info = torch.utils.data.get_worker_info()
+        worker, workers = (0, 1) if info is None else (info.id, info.num_workers)
+        return share(units, rank, world, worker, workers)
+
+    def __iter__(self) -> Iterator[dict]:
+        if self.source.folder is not None:
+            for ref, k in self._units():
+                meta = ds.read_scene_meta(ref.path, verify=self.verify)
+                frame = ds.read_frame(ref.path / ds.frame_name(k), verify=self.verify, channels=self.channels,
+                                      meta=meta)
+                yield {"key": sample_key(ref.scene_index, k), "scene_index": ref.scene_index,
+                       "frame_index": k, "split": meta["split"], "meta": meta, **frame}
+            return
+        checksums = dict(self.source.checksums) if self.verify else {}
+        for location in self._units():
+            with open_shard(location, checksums) as stream:
+                for key, files in iter_tar_samples(stream, location):
+                    sample = decode_sample(key, files, self.channels, location)
+                    if self.split is None or sample["split"] == self.split:
+                        yield sample
+
+
+def default_cache_dir() -> Path:
+    """Where shards behind URLs are copied for random access: $DOTSIM_CACHE, else ~/.cache/dotsim."""
+    return Path(os.environ.get("DOTSIM_CACHE") or Path.home() / ".cache" / "dotsim") / "shards"
+
+
+def stage_shards(source, cache_dir: str | Path | None = None) -> Source:
+    """`source` with every shard behind a URL copied to a local file in cache_dir (default
+    default_cache_dir()), named after the URL, kept for the next run; local shards stay as they are."""
+    src = resolve(source)
+    if src.folder is not None or not any(_is_url(s) for s in src.shards):
+        return src
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    local = []
+    for location in src.shards:
+        if _is_url(location):
+            path = cache / f"{sha256_bytes(location.encode())[:16]}-{location.rstrip('/').rsplit('/', 1)[-1]}"
+            if not path.is_file():
+                with open_shard(location) as stream, atomic_writer(path) as out:
+                    shutil.copyfileobj(stream, out, 1 << 20)
+            location = str(path)
+        local.append(location)
+    return Source(None, tuple(local), src.checksums)
+
+
+@dataclass(frozen=True)
+class IndexedSample:
+    """Where one sample lies in a local shard: member extension -> (data offset, size)."""
+
+    shard: str
+    key: str
+    members: tuple[tuple[str, int, int], ...]
+
+
+def index_shards(source) -> list[IndexedSample]:
+    """Every sample of the local shards of `source`, in order, with its members' byte ranges (reads
+    the tar headers only; checks sha256 where an export's index.json lists it)."""
+    src = resolve(source)
+    if src.folder is not None:
+        raise ds.FormatError(f"{src.folder}: a dataset folder, not shards")
+    checksums = dict(src.checksums)
+    samples = []
+    for location in src.shards:
+        if _is_url(location):
+            raise ds.FormatError(f"{location}: random access needs local shards (copy them, or stream "
+                                 f"with dotsim.data.Frames)")
+        with open_shard(location, checksums) as stream:
+            try:
+                members = tarfile.open(fileobj=stream, mode="r:").getmembers()
+            except tarfile.TarError as e:
+                raise ds.FormatError(f"{location}: not a readable tar shard ({e})") from None
+        by_key: dict[str, list] = {}
+        for m in members:
+            if m.isfile():
+                key, ext = _split_name(m.name)
+                by_key.setdefault(key, []).append((ext, m.offset_data, m.size))
+        samples += [IndexedSample(location, key, tuple(v)) for key, v in by_key.items()]
+    return samples
+
+
+def read_indexed(sample: IndexedSample, channels=None) -> dict:
+    """Read one indexed sample (decode_sample's dict) by seeking to its members."""
+    wanted = None if channels is None else {f"{c}.npy" for c in channels} | {"scene.json", "frame.json"}
+    files = {}
+    with open(sample.shard, "rb") as f:
+        for ext, offset, size in sample.members:
+            if wanted is None or ext in wanted:
+                f.seek(offset)
+                files[ext] = f.read(size)
+    return decode_sample(sample.key, files, channels, sample.shard)

@@ -1,0 +1,208 @@
+"""`dotsim view`: a scene in the Rerun viewer (rerun-sdk, the optional extra `dotsim[view]`).
+
+What is logged (timeline `frame` = frame index; world frame z up, metres, as docs/SCENE_SPEC.md):
+
+- `world/pose_K` (static): the rig at frame K's pose (world_from_camera), its IR camera frustum
+  `world/pose_K/camera` and projector frustum `world/pose_K/projector` (placed by the rig's
+  projector_translation and projector_rotation); a capture without poses shows them at the origin;
+- `world/pose_K/ground_truth`: the frame's ground-truth depth as points in the rig (camera) frame,
+  shaded by the flood pass (as `camera/flood`; by the IR where a frame has no flood);
+- `camera/ir` (float values as stored), `camera/ambient`, `camera/flood` (uint8 as `dotsim show`
+  draws them: square root of value over the frame's 99th percentile), `camera/depth` (metres),
+  `camera/visibility`, `camera/edge` (0 / 255): the frame's passes, the IR sequence over frames;
+- with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr): the predicted
+  cloud `world/pose_K/prediction` beside the truth (up to the rig's max_depth), coloured by its
+  disparity error, and
+  `camera/error`, that error as an image (turbo over 0..5 camera px, black where no ground truth).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dotsim import dataset as ds
+from dotsim.file_io import temporary_name
+from dotsim.pointcloud import depth_points, grey_levels
+from dotsim.rig import Rig
+from dotsim.show import colourise, grey_for_display, scene_path_of
+
+# Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
+# range shows as a few bright objects on black.
+DISPLAYED_PASSES = ("ambient", "flood")
+ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
+FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
+
+
+class ViewError(ValueError):
+    """The viewer cannot run (rerun-sdk missing) or its input is unusable; the message says which."""
+
+
+def _rerun():
+    try:
+        import rerun
+    except ImportError:
+        raise ViewError('dotsim view needs rerun-sdk: pip install "dotsim[view]"') from None
+    return rerun
+
+
+def prediction_path(predictions: Path, scene_index: int, frame_index: int) -> Path:
+    """`dotsim infer`'s output for a frame of a scene directory (trainer.infer names it so)."""
+    return predictions / f"{ds.scene_name(scene_index)}_frame_{frame_index}.exr"
+
+
+def disparity_error(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """|predicted - truth| in camera px; nan where either is missing."""
+    return np.abs(predicted.astype(np.float64) - truth.astype(np.float64))
+
+
+def _rgb(bgr: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(bgr[..., ::-1])
+
+
+def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
+    """Static: the rig at pose K with its camera and projector frusta."""
+    pose = np.eye(4) if pose is None else np.asarray(pose, np.float64)
+    base = f"world/pose_{k}"
+    rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
+    for name, intr in (("camera", rig.camera), ("projector", rig.projector)):
+        if name == "projector":  # X_proj = R (X_cam - t): camera_from_projector = (R^T, t)
+            rec.log(f"{base}/projector", rr.Transform3D(translation=rig.t, mat3x3=rig.R.T), static=True)
+        rec.log(f"{base}/{name}", rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
+                                             camera_xyz=rr.ViewCoordinates.RDF,
+                                             image_plane_distance=FRUSTUM_DEPTH), static=True)
+
+
+def layout(rr, with_predictions: bool):
+    """The viewer's opening layout: the 3D world large, the passes in a grid beside it."""
+    import rerun.blueprint as rrb
+
+    passes = ["ir", "ambient", "flood", "depth", "visibility", "edge"]
+    passes += ["error"] if with_predictions else []
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
+                                                 else "ground truth") + " in the world (z up)"),
+        rrb.Grid(*(rrb.Spatial2DView(origin=f"/camera/{p}", name=p) for p in passes)),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
+def log_scene(rec, scene_path: Path, frames: list[int] | None = None, predictions: Path | None = None,
+              verify: bool = True) -> dict[str, int]:
+    """Log a scene directory into the recording stream `rec`; returns {entity: points or pixels}."""
+    rr = _rerun()
+    meta = ds.read_scene_meta(scene_path, verify=verify)
+    rig = Rig.from_dict(meta["rig"])
+    count = len(meta["frames"])
+    frames = list(range(count)) if frames is None else frames
+    for k in frames:
+        if not 0 <= k < count:
+            raise ViewError(f"{scene_path}: no frame {k}; it has {count}")
+    if predictions is not None:
+        wanted = [prediction_path(predictions, meta["scene_index"], k) for k in frames]
+        missing = [p for p in wanted if not p.is_file()]
+        if missing:
+            raise ViewError(f"{missing[0]}: missing; --predictions takes the folder `dotsim infer` wrote "
+                            f"for this scene's frames")
+    rec.send_blueprint(layout(rr, predictions is not None))
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    sizes = {}
+    for k in frames:
+        log_rig(rr, rec, k, meta["poses"][k], rig)
+    for k in frames:
+        f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
+        rec.set_time("frame", sequence=k)
+        rec.log("camera/ir", rr.Image(f["ir"].astype(np.float32), color_model="L"))
+        for name in DISPLAYED_PASSES:
+            if name in f:
+                rec.log(f"camera/{name}", rr.Image(grey_for_display(f[name], name), color_model="L"))
+        rec.log("camera/depth", rr.DepthImage(np.where(np.isfinite(f["depth"]), f["depth"], 0), meter=1.0))
+        for name in ds.MASK_CHANNELS:
+            rec.log(f"camera/{name}", rr.Image(f[name] * np.uint8(255), color_model="L"))
+        # shaded by the flood pass where there is one: the IR's dots leave most points black
+        grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
+        points, colours = depth_points(f["depth"], rig.camera, grey)
+        rec.log(f"world/pose_{k}/ground_truth", rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
+                                                            radii=rr.Radius.ui_points(1.5)))
+        sizes[f"world/pose_{k}/ground_truth"] = len(points)
+        if predictions is not None:
+            pred = ds.read_frame(prediction_path(predictions, meta["scene_index"], k), verify=False,
+                                 channels=("disparity", "depth"))
+            error = disparity_error(pred["disparity"], f["disparity"])
+            rec.log("camera/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
+            # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
+            # beyond the rig's range are left out (a few near-zero disparities would put points
+            # hundreds of metres away and the viewer's camera with them)
+            depth = np.where(pred["depth"] <= rig.max_depth, pred["depth"], np.inf)
+            points, _ = depth_points(depth, rig.camera, grey)
+            keep = np.isfinite(depth) & (depth > 0)
+            colours = _rgb(colourise(error, 0.0, ERROR_RANGE_PX)[keep][:, None])[:, 0]
+            colours[~np.isfinite(error[keep])] = 128
+            rec.log(f"world/pose_{k}/prediction", rr.Points3D(points, colors=colours,
+                                                              radii=rr.Radius.ui_points(1.5)))
+            sizes[f"world/pose_{k}/prediction"] = len(points)
+    return sizes
+
+
+def view(path, scene_index: int | None = None, frame: int | None = None, predictions=None,
+         save: str | Path | None = None, verify: bool = True) -> dict[str, int]:
+    """Log the scene PATH names (dotsim.show.scene_path_of) and write it to `save` (.rrd,
+    atomically) or, without `save`, spawn the Rerun viewer on it."""
+    rr = _rerun()
+    if Path(path).is_file():
+        raise ViewError(f"{path}: give a dataset or scene directory (the view needs scene.json)")
+    scene_path = scene_path_of(path, scene_index)
+    if predictions is not None and not Path(predictions).is_dir():
+        raise ViewError(f"{predictions}: no such folder (--predictions takes `dotsim infer`'s --out)")
+    rec = rr.RecordingStream("dotsim", recording_id=str(scene_path.resolve()))
+    tmp = None
+    if save is not None:
+        save = Path(save)
+        if save.suffix != ".rrd":
+            raise ViewError(f"{save}: a recording is written as .rrd")
+        tmp = save.with_name(temporary_name(save.name))
+        rec.save(tmp)
+    else:
+        rec.spawn()
+    try:
+        sizes = log_scene(rec, scene_path, None if frame is None else [frame],
+                          None if predictions is None else Path(predictions), verify)
+        rec.flush(blocking=True)
+        if tmp is not None:
+            rec.disconnect()
+            os.replace(tmp, save)
+    finally:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+    return sizes
+
+
+def run(args: argparse.Namespace) -> int:
+    sizes = view(args.path, args.scene, args.frame, args.predictions, args.save, not args.no_verify)
+    where = f"wrote {args.save}" if args.save else "sent to the Rerun viewer"
+    clouds = ", ".join(f"{k} {v}" for k, v in sizes.items())
+    print(f"{where}: points per cloud: {clouds}")
+    return 0
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "view", help="a scene in the Rerun 3D viewer: passes, GT point clouds, frusta, predictions",
+        description="Show a scene in Rerun (pip install \"dotsim[view]\"): the IR sequence, ambient, flood, "
+        "depth, visibility and edge masks over the `frame` timeline; the ground-truth depth as a point cloud "
+        "in the rig frame at each of the scene's poses (world frame, z up); the camera and projector frusta "
+        "at every pose; with --predictions, the predicted cloud beside the truth and the disparity error "
+        "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
+        "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
+    parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
+    parser.add_argument("--scene", type=int, default=None, metavar="N", help="scene index in a dataset")
+    parser.add_argument("--frame", type=int, default=None, metavar="K", help="only frame K (default: all)")
+    parser.add_argument("--predictions", default=None, metavar="EVAL_DIR",
+                        help="folder of `dotsim infer` outputs for the scene's frames "
+                        "(scene_SSSSSSS_frame_K.exr)")
+    parser.add_argument("--save", default=None, metavar="OUT.rrd", help="write a recording; spawn no viewer")
+    parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
+    parser.set_defaults(func=run, errors={ViewError: 1, ds.FormatError: 1})
+    return parser

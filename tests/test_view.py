@@ -1,0 +1,146 @@
+"""`dotsim view --save`: the recording read back with Rerun's own dataframe API, entity by entity.
+
+The scene is written with the dataset writer (oracle frames of tests/trainer_fixtures.py) at four
+distinct poses; predictions are files in `dotsim infer`'s format (trainer.infer.write_exr).
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dotsim import cli
+from dotsim import dataset as ds
+from dotsim.patterns import generate_dot_pattern
+from dotsim.rig import get_preset
+from trainer.infer import write_exr
+
+sys.path.insert(0, str(Path(__file__).parent))
+from trainer_fixtures import random_depth, synthetic_frame  # noqa: E402
+
+rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
+
+RIG = get_preset("structure_core").scaled(0.06)  # 73 x 54 camera px
+H, W = RIG.camera.height, RIG.camera.width
+
+
+def pose(k):
+    p = np.eye(4)
+    p[:3, 3] = [0.1 * k, -0.05 * k, 1.2]
+    return p
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ds")
+    dots = generate_dot_pattern(RIG.projector.width, RIG.projector.height, seed=0)
+    rng = np.random.default_rng(3)
+    frames = [synthetic_frame(random_depth(RIG, rng), RIG, np.asarray(dots.image, np.float64), rng)
+              for _ in range(4)]
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": dots.sha256},
+            "poses": [pose(k).tolist() for k in range(4)]}
+    path = ds.write_scene(root, 5, meta, frames)
+    ds.seal_dataset(root)
+    return root, path
+
+
+def component(rrd, entity, name, static=False):
+    """{frame: pyarrow value} of one component of one entity (static: {None: value})."""
+    view = rr.dataframe.load_recording(str(rrd)).view(index="frame",
+                                                      contents={entity: [f"rerun.components.{name}"]})
+    table = (view.select_static() if static else view.select()).read_all()
+    column = table.column(f"{entity}:{name}")
+    frames = [None] * table.num_rows if static else table.column("frame").to_pylist()
+    return {f: column[i].values for i, f in enumerate(frames) if column[i].is_valid}
+
+
+def image(rrd, entity, frame, dtype):
+    """The (H, W) pixels of an image entity at a frame, from its raw buffer."""
+    raw = np.asarray(component(rrd, entity, "ImageBuffer")[frame].flatten(), np.uint8).tobytes()
+    return np.frombuffer(raw, dtype).reshape(H, W)
+
+
+def array(value, dtype=np.float32, width=None):
+    flat = np.asarray(value.flatten() if hasattr(value, "flatten") else value, dtype)
+    return flat if width is None else flat.reshape(-1, width)
+
+
+def test_recording_holds_passes_clouds_and_frusta(scene, tmp_path, capsys):
+    root, path = scene
+    out = tmp_path / "scene.rrd"
+    assert cli.main(["view", str(root), "--scene", "5", "--save", str(out)]) == 0
+    assert "points per cloud" in capsys.readouterr().out
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
+    expected = {f"/camera/{p}" for p in ("ir", "ambient", "flood", "depth", "visibility", "edge")}
+    for k in range(4):
+        expected |= {f"/world/pose_{k}", f"/world/pose_{k}/camera", f"/world/pose_{k}/projector",
+                     f"/world/pose_{k}/ground_truth"}
+    assert expected <= entities and not any("prediction" in e or "error" in e for e in entities)
+    meta = ds.read_scene_meta(path)
+    for k in range(4):
+        frame = ds.read_frame(path / ds.frame_name(k))
+        fmt = component(out, "/camera/ir", "ImageFormat")[k][0].as_py()
+        assert (fmt["width"], fmt["height"]) == (W, H)
+        ir = image(out, "/camera/ir", k, np.float32)
+        assert np.array_equal(ir, frame["ir"].astype(np.float32))  # the IR sequence as stored
+        assert np.array_equal(image(out, "/camera/visibility", k, np.uint8), frame["visibility"] * 255)
+        # the cloud: every pixel with a hit, backprojected by hand in the camera (rig) frame
+        points = array(component(out, f"/world/pose_{k}/ground_truth", "Position3D")[k], width=3)
+        depth = frame["depth"].astype(np.float64)
+        v, u = np.nonzero(np.isfinite(depth))
+        cam = RIG.camera
+        by_hand = np.stack([(u - cam.cx) * depth[v, u] / cam.fx, (v - cam.cy) * depth[v, u] / cam.fy,
+                            depth[v, u]], axis=1)
+        assert points.shape == by_hand.shape
+        np.testing.assert_allclose(points, by_hand, rtol=1e-5, atol=1e-6)
+        # the rig at the scene's pose, the projector at the rig's translation, both frusta sized
+        translation = array(component(out, f"/world/pose_{k}", "Translation3D", static=True)[None])
+        np.testing.assert_allclose(translation, np.asarray(meta["poses"][k])[:3, 3], rtol=1e-6)
+        projector = array(component(out, f"/world/pose_{k}/projector", "Translation3D", static=True)[None])
+        np.testing.assert_allclose(projector, RIG.projector_translation, rtol=1e-6)
+        for name, intr in (("camera", RIG.camera), ("projector", RIG.projector)):
+            resolution = array(component(out, f"/world/pose_{k}/{name}", "Resolution", static=True)[None])
+            assert resolution.tolist() == [intr.width, intr.height]
+            pinhole = component(out, f"/world/pose_{k}/{name}", "PinholeProjection", static=True)
+            k_matrix = array(pinhole[None])
+            np.testing.assert_allclose(k_matrix.reshape(3, 3).T, intr.K, rtol=1e-6)  # stored column-major
+
+
+def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
+    root, path = scene
+    preds = tmp_path / "pred"
+    preds.mkdir()
+    frame = ds.read_frame(path / ds.frame_name(2))
+    disparity = frame["disparity"] + 1.0  # 1 px off everywhere
+    disparity[0, :5] = 0.01  # and hundreds of metres away: beyond the rig's range, not drawn
+    depth = RIG.camera.fx * RIG.baseline / disparity
+    write_exr(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
+    out = tmp_path / "pred.rrd"
+    assert cli.main(["view", str(path), "--frame", "2", "--predictions", str(preds), "--save", str(out)]) == 0
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
+    assert "/world/pose_2/prediction" in entities and "/camera/error" in entities
+    assert not any(e.startswith("/world/pose_0") for e in entities)  # --frame 2 only
+    predicted = array(component(out, "/world/pose_2/prediction", "Position3D")[2], width=3)
+    assert len(predicted) == int(np.isfinite(depth).sum()) - 5 and (depth[0, :5] > RIG.max_depth).all()
+    fmt = component(out, "/camera/error", "ImageFormat")[2][0].as_py()
+    assert (fmt["width"], fmt["height"]) == (W, H)
+    # frame 0 has no prediction there
+    assert cli.main(["view", str(path), "--predictions", str(preds), "--save", str(out)]) == 1
+    assert cli.main(["view", str(path), "--save", str(tmp_path / "x.png")]) == 1
+    assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_missing_rerun_is_one_clear_line(scene, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "rerun", None)
+    assert cli.main(["view", str(scene[0]), "--save", "x.rrd"]) == 1
+    assert 'dotsim view needs rerun-sdk: pip install "dotsim[view]"' in capsys.readouterr().err
+
+
+def test_without_save_it_spawns_the_viewer(scene, monkeypatch, capsys, tmp_path):
+    spawned = []
+    monkeypatch.setattr(rr.RecordingStream, "spawn", lambda self, **kw: spawned.append(self))  # no GUI here
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["view", str(scene[0]), "--frame", "1"]) == 0
+    assert len(spawned) == 1 and "sent to the Rerun viewer" in capsys.readouterr().out
+    assert not list(tmp_path.iterdir())  # nothing written
