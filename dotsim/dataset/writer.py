@@ -63,7 +63,8 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     is the required frame shape; "poses" has one 4x4 world_from_camera per frame). The writer adds
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
     frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
-    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default:
+    (masks: bool or 0/1 ints); `disparity` is derived from depth and the rig (it may be left out;
+    one given must equal it). channels: the channel set every frame carries (default:
     RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
     ``.tmp-*`` dir that remove_partial_scenes deletes.
@@ -97,7 +98,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     if final.exists():
         raise FormatError(f"{final}: scene already exists (check is_scene_complete before writing)")
     # Encoded (and so validated) before anything is written: a bad frame leaves no trace on disk.
-    encoded = [encode_frame(frame, shape, channels, where=f"{where} frame {k}")
+    encoded = [encode_frame(frame, shape, channels, where=f"{where} frame {k}", rig=meta["rig"])
                for k, frame in enumerate(frames)]
     full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
     full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
