@@ -143,3 +143,17 @@ def test_format_1_scene_is_read_as_written(tmp_path):
     (tmp_path / "dataset.json").write_text(json.dumps({"format_version": "1.2", "scenes_per_shard": 100}))
     ds.seal_dataset(tmp_path)
     assert ds.open_dataset(tmp_path).read_scene(0).frames[0]["disparity"].dtype == np.float32
+
+
+def test_threads_do_not_change_the_bytes(tmp_path):
+    rng = np.random.default_rng(4)
+    frames = [frame_inputs(rng) for _ in range(3)]
+    one = ds.write_scene(tmp_path / "a", 0, meta(3), frames, threads=1)
+    three = ds.write_scene(tmp_path / "b", 0, meta(3), frames, threads=3)
+    for name in ("frame_0.exr", "frame_1.exr", "frame_2.exr", "scene.json"):
+        assert (one / name).read_bytes() == (three / name).read_bytes(), name
+    # A frame's error is raised as in a loop: the scene is not written.
+    frames[2]["edge"] = np.full((H, W), 3, np.uint8)
+    with pytest.raises(ds.FormatError, match=r"scene 1 frame 2: mask channel 'edge'"):
+        ds.write_scene(tmp_path / "a", 1, meta(3), frames, threads=3)
+    assert not ds.is_scene_complete(tmp_path / "a", 1)
