@@ -350,8 +350,8 @@ class SceneRenderer:
     def _projector_direct_only(self):
         """The scene lit by the spot alone, without bounces: a render gives the spot's direct light
         in R and G (the world is blue, so it may stay); no compositing, the image is the result, so
-        the light passes are off too (measured: 18% less CPU per direct render at 608 x 448, pixels
-        equal; docs/RENDERING.md "Direct render settings")."""
+        the light passes are off too (measured: 9-18% less CPU per direct render at 608 x 448, the
+        same pixels; docs/RENDERING.md "Direct render settings")."""
         lights = [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
         self.scene.cycles.max_bounces = 0
         for obj in lights:
