@@ -74,9 +74,10 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise FormatError(f"{where}: channel {name!r} must be numeric, found dtype {a.dtype}")
     with np.errstate(over="ignore"):  # overflow is reported below, naming the channel
-        stored = a.astype(dtype)
-    overflow = np.isfinite(a) & ~np.isfinite(stored)
-    if overflow.any():
+        stored = a.astype(dtype, copy=False)
+    # Only a conversion can overflow (an array already of the stored type is taken as it is).
+    overflow = None if stored is a else np.isfinite(a) & ~np.isfinite(stored)
+    if overflow is not None and overflow.any():
         raise FormatError(f"{where}: channel {name!r} has {int(overflow.sum())} finite values beyond "
                           f"the {dtype} range (max {float(np.nanmax(np.abs(a)))}; {dtype} max "
                           f"{float(np.finfo(dtype).max)})")
