@@ -22,7 +22,8 @@ from dotsim.rig import Rig, depth_to_disparity
 
 # Lossless, the smallest and the fastest to read of OpenEXR's lossless codecs on rendered frames
 # (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size); needs
-# OpenEXR >= 3.4 to read. Measured in docs/FORMAT.md "Compression" (bench/read_shards.py).
+# OpenEXR >= 3.4 to read. Measured in docs/FORMAT.md "Compression" (bench.generate_stages
+# --compression, on rendered frames).
 EXR_COMPRESSION = "ZSTD_COMPRESSION"
 VERSION_ATTRIBUTE = "dotsim_format_version"
 # Format 2.x: the rig (Rig.to_dict() as JSON) the derived channels are computed with.
