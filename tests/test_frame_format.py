@@ -93,9 +93,18 @@ def test_lone_format_2_frame_derives_disparity_from_its_header(tmp_path):
 
 def test_writer_refuses_a_disparity_that_is_not_fx_b_over_depth(tmp_path):
     sent = frame_inputs(np.random.default_rng(2))
-    sent["disparity"] = expected_disparity(sent["depth"].astype(np.float32))
-    ds.write_scene(tmp_path, 0, meta(), [dict(sent)])  # the derived one is accepted
-    sent["disparity"][5, 5] += 0.5
+    # One from the float64 depth (before its rounding to float32) is accepted; the reader returns
+    # the one derived from the stored depth.
+    with np.errstate(divide="ignore"):
+        own = RIG.camera.fx * RIG.baseline / sent["depth"]
+    sent["disparity"] = np.where(sent["depth"] <= RIG.max_depth, own, np.nan).astype(np.float32)
+    scene = ds.write_scene(tmp_path, 0, meta(), [dict(sent)])
+    assert not np.array_equal(sent["disparity"], expected_disparity(sent["depth"].astype(np.float32)),
+                              equal_nan=True)  # differs by the rounding of depth
+    assert np.array_equal(ds.read_frame(scene / "frame_0.exr")["disparity"],
+                          expected_disparity(sent["depth"].astype(np.float32)), equal_nan=True)
+    first = np.unravel_index(np.flatnonzero(np.isfinite(sent["disparity"]))[0], (H, W))
+    sent["disparity"][first] *= 1 + 1e-5  # beyond float32 rounding
     with pytest.raises(ds.FormatError, match=r"scene 1 frame 0: channel 'disparity' differs from "
                                              r"fx \* b / depth"):
         ds.write_scene(tmp_path, 1, meta(), [sent])

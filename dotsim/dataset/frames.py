@@ -47,8 +47,10 @@ FRAME_CHANNELS: dict[str, np.dtype] = {
 # What the generator renders: every channel but the sensor's own depth; the writer's default.
 RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
 MASK_CHANNELS = ("visibility", "edge")
-# Channels format 2.x computes on read from `depth` and the header's rig instead of storing them.
+# Channels format 2.x computes on read from `depth` and the header's rig instead of storing them,
+# and how far (relative) a writer's own may lie from that: float32 rounding of depth and result.
 DERIVED_CHANNELS = ("disparity",)
+DERIVED_TOLERANCE = 1e-6
 
 
 def ground_truth_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
@@ -93,7 +95,7 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
 def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int], where: str,
                   rig: Rig | None) -> dict:
     """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}: the
-    stored channels of `channels`; a derived one the frame carries must equal what the reader
+    stored channels of `channels`; a derived one the frame carries must match what the reader
     derives (so nothing given is lost unnoticed)."""
     stored_channels = [c for c in channels if c not in DERIVED_CHANNELS]
     missing = [c for c in stored_channels if c not in frame]
@@ -116,12 +118,13 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
         if "depth" not in channels or rig is None:
             raise FormatError(f"{where}: channel {name!r} is derived from 'depth' and the rig: the "
                               f"channel list must include 'depth' and the rig must be given")
-        if name in frame:
-            given = _to_stored(name, frame[name], where)
-            if not np.array_equal(given, ground_truth_disparity(pixels["depth"], rig), equal_nan=True):
-                raise FormatError(f"{where}: channel {name!r} differs from fx * b / depth of its 'depth' "
-                                  f"channel (nan beyond rig.max_depth), which the reader derives; "
-                                  f"leave it out or pass that")
+        # One computed from depth before its rounding to float32 differs by that rounding alone.
+        if name in frame and not np.allclose(_to_stored(name, frame[name], where),
+                                             ground_truth_disparity(pixels["depth"], rig),
+                                             rtol=DERIVED_TOLERANCE, atol=0.0, equal_nan=True):
+            raise FormatError(f"{where}: channel {name!r} differs from fx * b / depth of its 'depth' "
+                              f"channel (nan beyond rig.max_depth; relative tolerance "
+                              f"{DERIVED_TOLERANCE}), which the reader derives; leave it out or pass that")
     return pixels
 
 

@@ -65,7 +65,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
     frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
     (masks: bool or 0/1 ints); `disparity` is derived from depth and the rig (it may be left out;
-    one given must equal it). channels: the channel set every frame carries (default:
+    one given must match it to float32 rounding). channels: the channel set every frame carries (default:
     RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
     ``.tmp-*`` dir that remove_partial_scenes deletes. threads: frames encoded at once (the codec
