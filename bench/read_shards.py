@@ -73,12 +73,13 @@ def compare_compressions(rig, frame: dict, tmp: Path, repeats: int) -> None:
 
     shape = (rig.camera.height, rig.camera.width)
     print(f"{'compression':<18}{'MB/frame':>10}{'write ms':>10}{'read ms':>10}")
-    for name in ("NO_COMPRESSION", "ZIP_COMPRESSION", "ZIPS_COMPRESSION", "PIZ_COMPRESSION"):
+    for name in ("NO_COMPRESSION", "ZIP_COMPRESSION", "ZIPS_COMPRESSION", "PIZ_COMPRESSION",
+                 "ZSTD_COMPRESSION", "HTJ2K32_COMPRESSION"):
         path = tmp / f"{name}.exr"
         writes, reads = [], []
         for _ in range(repeats):
             start = time.perf_counter()
-            ds.write_frame_file(path, frame, shape, compression=name)
+            ds.write_frame_file(path, frame, shape, compression=name, rig=rig.to_dict())
             writes.append(time.perf_counter() - start)
             start = time.perf_counter()
             OpenEXR.File(str(path), separate_channels=True).channels()

@@ -13,13 +13,14 @@ as well as the rest of dotsim.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import errno
 import hashlib
 import json
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -149,3 +150,16 @@ def sha256_file(path: str | os.PathLike) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def map_in_threads(function: Callable, items: Iterable, threads: int) -> list:
+    """[function(item) for item in items], in up to `threads` threads (1: in this one), in order.
+
+    For work that releases the GIL (numpy, OpenEXR's codecs, hashing), so a frame's post-render
+    and encoding use the cores a render used; the first error is raised as in a loop.
+    """
+    items = list(items)
+    if threads <= 1 or len(items) <= 1:
+        return [function(item) for item in items]
+    with concurrent.futures.ThreadPoolExecutor(min(threads, len(items))) as pool:
+        return list(pool.map(function, items))

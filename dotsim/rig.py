@@ -14,6 +14,7 @@ Conventions (docs/GEOMETRY.md has the derivations):
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field, replace
@@ -296,8 +297,16 @@ def backproject(depth: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     if depth.shape != (intrinsics.height, intrinsics.width):
         raise ValueError(f"depth shape {depth.shape} != camera (height, width) "
                          f"{(intrinsics.height, intrinsics.width)}")
-    u, v = pixel_grid(intrinsics)
-    return pixel_rays(u, v, intrinsics) * depth[..., None]
+    return _camera_rays(intrinsics) * depth[..., None]
+
+
+@functools.lru_cache(maxsize=4)
+def _camera_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """pixel_rays of every pixel centre of a camera (read-only): made once per camera, since a
+    generator post-renders thousands of frames of one rig."""
+    rays = pixel_rays(*pixel_grid(intrinsics), intrinsics)
+    rays.flags.writeable = False
+    return rays
 
 
 def camera_to_projector_frame(points_cam: np.ndarray, rig: Rig) -> np.ndarray:

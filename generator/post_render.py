@@ -9,8 +9,9 @@ Stored channels (dotsim.dataset.FRAME_CHANNELS):
   ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
   projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
-  frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column and
-  disparity (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth.
+  frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column
+  (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth. disparity is not
+  made here: format 2 derives it from depth on read (dotsim.dataset.frames.ground_truth_disparity).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from dotsim.masks import direct_visibility_mask, edge_mask
-from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column
+from dotsim.rig import Rig, depth_to_projector_column
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import apply_sensor_model, exposure_gain
@@ -52,18 +53,18 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
     signal = ambient + raw["projector"]
+    gain = exposure_gain(signal, sensor)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
         raw["projector_direct"], raw["flood_direct"], signal - raw["projector_direct"],
-        exposure_gain(signal, sensor), sensor.read_noise, sensor.shot_noise,
+        gain, sensor.read_noise, sensor.shot_noise,
         masks.visibility_margin, sensor.blur_sigma * sensor.pixel_scale,
     ) & np.isfinite(depth)
     return {
-        "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale),
+        "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale, gain),
         "ambient": ambient,
         "flood": flood,
         "depth": depth,
         "visibility": visibility,
         "edge": edge_mask(depth, masks.edge_threshold, masks.edge_dilation),
         "projector_column": depth_to_projector_column(gt_depth, rig),
-        "disparity": depth_to_disparity(gt_depth, rig),
     }

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import dataset
-from dotsim.file_io import DiskFullError, atomic_write_bytes
+from dotsim.file_io import DiskFullError, atomic_write_bytes, map_in_threads
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
@@ -167,11 +167,20 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
     if len(raw_frames) != len(spec.poses):
         raise ValueError(f"scene {index}: renderer returned {len(raw_frames)} frames for "
                          f"{len(spec.poses)} poses")
-    frames = [make_frame(raw, spec, frame_sensor_rng(job.seed, index, k), where=f"scene {index} frame {k}")
-              for k, raw in enumerate(raw_frames)]
+    threads = post_render_threads(job.config)
+    frames = map_in_threads(lambda k: make_frame(raw_frames[k], spec, frame_sensor_rng(job.seed, index, k),
+                                                 where=f"scene {index} frame {k}"),
+                            range(len(raw_frames)), threads)
     dataset.write_scene(job.out, index, scene_meta(job, spec), frames,
-                        scenes_per_shard=job.config.output.scenes_per_shard)
+                        scenes_per_shard=job.config.output.scenes_per_shard, threads=threads)
     return len(frames)
+
+
+def post_render_threads(config: Config) -> int:
+    """Threads a worker post-renders and encodes a scene's frames in: as many as it renders with
+    ([render] threads; 0 = every core), so a worker alone on a machine uses all of it there too.
+    Each frame has its own noise stream (frame_sensor_rng), so the bytes do not depend on it."""
+    return config.render.threads or os.cpu_count() or 1
 
 
 def _frame_count(job: RenderJob, index: int) -> int:

@@ -23,9 +23,9 @@ def exposure_gain(signal: np.ndarray, params: SensorModel) -> float:
     return params.auto_target / reference if reference > 0 else 1.0
 
 
-def expose(signal: np.ndarray, params: SensorModel) -> np.ndarray:
-    """Radiance -> level (full scale 1): signal times exposure_gain."""
-    return np.asarray(signal, np.float64) * exposure_gain(signal, params)
+def expose(signal: np.ndarray, params: SensorModel, gain: float | None = None) -> np.ndarray:
+    """Radiance -> level (full scale 1): signal times the gain (default: exposure_gain's)."""
+    return np.asarray(signal, np.float64) * (exposure_gain(signal, params) if gain is None else gain)
 
 
 def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) -> np.ndarray:
@@ -51,14 +51,14 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
 
 
 def apply_sensor_model(signal: np.ndarray, params: SensorModel, rng: np.random.Generator,
-                       pixel_scale: float = 1.0) -> np.ndarray:
+                       pixel_scale: float = 1.0, gain: float | None = None) -> np.ndarray:
     """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).
 
     pixel_scale: render resolution / full sensor resolution; bloom and blur sizes are given in
     full-resolution pixels and shrink with it so a scaled-down render looks like a scaled-down
-    sensor image.
+    sensor image. gain: the frame's exposure_gain when the caller has it already.
     """
-    level = expose(signal, params)
+    level = expose(signal, params, gain)
     level = bloom(level, params.bloom_threshold, params.bloom_strength, params.bloom_sigma * pixel_scale)
     if params.blur_sigma > 0:
         level = gaussian_filter(level, params.blur_sigma * pixel_scale, mode="nearest")

@@ -29,7 +29,9 @@ def make_frame(rng):
         "visibility": rng.uniform(size=(H, W)) > 0.3,
         "edge": (rng.uniform(size=(H, W)) > 0.8).astype(np.uint8),
         "projector_column": column,
-        "disparity": rng.normal(10, 5, (H, W)).astype(np.float32),
+        # fx * b / z, the one disparity the writer accepts (format 2 derives it on read)
+        "disparity": np.where(np.isfinite(depth), RIG.camera.fx * RIG.baseline / depth.astype(np.float64),
+                              np.nan).astype(np.float32),
     }
 
 
@@ -76,12 +78,15 @@ def test_round_trip_every_channel_and_field(tmp_path):
         # 10-bit IR survives half precision: the sensor code is recovered exactly.
         codes = np.rint(np.asarray(sent["ir"]) * 1023)
         assert np.array_equal(np.rint(got["ir"].astype(np.float64) * 1023), codes)
-    # The EXR really carries the documented pixel types (checked with OpenEXR directly).
-    stored = OpenEXR.File(str(path / "frame_0.exr"), separate_channels=True).channels()
+    # The EXR really carries the documented pixel types and compression (checked with OpenEXR
+    # directly); format 2 stores no disparity.
+    exr = OpenEXR.File(str(path / "frame_0.exr"), separate_channels=True)
+    stored = exr.channels()
     types = {name: stored[name].pixels.dtype for name in stored}
     assert types == {"ir": np.float16, "ambient": np.float16, "flood": np.float16,
-                     "depth": np.float32, "projector_column": np.float32, "disparity": np.float32,
+                     "depth": np.float32, "projector_column": np.float32,
                      "visibility": np.uint32, "edge": np.uint32}
+    assert exr.header()["compression"] == OpenEXR.ZSTD_COMPRESSION
 
 
 def test_half_precision_limit_is_11_bits():
@@ -250,13 +255,14 @@ def test_reader_refuses_unknown_major_version(tmp_path):
     path, _ = write(tmp_path, 0)
     meta_file = path / "scene.json"
     meta = json.loads(meta_file.read_text())
-    meta["format_version"] = "2.0"
+    meta["format_version"] = "3.0"
     meta_file.write_text(json.dumps(meta))
-    with pytest.raises(ds.FormatError, match=r"scene\.json: format_version 2\.0 has major version 2"):
+    with pytest.raises(ds.FormatError, match=r"scene\.json: format_version 3\.0 has major version 3; "
+                                             r"this dotsim \(.*\) reads major versions 1, 2"):
         ds.read_scene(path)
-    meta["format_version"] = "1.7"  # a newer minor version is read
+    meta["format_version"] = "2.7"  # a newer minor version is read
     meta_file.write_text(json.dumps(meta))
-    assert ds.read_scene(path).meta["format_version"] == "1.7"
+    assert ds.read_scene(path).meta["format_version"] == "2.7"
     ds.seal_dataset(tmp_path)
     index_file = tmp_path / "index.json"
     text = index_file.read_text()

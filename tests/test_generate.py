@@ -54,7 +54,9 @@ def test_make_frame_against_analytic_wall():
     raw = {"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth,
            "projector_direct": projector, "flood_direct": flood_only}  # no indirect light here
     frame = make_frame(raw, spec_with_rig(rig, config), np.random.default_rng(1))
-    assert set(frame) == set(dataset.RENDERED_CHANNELS)
+    # Every stored channel; disparity is derived from depth on read (format 2).
+    assert set(frame) == set(dataset.RENDERED_CHANNELS) - set(dataset.DERIVED_CHANNELS)
+    disparity = dataset.ground_truth_disparity(frame["depth"], rig)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
     np.testing.assert_array_equal(frame["depth"][5:, :-5][np.isfinite(depth[5:, :-5])],
@@ -64,11 +66,11 @@ def test_make_frame_against_analytic_wall():
     u = np.arange(w)[None, :].repeat(h, 0)
     fx, b = rig.camera.fx, rig.baseline
     valid = depth <= 20.0
-    np.testing.assert_allclose(frame["disparity"][valid], (fx * b / depth)[valid], rtol=1e-6)
+    np.testing.assert_allclose(disparity[valid], (fx * b / depth)[valid], rtol=1e-6)
     x = (u - rig.camera.cx) * depth / fx
     column = rig.projector.fx * (x - b) / depth + rig.projector.cx
     np.testing.assert_allclose(frame["projector_column"][valid], column[valid], rtol=1e-5, atol=1e-3)
-    assert np.isnan(frame["disparity"][~valid]).all() and np.isnan(frame["projector_column"][~valid]).all()
+    assert np.isnan(disparity[~valid]).all() and np.isnan(frame["projector_column"][~valid]).all()
 
     np.testing.assert_array_equal(frame["flood"], ambient + flood_only)
     np.testing.assert_array_equal(frame["ambient"], ambient)

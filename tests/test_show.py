@@ -17,7 +17,7 @@ def constant_frame(k):
     depth[:10, :10] = np.inf  # no hit: must render black
     return {"ir": np.full((H, W), 0.5), "ambient": np.full((H, W), 0.1), "flood": np.full((H, W), 0.4),
             "depth": depth, "visibility": np.ones((H, W), bool), "edge": np.zeros((H, W), bool),
-            "projector_column": np.full((H, W), 100.0 + k), "disparity": np.full((H, W), 5.0)}
+            "projector_column": np.full((H, W), 100.0 + k)}  # disparity: derived from depth on read
 
 
 def write_scene(root, index=0):

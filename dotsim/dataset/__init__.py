@@ -17,7 +17,7 @@ a file or half a scene; a rerun tells complete scenes (the final directory exist
 Modules, one idea each (this package re-exports their public names):
 
 - layout: names and paths, FormatError, the format version, dataset.json, listing shards/scenes
-- frames: the EXR frame codec and FRAME_CHANNELS
+- frames: the EXR frame codec, FRAME_CHANNELS, and the channels derived on read (disparity)
 - scene_meta: scene.json's required keys and its validation
 - writer: write_scene, write_dataset_file, and resume (is_scene_complete, remove_partial_scenes,
   remove_partial_scenes_in_range, remove_scene)
@@ -29,12 +29,14 @@ The dataset's pattern file (store_pattern, pattern_entry) lives in dotsim.patter
 """
 
 from dotsim.dataset.frames import (
+    DERIVED_CHANNELS,
     EXR_COMPRESSION,
     FRAME_CHANNELS,
     MASK_CHANNELS,
     RENDERED_CHANNELS,
     decode_frame,
     encode_frame,
+    ground_truth_disparity,
     write_frame_file,
 )
 from dotsim.dataset.layout import (
@@ -83,13 +85,15 @@ from dotsim.dataset.writer import (
 from dotsim.file_io import TMP_PREFIX
 
 __all__ = [
-    "DEFAULT_SCENES_PER_SHARD", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS", "INDEX_FILE",
+    "DEFAULT_SCENES_PER_SHARD", "DERIVED_CHANNELS", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS",
+    "INDEX_FILE",
     "LAYOUT_FILE", "RENDERED_CHANNELS", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE",
     "SHARD_FILE",
     "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "DatasetChangingError", "FormatError", "Problem",
     "RepairResult", "Scene", "SceneRef", "SealResult", "VerifyReport", "camera_size",
     "check_format_version", "complete_scenes", "dataset_summary", "decode_frame", "encode_frame",
-    "frame_name", "is_scene_complete", "leftovers", "open_dataset", "parse_scene_meta",
+    "frame_name", "ground_truth_disparity", "is_scene_complete", "leftovers", "open_dataset",
+    "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
     "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
     "seal_dataset", "shard_name", "verify_dataset", "write_dataset_file",

@@ -1,13 +1,16 @@
 """Frame files: one single-part scanline OpenEXR per frame, one channel per stored pass.
 
-FRAME_CHANNELS gives each channel's stored dtype (why each: docs/FORMAT.md). write_frame_file
+FRAME_CHANNELS gives each channel's dtype as read (why each: docs/FORMAT.md). write_frame_file
 validates and converts a frame dict and writes it; decode_frame checks a file's channels, shapes
-and pixel types and returns them.
+and pixel types and returns them. Format 2.x stores no `disparity`: it is fx * b / depth exactly,
+so the writer checks a given one and the reader computes it from `depth` and the rig the header
+carries (DERIVED_CHANNELS); format 1.x files store it and are read as they are.
 """
 
 from __future__ import annotations
 
 import io
+import json
 import os
 from pathlib import Path
 
@@ -15,11 +18,18 @@ import numpy as np
 
 from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_version
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
+from dotsim.rig import Rig, depth_to_disparity
 
-# Lossless; chosen over PIZ by bench/read_shards.py --compression (numbers in docs/FORMAT.md).
-EXR_COMPRESSION = "ZIP_COMPRESSION"
+# Lossless, the smallest and the fastest to read of OpenEXR's lossless codecs on rendered frames
+# (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size); needs
+# OpenEXR >= 3.4 to read. Measured in docs/FORMAT.md "Compression" (bench.generate_stages
+# --compression, on rendered frames).
+EXR_COMPRESSION = "ZSTD_COMPRESSION"
+VERSION_ATTRIBUTE = "dotsim_format_version"
+# Format 2.x: the rig (Rig.to_dict() as JSON) the derived channels are computed with.
+RIG_ATTRIBUTE = "dotsim_rig"
 
-# Stored dtype per channel (what read_frame returns). Why each was chosen: docs/FORMAT.md.
+# Dtype per channel as read (what read_frame returns). Why each was chosen: docs/FORMAT.md.
 # Masks are uint8 in memory and UINT (32-bit) in the EXR: EXR has no 8-bit pixel type.
 FRAME_CHANNELS: dict[str, np.dtype] = {
     "ir": np.dtype(np.float16),
@@ -37,6 +47,18 @@ FRAME_CHANNELS: dict[str, np.dtype] = {
 # What the generator renders: every channel but the sensor's own depth; the writer's default.
 RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
 MASK_CHANNELS = ("visibility", "edge")
+# Channels format 2.x computes on read from `depth` and the header's rig instead of storing them,
+# and how far (relative) a writer's own may lie from that: float32 rounding of depth and result.
+DERIVED_CHANNELS = ("disparity",)
+DERIVED_TOLERANCE = 1e-6
+
+
+def ground_truth_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
+    """The stored `disparity` of a frame: fx * b / depth (float32, dotsim.rig.depth_to_disparity),
+    nan where depth is inf or beyond rig.max_depth. The generator's and the reader's one formula,
+    so a derived channel is bit for bit what format 1.x stored."""
+    depth = np.asarray(depth, np.float32)
+    return depth_to_disparity(np.where(depth <= rig.max_depth, depth, np.nan), rig)
 
 
 def _to_stored(name: str, array, where: str) -> np.ndarray:
@@ -55,9 +77,10 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise FormatError(f"{where}: channel {name!r} must be numeric, found dtype {a.dtype}")
     with np.errstate(over="ignore"):  # overflow is reported below, naming the channel
-        stored = a.astype(dtype)
-    overflow = np.isfinite(a) & ~np.isfinite(stored)
-    if overflow.any():
+        stored = a.astype(dtype, copy=False)
+    # Only a conversion can overflow (an array already of the stored type is taken as it is).
+    overflow = None if stored is a else np.isfinite(a) & ~np.isfinite(stored)
+    if overflow is not None and overflow.any():
         raise FormatError(f"{where}: channel {name!r} has {int(overflow.sum())} finite values beyond "
                           f"the {dtype} range (max {float(np.nanmax(np.abs(a)))}; {dtype} max "
                           f"{float(np.finfo(dtype).max)})")
@@ -69,50 +92,79 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
     return stored
 
 
-def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int], where: str) -> dict:
-    """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}."""
-    missing = [c for c in channels if c not in frame]
+def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int], where: str,
+                  rig: Rig | None) -> dict:
+    """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}: the
+    stored channels of `channels`; a derived one the frame carries must match what the reader
+    derives (so nothing given is lost unnoticed)."""
+    stored_channels = [c for c in channels if c not in DERIVED_CHANNELS]
+    missing = [c for c in stored_channels if c not in frame]
     unknown = [c for c in frame if c not in FRAME_CHANNELS]
     if missing:
-        raise FormatError(f"{where}: missing channel(s) {missing}; required: {list(channels)}")
+        raise FormatError(f"{where}: missing channel(s) {missing}; required: {stored_channels}")
     if unknown:
         raise FormatError(f"{where}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
     extra = [c for c in frame if c not in channels]
     if extra:
         raise FormatError(f"{where}: channel(s) {extra} not in this scene's channel list {list(channels)}")
     pixels = {}
-    for name in channels:
+    for name in stored_channels:
         stored = _to_stored(name, frame[name], where)
         if stored.shape != shape:
             raise FormatError(f"{where}: channel {name!r} has shape {stored.shape}, the rig camera is "
                               f"{shape} (height, width)")
         pixels[name] = np.ascontiguousarray(stored)
+    for name in (c for c in channels if c in DERIVED_CHANNELS):
+        if "depth" not in channels or rig is None:
+            raise FormatError(f"{where}: channel {name!r} is derived from 'depth' and the rig: the "
+                              f"channel list must include 'depth' and the rig must be given")
+        # One computed from depth before its rounding to float32 differs by that rounding alone.
+        if name in frame and not np.allclose(_to_stored(name, frame[name], where),
+                                             ground_truth_disparity(pixels["depth"], rig),
+                                             rtol=DERIVED_TOLERANCE, atol=0.0, equal_nan=True):
+            raise FormatError(f"{where}: channel {name!r} differs from fx * b / depth of its 'depth' "
+                              f"channel (nan beyond rig.max_depth; relative tolerance "
+                              f"{DERIVED_TOLERANCE}), which the reader derives; leave it out or pass that")
     return pixels
 
 
 def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] | None = None,
-                 compression: str = EXR_COMPRESSION, where: str = "frame") -> bytes:
-    """The bytes of one frame EXR (validated and converted to FRAME_CHANNELS dtypes first).
+                 compression: str = EXR_COMPRESSION, where: str = "frame",
+                 rig: dict | None = None) -> bytes:
+    """The bytes of one frame EXR (validated and converted to the stored dtypes first).
 
-    channels: the channel set the frame must carry (default RENDERED_CHANNELS); compression:
-    an OpenEXR compression name (docs/FORMAT.md and bench/read_shards.py compare them).
+    channels: the channel set the frame must carry (default RENDERED_CHANNELS; the derived ones,
+    DERIVED_CHANNELS, may be left out); compression: an OpenEXR compression name (docs/FORMAT.md
+    and bench/read_shards.py compare them); rig: the scene's Rig.to_dict(), stored in the header
+    for the derived channels (needed when channels has one).
     """
     import OpenEXR
 
     channels = RENDERED_CHANNELS if channels is None else tuple(channels)
-    pixels = _frame_pixels(frame, channels, shape, where)
+    derives = any(c in DERIVED_CHANNELS for c in channels)
+    parsed = _parse_rig(rig, where) if rig is not None and derives else None
+    pixels = _frame_pixels(frame, channels, shape, where, parsed)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
-              "dotsim_format_version": FORMAT_VERSION}
+              VERSION_ATTRIBUTE: FORMAT_VERSION}
+    if parsed is not None:
+        header[RIG_ATTRIBUTE] = json.dumps(rig, sort_keys=True)
     stream = io.BytesIO()
     OpenEXR.File(header, pixels).write(stream)
     return stream.getvalue()
 
 
+def _parse_rig(rig: dict, where) -> Rig:
+    try:
+        return Rig.from_dict(rig)
+    except (ValueError, TypeError) as e:
+        raise FormatError(f"{where}: rig is not a valid Rig.to_dict() ({e})") from None
+
+
 def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int],
                      channels: tuple[str, ...] | None = None, compression: str = EXR_COMPRESSION,
-                     where: str = "frame") -> str:
+                     where: str = "frame", rig: dict | None = None) -> str:
     """Write one frame EXR at `path` atomically (encode_frame); return its sha256."""
-    data = encode_frame(frame, shape, channels, compression, where)
+    data = encode_frame(frame, shape, channels, compression, where, rig)
     atomic_write_bytes(path, data)
     return sha256_bytes(data)
 
@@ -120,8 +172,9 @@ def write_frame_file(path: str | os.PathLike, frame: dict, shape: tuple[int, int
 def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str, np.ndarray]:
     """Decode the bytes of frame file `path` -> {channel: array in its FRAME_CHANNELS dtype}.
 
-    channels: the ones to return, all required (None: every dotsim channel in the file); shape:
-    (height, width) every channel must have (None: all of one shape). FormatError naming the file.
+    channels: the ones to return, all required (None: every dotsim channel in the file, and in
+    format 2.x the derived ones its header allows); shape: (height, width) every channel must
+    have (None: all of one shape). FormatError naming the file.
     """
     import OpenEXR
 
@@ -131,28 +184,34 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
         header, stored = exr.header(), exr.channels()
     except Exception as e:  # OpenEXR raises plain RuntimeError/ValueError for corrupt files
         raise FormatError(f"{path}: not a readable OpenEXR file ({e})") from None
-    version = header.get("dotsim_format_version")
+    version = header.get(VERSION_ATTRIBUTE)
     if version is not None:
         check_format_version(version, path)
+    rig = header.get(RIG_ATTRIBUTE)
+    # Derivable here: format 2.x files with depth and the rig (1.x files store every channel).
+    derivable = [c for c in DERIVED_CHANNELS if c not in stored and rig is not None and "depth" in stored]
     source = "height, width of the rig camera in scene.json"
     if channels is None:
-        channels = [c for c in FRAME_CHANNELS if c in stored]
+        channels = [c for c in FRAME_CHANNELS if c in stored or c in derivable]
         if not channels:
             raise FormatError(f"{path}: no dotsim channel found (has {sorted(stored)}; "
                               f"known: {list(FRAME_CHANNELS)})")
-    missing = [c for c in channels if c not in stored]
+    missing = [c for c in channels if c not in stored and c not in derivable]
     if missing:
         raise FormatError(f"{path}: missing channel(s) {missing}; file has {sorted(stored)}")
     out = {}
     for name in channels:
         if name not in FRAME_CHANNELS:
             raise FormatError(f"{path}: unknown channel {name!r}; known: {list(FRAME_CHANNELS)}")
-        a = stored[name].pixels
+        a = stored[name].pixels if name in stored else stored["depth"].pixels
         if shape is None:
             shape, source = a.shape, f"the shape of channel {name!r}"
         if a.shape != tuple(shape):
             raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected {tuple(shape)} "
                               f"({source})")
+        if name not in stored:
+            out[name] = _derived_disparity(a, rig, path)
+            continue
         want = FRAME_CHANNELS[name]
         if name in MASK_CHANNELS:
             if a.dtype != np.uint32:
@@ -164,3 +223,14 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
             raise FormatError(f"{path}: channel {name!r} stored as {a.dtype}, expected {want}")
         out[name] = a
     return out
+
+
+def _derived_disparity(depth: np.ndarray, rig_json: str, path: Path) -> np.ndarray:
+    """`disparity` of a format 2.x file (DERIVED_CHANNELS) from its depth and its header's rig."""
+    if depth.dtype != np.float32:
+        raise FormatError(f"{path}: channel 'depth' stored as {depth.dtype}, expected float32")
+    try:
+        rig = Rig.from_dict(json.loads(rig_json))
+    except (ValueError, TypeError) as e:
+        raise FormatError(f"{path}: header attribute {RIG_ATTRIBUTE!r} is not a rig ({e})") from None
+    return ground_truth_disparity(depth, rig)

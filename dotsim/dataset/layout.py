@@ -14,7 +14,9 @@ from pathlib import Path
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim.file_io import atomic_write_json
 
-FORMAT_VERSION = "1.2"
+FORMAT_VERSION = "2.0"
+# Major versions this reader reads: 1.x (every channel stored, ZIP) and 2.x (docs/FORMAT.md "Versioning").
+READABLE_MAJORS = ("1", "2")
 DEFAULT_SCENES_PER_SHARD = 100
 
 INDEX_FILE = "index.json"
@@ -53,14 +55,15 @@ def pattern_path(dataset_dir: str | os.PathLike) -> Path:
 
 
 def check_format_version(version, where: str | os.PathLike) -> None:
-    """Refuse a format version whose major part differs from ours (minor differences are tolerated)."""
+    """Refuse a format version of a major version this reader does not read (READABLE_MAJORS; any
+    minor of those is read)."""
     if not isinstance(version, str) or not re.fullmatch(r"\d+\.\d+", version):
         raise FormatError(f"{where}: format_version {version!r} is not of the form 'MAJOR.MINOR'")
     major = version.split(".")[0]
-    ours = FORMAT_VERSION.split(".")[0]
-    if major != ours:
+    if major not in READABLE_MAJORS:
         raise FormatError(f"{where}: format_version {version} has major version {major}; this dotsim "
-                          f"({DOTSIM_VERSION}) reads major version {ours} only (format {FORMAT_VERSION})")
+                          f"({DOTSIM_VERSION}) reads major versions {', '.join(READABLE_MAJORS)} "
+                          f"(writes {FORMAT_VERSION})")
 
 
 def load_json(path: Path, data: bytes | None = None) -> dict:

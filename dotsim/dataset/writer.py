@@ -37,6 +37,7 @@ from dotsim.file_io import (
     disk_full_error,
     is_disk_full,
     json_bytes,
+    map_in_threads,
     sha256_bytes,
     temporary_name,
 )
@@ -56,17 +57,19 @@ def write_dataset_file(dataset_dir: str | os.PathLike, name: str, data: bytes) -
 
 def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, frames: list[dict],
                 scenes_per_shard: int = DEFAULT_SCENES_PER_SHARD,
-                channels: tuple[str, ...] | None = None) -> Path:
+                channels: tuple[str, ...] | None = None, threads: int = 1) -> Path:
     """Write one scene atomically and return its final directory.
 
     meta: JSON-safe dict with at least REQUIRED_META_KEYS ("rig" is Rig.to_dict(); its camera size
     is the required frame shape; "poses" has one 4x4 world_from_camera per frame). The writer adds
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
     frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
-    (masks: bool or 0/1 ints). channels: the channel set every frame carries (default:
+    (masks: bool or 0/1 ints); `disparity` is derived from depth and the rig (it may be left out;
+    one given must match it to float32 rounding). channels: the channel set every frame carries (default:
     RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
-    ``.tmp-*`` dir that remove_partial_scenes deletes.
+    ``.tmp-*`` dir that remove_partial_scenes deletes. threads: frames encoded at once (the codec
+    and numpy release the GIL; the bytes are the same whatever the number).
     """
     dataset_dir = Path(dataset_dir)
     if not isinstance(scene_index, int | np.integer) or scene_index < 0:
@@ -97,14 +100,16 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     if final.exists():
         raise FormatError(f"{final}: scene already exists (check is_scene_complete before writing)")
     # Encoded (and so validated) before anything is written: a bad frame leaves no trace on disk.
-    encoded = [encode_frame(frame, shape, channels, where=f"{where} frame {k}")
-               for k, frame in enumerate(frames)]
+    def encode_and_hash(k: int) -> tuple[bytes, str]:
+        data = encode_frame(frames[k], shape, channels, where=f"{where} frame {k}", rig=meta["rig"])
+        return data, sha256_bytes(data)
+
+    encoded, checksums = zip(*map_in_threads(encode_and_hash, range(len(frames)), threads), strict=True)
     full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
     full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
                      scene_index=scene_index, frame_count=len(frames),
                      channels={c: FRAME_CHANNELS[c].name for c in channels},
-                     frames=[{"file": frame_name(k), "sha256": sha256_bytes(data)}
-                             for k, data in enumerate(encoded)])
+                     frames=[{"file": frame_name(k), "sha256": sha} for k, sha in enumerate(checksums)])
     try:
         scene_json = json_bytes(full_meta)
     except (TypeError, ValueError) as e:
