@@ -2,7 +2,7 @@
 
     python -m bench.direct_settings [--width 608] [--repeats 3] [--scene 0]
 
-Renders scene --scene of configs/structure_core.toml (built-in primitives; scene 0 has extra
+Renders scene --scene of the built-in structure_core config (built-in primitives; scene 0 has extra
 lights, so it takes the direct render) at --width, then the scene's direct renders (one per pose,
 as SceneRenderer.render_poses runs them) once per variant, the variants taking turns, and prints
 per variant the median wall and CPU seconds per frame and the largest difference of its R and G
@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dotsim.configs import builtin_path
 from generator.blender.render import SceneRenderer
 from generator.config import config_from_dict
 from generator.pipeline import prepare_run
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scene", type=int, default=0)
     args = parser.parse_args(argv)
-    config_path = Path("configs/structure_core.toml").resolve()
+    config_path = builtin_path("structure_core")
     data = tomllib.loads(config_path.read_text())
     data["rig"]["scale"] = args.width / FULL_WIDTH
     data["assets"] = {"source": "primitives"}

@@ -5,8 +5,9 @@
 
 For each side (`before`: the code of commit --before, unpacked from git into a temporary folder;
 `after`: this checkout) and each IR width of --sizes, a child process running that side's code
-renders scene --scene of configs/structure_core.toml (built-in primitives, so no asset cache is
-needed; scene 0 has extra lights, so it takes the direct render too) and measures, per frame:
+renders scene --scene of the before side's configs/structure_core.toml (built-in primitives, so
+no asset cache is needed; scene 0 has extra lights, so it takes the direct render too) and
+measures, per frame:
 
 - render: SceneRenderer.render of the scene (build + its frames), wall and CPU seconds;
 - each stage of the work around the render, run one frame after another in one thread and timed
@@ -121,7 +122,7 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
     return out
 
 
-def measure(width: int, scene: int, repeats: int, compressions: bool = False) -> dict:
+def measure(config_path: Path, width: int, scene: int, repeats: int, compressions: bool = False) -> dict:
     """The child's work: one side's code (on sys.path) at one width; a dict of seconds per frame."""
     from dotsim import dataset
     from generator.blender.render import SceneRenderer
@@ -131,7 +132,6 @@ def measure(width: int, scene: int, repeats: int, compressions: bool = False) ->
     from generator.render_scenes import _finish_scene
     from generator.sample_scene import frame_sensor_rng, sample_scene_spec
 
-    config_path = Path("configs/structure_core.toml").resolve()
     data = tomllib.loads(config_path.read_text())
     data["rig"]["scale"] = width / FULL_WIDTH
     data["assets"] = {"source": "primitives"}
@@ -190,11 +190,12 @@ def unpack(revision: str, into: Path) -> Path:
     return into / "tree"
 
 
-def run_side(tree: Path, width: int, scene: int, repeats: int, compressions: bool = False) -> dict:
+def run_side(tree: Path, config_path: Path, width: int, scene: int, repeats: int,
+             compressions: bool = False) -> dict:
     """measure() in a child process whose imports come from `tree`."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    command = [sys.executable, str(Path(__file__).resolve()), "--child", str(width), str(scene), str(repeats),
-               str(int(compressions))]
+    command = [sys.executable, str(Path(__file__).resolve()), "--child", str(config_path), str(width),
+               str(scene), str(repeats), str(int(compressions))]
     done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(f"the child for {tree} at {width} px failed:\n{done.stderr[-4000:]}")
@@ -259,8 +260,8 @@ def print_table(results: dict, before: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
-        width, scene, repeats, compressions = map(int, argv[1:5])
-        print(json.dumps(measure(width, scene, repeats, bool(compressions))))
+        width, scene, repeats, compressions = map(int, argv[2:6])
+        print(json.dumps(measure(Path(argv[1]), width, scene, repeats, bool(compressions))))
         return 0
     parser = argparse.ArgumentParser(prog="python -m bench.generate_stages",
                                      description=__doc__.splitlines()[0])
@@ -276,8 +277,11 @@ def main(argv: list[str] | None = None) -> int:
     results = {}
     with tempfile.TemporaryDirectory(prefix="dotsim-before-") as tmp:
         trees = {"before": unpack(args.before, Path(tmp)), "after": REPO}
+        # Both sides render the before side's config, so they render the same scene whatever the
+        # configs have become since (they moved to dotsim/configs/ and changed their layout).
+        config_path = trees["before"] / "configs" / "structure_core.toml"
         for width in (int(w) for w in args.sizes.split(",")):
-            results[width] = {side: run_side(tree, width, args.scene, args.repeats,
+            results[width] = {side: run_side(tree, config_path, width, args.scene, args.repeats,
                                              args.compression and side == "after")
                               for side, tree in trees.items()}
     print_table(results, args.before)
