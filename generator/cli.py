@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from dotsim.dataset import FormatError
@@ -183,7 +184,9 @@ def _run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     try:
         return _run(args)
-    except KeyboardInterrupt:
-        print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM / SIGHUP (dotsim.process_lifetime.Stopped)
+        signum = getattr(stop, "signum", signal.SIGINT)
+        what = str(stop) if signum != signal.SIGINT else "interrupted"
+        print(f"dotsim generate: {what}; workers stopped, complete scenes are kept, rerun the same "
+              "command to resume", file=sys.stderr)
+        return 128 + signum

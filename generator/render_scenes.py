@@ -32,6 +32,7 @@ import numpy as np
 
 from dotsim import dataset
 from dotsim.file_io import DiskFullError, atomic_write_bytes
+from dotsim.process_lifetime import die_with_parent, exec_dies_with_parent, stop_processes
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
@@ -107,12 +108,14 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
     """`render_scenes` of every batch in `workers` spawned processes; `on_results` gets each batch's
     results as they come (a worker that died reports its batch failed).
 
-    Ctrl-C, a full disk or any other error that stops the run cancels the batches not yet started
-    and terminates the workers at once (the default executor shutdown would render every queued
-    scene first); the next run removes the scenes they left half-written.
+    Ctrl-C, SIGTERM, SIGHUP (dotsim.process_lifetime.stop_signals), a full disk or any other error
+    that stops the run cancels the batches not yet started and terminates the workers at once (the
+    default executor shutdown would render every queued scene first); a run killed outright takes
+    its workers with it (each dies with its parent: dotsim.process_lifetime.die_with_parent). The
+    next run removes the scenes they left half-written.
     """
     pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                  initializer=_init_worker, initargs=(job,))
+                                                  initializer=_init_worker, initargs=(job, os.getpid()))
     try:
         futures = {pool.submit(_render_batch, b): b for b in batches}
         for future in concurrent.futures.as_completed(futures):
@@ -126,8 +129,7 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
             on_results(results)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
-        for worker in multiprocessing.active_children():
-            worker.terminate()
+        stop_processes(multiprocessing.active_children())
         raise
     pool.shutdown()
 
@@ -215,7 +217,7 @@ def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult
             spec_paths[-1].write_text(json.dumps(spec.to_dict()))
         command = [job.blender, "--background", "--factory-startup", "--python", str(RUN_IN_BLENDER),
                    "--", *map(str, spec_paths), "--out", str(tmp)]
-        proc = subprocess.run(command, capture_output=True, text=True)
+        proc = subprocess.run(command, capture_output=True, text=True, preexec_fn=exec_dies_with_parent)
         blender_share = (time.perf_counter() - start) / len(indices)
         for index, spec in specs.items():
             raw_path = tmp / f"{dataset.scene_name(index)}_raw.npz"
@@ -257,7 +259,9 @@ def _process_renderer():
 _POOL_JOB: dict = {}
 
 
-def _init_worker(job: RenderJob) -> None:
+def _init_worker(job: RenderJob, parent_pid: int) -> None:
+    # Killed with the run, however it ends: never a worker left rendering queued scenes for no one.
+    die_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group; the parent decides (it terminates the workers), so a
     # render is never interrupted half-way inside Blender, which swallows the exception and goes on.
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import json
 import os
 import shutil
 import subprocess
@@ -149,6 +150,78 @@ def test_cluster_tasks_leave_the_seal_to_one_final_seal(sealed, tmp_path, capsys
     assert dotsim_main(["seal", str(out)]) == 0
     assert f"sealed {SCENES} scenes ({4 * SCENES} frames) in 3 shard(s): 2 shard.json written, " \
            f"{SCENES - 2} scenes hashed" in capsys.readouterr().out
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+# ----------------------------------------------------------------------------- only checksums are trusted
+
+
+def test_repair_removes_a_scene_edited_after_sealing_and_never_reseals_it(sealed, tmp_path, capsys):
+    """A hand edit of a sealed scene.json (its frames untouched, so scene.json still lists their
+    right checksums) is damage: seal refuses it, repair removes the scene, the rerun renders it."""
+    out = tmp_path / "edited"
+    shutil.copytree(sealed, out)
+    scene_json = out / "shard_00001" / "scene_0000003" / "scene.json"
+    text = scene_json.read_text()
+    fx = text.index('"fx": ') + len('"fx": ')
+    scene_json.write_text(text[:fx] + "1" + text[fx:])  # e.g. 111.544 -> 1111.544
+    assert dotsim_main(["verify", str(out)]) == 1
+    assert f"{scene_json}: sha256 differs from its entry in {scene_json.parents[1] / 'shard.json'} " \
+           "(changed after it was sealed); repair removes the scene" in capsys.readouterr().out
+    assert dotsim_main(["seal", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{scene_json}: differs from its entry" in err, err
+    assert dotsim_main(["verify", str(out), "--repair"]) == 0
+    assert "repair: removed 1 damaged scene(s)" in capsys.readouterr().out
+    assert not scene_json.parent.exists()
+    assert dotsim_main(["verify", str(out)]) == 0
+    summary = rerun(out)
+    assert (summary.done, summary.skipped) == (1, SCENES - 1)
+    assert scene_json.read_bytes() == (sealed / scene_json.relative_to(out)).read_bytes()
+    assert frame_sums(out) == frame_sums(sealed)
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+def test_a_wrong_checksum_inside_shard_json_is_mended_by_repair_and_by_seal(sealed, tmp_path, capsys):
+    for mend in (["verify", "--repair"], ["seal"]):
+        out = tmp_path / mend[-1].strip("-")
+        shutil.copytree(sealed, out)
+        shard_json = out / "shard_00001" / "shard.json"
+        shard = json.loads(shard_json.read_text())
+        shard["scenes"][0]["files"]["frame_1.exr"] = "0" * 64
+        shard_json.write_text(json.dumps(shard))
+        assert dotsim_main(["verify", str(out)]) == 1
+        lines = capsys.readouterr().out.splitlines()
+        assert f"{shard_json}: its entry for scene_0000002 does not list the checksums scene.json " \
+               "records; repair derives it again from the frames" in lines
+        assert dotsim_main([mend[0], str(out), *mend[1:]]) == 0
+        capsys.readouterr()
+        assert dotsim_main(["verify", str(out)]) == 0, capsys.readouterr().out
+        assert shard_json.read_bytes() == (sealed / "shard_00001" / "shard.json").read_bytes()
+        assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+        assert sorted(p.parent.name for p in out.glob("shard_*/scene_*/scene.json")) == \
+            sorted(p.parent.name for p in sealed.glob("shard_*/scene_*/scene.json"))
+
+
+@pytest.mark.parametrize("key, value", [
+    ("scene_count", 7), ("frame_count", 23), ("split_counts", {"train": 5}), ("scenes_per_shard", 3),
+    ("dotsim_version", "9.9.9"), ("shards.1.scene_count", 1)])
+def test_verify_checks_index_json_summary_fields_and_repair_rewrites_them(sealed, tmp_path, capsys, key,
+                                                                           value):
+    out = tmp_path / "summary"
+    shutil.copytree(sealed, out)
+    index = json.loads((out / "index.json").read_text())
+    *path, last = key.split(".")
+    where = index
+    for part in path:
+        where = where[int(part)] if isinstance(where, list) else where[part]
+    where[last] = value
+    (out / "index.json").write_text(json.dumps(index))
+    assert dotsim_main(["verify", str(out)]) == 1
+    top = key.split(".")[0]
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith(f"{out / 'index.json'}: {top} is ") for line in lines), lines
+    assert dotsim_main(["verify", str(out), "--repair"]) == 0
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
 
 

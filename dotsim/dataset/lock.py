@@ -1,0 +1,61 @@
+"""One writer per dataset folder on this machine: an advisory lock (fcntl) on DATASET/.writer.lock.
+
+`writer_lock(DATASET, "dotsim generate")` is held by every command that writes a whole dataset
+(`dotsim generate` without --no-seal, `--seal-only`, `dotsim verify --repair`, `dotsim capture
+record`); a second one is refused at once with one line naming the holder's pid. The kernel drops
+the lock when its holder exits, however it ends (kill -9 included), so there is nothing to clean
+up. Writers of disjoint scene ranges into one folder (Slurm array tasks, `--no-seal`) take no lock;
+sealing (`seal_dataset`) stays right beside any writer without one. The file starts with a dot, so
+it is no dataset-level file and never sealed; on a filesystem without fcntl locks (or off POSIX)
+the lock is skipped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from dotsim.dataset.layout import FormatError
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: no advisory locks
+    fcntl = None
+
+LOCK_FILE = ".writer.lock"
+
+
+class DatasetBusyError(FormatError):
+    """Another process on this machine holds the dataset's writer lock."""
+
+
+@contextlib.contextmanager
+def writer_lock(dataset_dir: str | os.PathLike, what: str) -> Iterator[None]:
+    """Hold DATASET's writer lock for the `with` block (creating DATASET when needed); `what` names
+    the holder in the message a second writer gets. Raises DatasetBusyError when it is held."""
+    root = Path(dataset_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    if fcntl is None:
+        yield
+        return
+    fd = os.open(root / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            locked = True
+        except OSError as error:
+            if error.errno not in (errno.EACCES, errno.EAGAIN):
+                locked = False  # a filesystem without POSIX locks: go on unlocked
+            else:
+                holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "a process starting up"
+                raise DatasetBusyError(f"{root}: another writer holds this dataset ({holder}); wait for "
+                                       f"it to end, or write elsewhere") from None
+        if locked:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()}: {what}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing drops the lock
