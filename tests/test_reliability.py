@@ -9,7 +9,11 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -151,6 +155,128 @@ def test_cluster_tasks_leave_the_seal_to_one_final_seal(sealed, tmp_path, capsys
     assert f"sealed {SCENES} scenes ({4 * SCENES} frames) in 3 shard(s): 2 shard.json written, " \
            f"{SCENES - 2} scenes hashed" in capsys.readouterr().out
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+# ----------------------------------------------------------------------------- processes and writers
+
+
+def running(pid: int) -> bool:
+    """True while process `pid` exists and is not a zombie (a zombie holds no files and runs nothing)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def descendants(pid: int) -> set[int]:
+    """Every process below `pid` (children, their children, ...), from /proc."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        ppid = int(text[text.rindex(")") + 2:].split()[1])
+        children.setdefault(ppid, []).append(int(stat.parent.name))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            if child not in found:
+                found.add(child)
+                todo.append(child)
+    return found
+
+
+def start_generate(out: Path, workers: int = 2) -> subprocess.Popen:
+    """`dotsim generate` of SCENES tiny scenes in a process of its own, from this checkout, with its
+    stdout a pipe (as `dotsim generate ... | tee log` has it)."""
+    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(TINY), "--out", str(out),
+               "--split", "train", "--scenes", str(SCENES), "--seed", "3", "--workers", str(workers),
+               "--no-progress"]
+    return subprocess.Popen(command, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def wait_rendering(proc: subprocess.Popen, out: Path, workers: int) -> set[int]:
+    """Wait until the run has its workers and a scene half-written; the run's processes then."""
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if list(out.glob("shard_*/.tmp-scene_*")) and len(descendants(proc.pid)) >= workers:
+            return descendants(proc.pid)
+        time.sleep(0.02)
+    pytest.fail(f"the run never had {workers} workers rendering (exit {proc.poll()})")
+
+
+def output_closed_within(proc: subprocess.Popen, seconds: float) -> str | None:
+    """The run's output once every holder of its stdout closed it, or None after `seconds`
+    (a `| tee log` would hang)."""
+    text: list[str] = []
+    reader = threading.Thread(target=lambda: text.append(proc.stdout.read()), daemon=True)
+    reader.start()
+    reader.join(seconds)
+    return None if reader.is_alive() else text[0]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP],
+                         ids=["kill-9", "SIGTERM", "SIGHUP"])
+def test_a_stopped_run_leaves_no_process_behind(sealed, tmp_path, signum):
+    """kill -9 of `dotsim generate --workers 2` mid-scene: within 10 s no process of the run is left
+    (workers, resource tracker), its stdout is closed, and the rerun equals a clean run byte for
+    byte. SIGTERM and SIGHUP tear the pool down and exit 128 + the signal."""
+    out = tmp_path / "stopped"
+    proc = start_generate(out)
+    family = wait_rendering(proc, out, workers=2)
+    os.kill(proc.pid, signum)
+    text = output_closed_within(proc, 10.0)
+    assert text is not None, "the run's stdout stayed open 10 s after it was stopped"
+    deadline = time.monotonic() + 10.0
+    while [pid for pid in family if running(pid)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in family if running(pid)], f"left running: {[p for p in family if running(p)]}"
+    assert proc.wait(timeout=10) == (-signal.SIGKILL if signum == signal.SIGKILL else 128 + signum)
+    if signum != signal.SIGKILL:
+        assert f"stopped by {signal.Signals(signum).name}; workers stopped" in text, text
+        return
+    summary = rerun(out)
+    assert summary.done + summary.skipped == SCENES and not summary.failed
+    assert frame_sums(out) == frame_sums(sealed)
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+    assert not leftovers(out)
+
+
+HOLD_LOCK = """
+import sys, time
+from dotsim.dataset.lock import writer_lock
+with writer_lock(sys.argv[1], "dotsim generate"):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_range_tasks_go_on(sealed, tmp_path, capsys):
+    out = tmp_path / "locked"
+    shutil.copytree(sealed, out)
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(out)], cwd=REPO, text=True,
+                              env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
+                            "--scenes", str(SCENES), "--seed", "3", "--no-progress"]) == 1
+        assert capsys.readouterr().err == (f"dotsim generate: error: {out}: another writer holds this "
+                                           f"dataset "
+                                           f"(pid {holder.pid}: dotsim generate); wait for it to end, or "
+                                           f"write elsewhere\n")
+        assert dotsim_main(["verify", str(out), "--repair"]) == 2
+        assert f"(pid {holder.pid}: dotsim generate)" in capsys.readouterr().err
+        # a cluster task writing its own range (--no-seal) takes no lock
+        task = generate(load_config(TINY), out, "train", 2, start=4, seed=3, progress=False, seal=False)
+        assert (task.skipped, task.failed) == (2, [])
+    finally:
+        holder.kill()
+        holder.wait()
+    # the kernel dropped the killed holder's lock: the next writer goes ahead
+    assert rerun(out).skipped == SCENES
 
 
 # ----------------------------------------------------------------------------- only checksums are trusted
