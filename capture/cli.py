@@ -351,7 +351,7 @@ def _record(args: argparse.Namespace) -> int:
     if summary["stopped"]:
         print(f"dotsim capture record: stopped: {summary['stopped']}; kept every complete frame: {kept}",
               file=sys.stderr)
-        return 130 if "Ctrl-C" in summary["stopped"] else 1
+        return 128 + summary["signal"] if summary["signal"] else 1
     print(f"recorded {kept}")
     return 0
 

@@ -245,6 +245,69 @@ def test_a_stopped_run_leaves_no_process_behind(sealed, tmp_path, signum):
     assert not leftovers(out)
 
 
+def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tuple[int, str]:
+    """Start `command` (a dotsim command line) from this checkout, wait until ready(proc) is true,
+    send `signum` to its main process and check by pid that none of its processes is left after
+    `seconds`; (exit status, output)."""
+    proc = subprocess.Popen([sys.executable, "-m", "dotsim.cli", *command], cwd=REPO, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 300
+    while not ready(proc):
+        assert proc.poll() is None and time.monotonic() < deadline, f"never ready (exit {proc.poll()})"
+        time.sleep(0.02)
+    family = descendants(proc.pid)
+    os.kill(proc.pid, signum)
+    text = output_closed_within(proc, seconds)
+    assert text is not None, f"the output stayed open {seconds} s after the stop"
+    deadline = time.monotonic() + seconds
+    while [pid for pid in family if running(pid)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in family if running(pid)], f"left running: {[p for p in family if running(p)]}"
+    return proc.wait(timeout=seconds), text
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
+def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
+    sys.path.insert(0, str(REPO / "tests"))
+    from trainer_fixtures import make_dataset
+
+    data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
+    command = ["train", "--config", str(REPO / "configs" / "train_tiny.toml"), "--data", str(data),
+               "--out", str(run), "--nproc", "2"]
+    status, text = run_of(command, lambda proc: (run / "tb").is_dir() and len(descendants(proc.pid)) >= 2,
+                          signum)
+    assert status == (-signal.SIGKILL if signum == signal.SIGKILL else 128 + signum), text
+    if signum == signal.SIGTERM:
+        assert "dotsim train: stopped by SIGTERM\n" in text, text
+
+
+def test_capture_record_stopped_by_sigterm_keeps_its_frames(tmp_path):
+    import cv2
+
+    from dotsim.rig import get_preset
+    from dotsim.rig_files import rig_file_json
+
+    rig = get_preset("structure_core").scaled(0.1)
+    video = tmp_path / "ir.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30,
+                             (rig.camera.width, rig.camera.height), isColor=False)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        writer.write(rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    writer.release()
+    (tmp_path / "rig.json").write_bytes(rig_file_json(rig))
+    out = tmp_path / "rec"
+    command = ["capture", "record", "--device", f"opencv:{video}", "--rig", str(tmp_path / "rig.json"),
+               "--out", str(out), "--scenes", "10", "--frames", "2", "--pause", "0.2", "--no-progress",
+               "--no-preview"]
+    status, text = run_of(command, lambda proc: (out / "shard_00000" / "scene_0000000").is_dir(),
+                          signal.SIGTERM)
+    assert status == 128 + signal.SIGTERM, text
+    assert "stopped: stopped by SIGTERM; kept every complete frame" in text, text
+    assert len(dataset.open_dataset(out, verify=True).scenes) >= 1
+
+
 HOLD_LOCK = """
 import sys, time
 from dotsim.dataset.lock import writer_lock
