@@ -38,11 +38,11 @@ import dotsim
 from dotsim import dataset
 from dotsim.dataset.lock import writer_lock
 from dotsim.dataset.seal import seal_shard, vouched_shards
-from dotsim.file_io import json_bytes
+from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
 from generator.config import Config, ConfigError, check_output_dir
 from generator.render_scenes import LOG_DIR, RUN_IN_BLENDER, RenderJob, SceneResult, render_pool
-from generator.resources import config_pattern, split_assets
+from generator.resources import config_pattern, input_checksums, split_assets
 from generator.scene_spec import SPLITS
 
 RUN_FILE = "generate.json"
@@ -183,8 +183,10 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     if not (out / RUN_FILE).exists():
         dataset.write_dataset_file(out, RUN_FILE, json_bytes(record))
     assets = cached or split_assets(config, split, out)
+    # store_pattern found the file holding this pattern: its bytes now are the ones to check against
+    inputs = input_checksums(assets, pattern_file, sha256_file(pattern_file))
     return RenderJob(config, out, split, seed, assets.with_pattern(str(pattern_file), pattern.sha256),
-                     pattern_entry(pattern), software, blender)
+                     pattern_entry(pattern), software, blender, inputs)
 
 
 def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,

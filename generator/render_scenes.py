@@ -25,7 +25,7 @@ import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +35,9 @@ from dotsim.file_io import DiskFullError, atomic_write_bytes
 from dotsim.process_lifetime import die_with_parent, exec_dies_with_parent, stop_processes
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
+from generator.resources import check_inputs
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
-from generator.scene_spec import SceneSpec
+from generator.scene_spec import AssetMesh, SceneSpec
 
 LOG_DIR = "logs"
 RUN_IN_BLENDER = Path(__file__).resolve().parent / "blender" / "run_in_blender.py"
@@ -48,7 +49,9 @@ class RenderJob:
 
     out: the dataset folder (prepared: pattern stored, textures written); seed: the base seed;
     pattern_meta: the pattern entry recorded in every scene.json; versions: software versions
-    recorded there; blender: a Blender executable, or None for bpy as a module.
+    recorded there; blender: a Blender executable, or None for bpy as a module; inputs: path ->
+    recorded sha256 of the files a render reads (generator.resources.input_checksums), checked
+    before each scene is rendered.
     """
     config: Config
     out: Path
@@ -58,6 +61,7 @@ class RenderJob:
     pattern_meta: dict
     versions: dict
     blender: str | None
+    inputs: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -160,7 +164,21 @@ def read_raw_npz(path: Path, frame_count: int) -> list[dict[str, np.ndarray]]:
 
 
 def _sample(job: RenderJob, index: int) -> SceneSpec:
-    return sample_scene_spec(job.config, index, job.seed, job.split, job.resources)
+    """Scene `index`'s spec, once every input file it reads still has its recorded sha256."""
+    spec = sample_scene_spec(job.config, index, job.seed, job.split, job.resources)
+    check_inputs(job.inputs, spec_inputs(spec))
+    return spec
+
+
+def spec_inputs(spec: SceneSpec) -> list[str]:
+    """The files rendering `spec` reads: the pattern, the textures and the asset meshes."""
+    files = [spec.pattern.path]
+    for obj in spec.objects:
+        if obj.material.texture is not None:
+            files.append(obj.material.texture.path)
+        if isinstance(obj.mesh, AssetMesh):
+            files.append(obj.mesh.path)
+    return files
 
 
 def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> int:

@@ -414,6 +414,138 @@ def test_verify_checks_index_json_summary_fields_and_repair_rewrites_them(sealed
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
 
 
+# ----------------------------------------------------------------------------- inputs checked before use
+
+CACHE_MANIFEST = """
+[split]
+name = "train"
+clutter_density = 1.0
+
+[[meshes]]
+name = "blob"
+generator = "noise_displaced_sphere"
+seeds = [0, 4]
+params = { subdivisions = 2 }
+scale = [0.1, 0.3]
+license = "CC0-1.0"
+
+[[textures]]
+name = "noise"
+generator = "fractal_noise"
+seeds = [0, 2]
+params = { size = 64, octaves = 3 }
+scale = [0.2, 0.5]
+license = "CC0-1.0"
+"""
+
+
+@pytest.fixture(scope="module")
+def asset_cache(tmp_path_factory):
+    """A small train asset cache (4 meshes, 2 textures), its manifest, and a tiny config using it."""
+    from assets_manifest.cache import build_asset_cache
+    from assets_manifest.manifest import load_manifest
+
+    root = tmp_path_factory.mktemp("assets")
+    (root / "train.toml").write_text(CACHE_MANIFEST)
+    build_asset_cache(load_manifest(root / "train.toml"), root / "cache", "train", progress=False,
+                      log=lambda *args: None)
+    return root
+
+
+def copied_cache(asset_cache: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of the cache and a tiny config rendering from it: (cache, config)."""
+    shutil.copytree(asset_cache / "cache", tmp_path / "cache")
+    config = tmp_path / "cached.toml"
+    config.write_text(TINY.read_text() + '\n[assets]\nsource = "cache"\ncache_dir = "cache"\n')
+    return tmp_path / "cache", config
+
+
+def garble(path: Path) -> None:
+    """Zero 64 bytes in the middle of a file, as a bad disk or copy would."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 64] = bytes(64)
+    path.write_bytes(bytes(data))
+
+
+def generate_line(config: Path, out: Path, scenes: int, capsys) -> tuple[int, str]:
+    status = dotsim_main(["generate", "--config", str(config), "--out", str(out), "--split", "train",
+                          "--scenes", str(scenes), "--seed", "3", "--no-progress"])
+    return status, capsys.readouterr().err
+
+
+def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_path, capsys):
+    out = tmp_path / "textures"
+    shutil.copytree(sealed, out)
+    texture = sorted((out / TEXTURE_DIR).glob("*.png"))[1]
+    garble(texture)
+    for record in (True, False):  # textures/checksums.json, or a dataset from before it (no record)
+        if not record:
+            (out / TEXTURE_DIR / "checksums.json").unlink()
+        status, err = generate_line(TINY, out, SCENES + 1, capsys)
+        assert status == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"dotsim generate: error: {texture}: sha256 "), err
+        assert "differs from the " in err, err
+        assert not (out / "shard_00003").exists()
+
+
+def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
+                                                                                      capsys):
+    from generator.pipeline import prepare_run
+    from generator.render_scenes import _sample, render_scenes
+
+    cache, config = copied_cache(asset_cache, tmp_path)
+    texture = sorted((cache / "train" / "textures").glob("*.png"))[0]
+    original = texture.read_bytes()
+    garble(texture)
+    status, err = generate_line(config, tmp_path / "out", 1, capsys)
+    assert status == 2 and err.count("\n") == 1, err
+    assert f"asset file {texture} does not match its sha256 in the index" in err, err
+    # damaged after the run checked it (prepare_run) and before a render reads it: the scene fails
+    texture.write_bytes(original)
+    job = prepare_run(load_config(config), tmp_path / "out", "train", 3)
+    mesh = Path(next(p for p in map(Path, dataset_inputs(_sample(job, 0))) if p.suffix == ".npz"))
+    garble(mesh)
+    [result] = render_scenes(job, [0])
+    assert not result.ok and f"{mesh}: sha256 " in result.error, result.error
+    assert "recorded when it was made" in result.error
+    assert not dataset.is_scene_complete(tmp_path / "out", 0, 2)
+
+
+def dataset_inputs(spec) -> list[str]:
+    from generator.render_scenes import spec_inputs
+
+    return spec_inputs(spec)
+
+
+def test_assets_check_reports_every_garbled_mesh(asset_cache, tmp_path, capsys):
+    cache, _ = copied_cache(asset_cache, tmp_path)
+    meshes = sorted((cache / "train" / "meshes").glob("*.npz"))
+    for mesh in meshes:
+        garble(mesh)
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--train-manifest",
+                        str(asset_cache / "train.toml")]) == 1
+    out = capsys.readouterr().out
+    for mesh in meshes:
+        assert f"problem: asset file {mesh.resolve()} does not match its sha256 in the index" in out, out
+    assert f"assets check: {len(meshes)} problem(s)" in out or "problem(s)" in out
+
+
+def test_an_asset_cache_entry_missing_keys_is_one_line(asset_cache, tmp_path, capsys):
+    cache, config = copied_cache(asset_cache, tmp_path)
+    index_path = cache / "train" / "index.json"
+    index = json.loads(index_path.read_text())
+    del index["meshes"][1]["path"]
+    index_path.write_text(json.dumps(index))
+    status, err = generate_line(config, tmp_path / "out", 1, capsys)
+    assert status == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"asset cache index {index_path.resolve()}: meshes entry 1 ({index['meshes'][1]['id']}) lacks " \
+           "key(s) ['path']" in err, err
+    assert not (tmp_path / "out").exists()
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--train-manifest",
+                        str(asset_cache / "train.toml")]) == 1
+    assert "lacks key(s) ['path']" in capsys.readouterr().out
+
+
 # ----------------------------------------------------------------------------- a full disk
 
 
@@ -460,7 +592,7 @@ def test_full_disk_while_writing_the_builtin_textures(sealed, small_disk, capsys
     assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
                         "--scenes", "1", "--seed", "3", "--no-progress"]) == 1
     err = capsys.readouterr().err
-    assert_one_line_naming(err, out / TEXTURE_DIR / sorted((sealed / TEXTURE_DIR).iterdir())[0].name)
+    assert_one_line_naming(err, out / TEXTURE_DIR / sorted((sealed / TEXTURE_DIR).glob("*.png"))[0].name)
     assert not leftovers(small_disk)
 
 

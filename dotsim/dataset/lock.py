@@ -50,12 +50,15 @@ def writer_lock(dataset_dir: str | os.PathLike, what: str) -> Iterator[None]:
             if error.errno not in (errno.EACCES, errno.EAGAIN):
                 locked = False  # a filesystem without POSIX locks: go on unlocked
             else:
-                holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "a process starting up"
+                holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "pid not recorded"
                 raise DatasetBusyError(f"{root}: another writer holds this dataset ({holder}); wait for "
                                        f"it to end, or write elsewhere") from None
         if locked:
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"pid {os.getpid()}: {what}\n".encode(), 0)
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"pid {os.getpid()}: {what}\n".encode(), 0)
+            except OSError:  # a full disk: the lock holds all the same, the message lacks the pid
+                pass
         yield
     finally:
         os.close(fd)  # closing drops the lock
