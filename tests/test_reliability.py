@@ -4,6 +4,7 @@ fsync otherwise) reported in one line that names the file, leaving nothing half-
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
@@ -549,23 +550,32 @@ def test_an_asset_cache_entry_missing_keys_is_one_line(asset_cache, tmp_path, ca
 # ----------------------------------------------------------------------------- a full disk
 
 
-@pytest.fixture
-def small_disk(tmp_path):
-    """A real 8 MB tmpfs mounted at tmp_path / "disk" (root only), unmounted afterwards."""
-    mount = tmp_path / "disk"
+@contextlib.contextmanager
+def tmpfs(mount: Path, size: str):
+    """A real tmpfs of `size` mounted at `mount` (root only; else the test is skipped)."""
     mount.mkdir()
     if os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root; the fsync-level ENOSPC test still runs")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount)],
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)],
                           capture_output=True, text=True)
     if done.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-    yield mount
-    subprocess.run(["umount", str(mount)], check=True)
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=True)
 
 
-def fill(disk: Path) -> None:
-    """Fill the filesystem until a write fails with ENOSPC (a real full disk)."""
+@pytest.fixture
+def small_disk(tmp_path):
+    """A real 8 MB tmpfs mounted at tmp_path / "disk" (root only), unmounted afterwards."""
+    with tmpfs(tmp_path / "disk", "8m") as mount:
+        yield mount
+
+
+def fill(disk: Path, leave: int = 0) -> None:
+    """Fill the filesystem until a write fails with ENOSPC (a real full disk), then free `leave`
+    bytes again."""
     with open(disk / "filler", "wb") as stream:
         try:
             while True:
@@ -576,6 +586,8 @@ def fill(disk: Path) -> None:
     with pytest.raises(OSError):
         (disk / "probe").write_bytes(b"x")
     (disk / "probe").unlink(missing_ok=True)
+    if leave:
+        os.truncate(disk / "filler", (disk / "filler").stat().st_size - leave)
 
 
 def assert_one_line_naming(err: str, path: Path) -> None:
@@ -627,6 +639,42 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
     (small_disk / "filler").unlink()
     assert dotsim_main(["seal", str(out)]) == 0
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
+    """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
+    the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from trainer_fixtures import make_dataset
+
+    from trainer.train import load_checkpoint
+
+    data = make_dataset(tmp_path / "data", scenes=2)
+    tiny = (REPO / "configs" / "train_tiny.toml").read_text()
+    for steps in (2, 4):
+        (tmp_path / f"train_{steps}.toml").write_text(tiny.replace("max_steps = 200", f"max_steps = {steps}"))
+
+    def train(steps: int, *resume: str) -> int:
+        return dotsim_main(["train", "--config", str(tmp_path / f"train_{steps}.toml"), "--data", str(data),
+                            "--out", str(run), *resume])
+
+    with tmpfs(tmp_path / "disk", "40m") as disk:
+        run = disk / "run"
+        assert train(2) == 0
+        good = (run / "checkpoint.pt").read_bytes()
+        capsys.readouterr()
+        for leave, named in ((0, run / "tb"), (1 << 20, run / "checkpoint.pt")):
+            fill(disk, leave)  # nothing left; then room for TensorBoard's events, not for a checkpoint
+            assert train(4, "--resume") == 1
+            full = capsys.readouterr().err
+            err = full.splitlines()[-1]  # after the progress bar
+            assert "Traceback" not in full, full
+            assert err.startswith(f"dotsim train: error: {named}") and "no space left on device" in err, err
+            assert (run / "checkpoint.pt").read_bytes() == good
+            assert not list(disk.rglob(".tmp-*"))
+            (disk / "filler").unlink()
+        assert load_checkpoint(run / "checkpoint.pt")[0]["step"] == 2
+        assert train(4, "--resume") == 0
 
 
 def test_enospc_at_fsync_names_the_file_and_leaves_nothing(tmp_path, monkeypatch):
