@@ -12,6 +12,9 @@
   KeyboardInterrupt) like SIGINT does, so the run's own teardown (stop the workers, keep what is
   complete) runs for each.
 - `stop_processes(processes)`: terminate, wait briefly, then kill what is left.
+- `kill_tree_when_gone(pid)`: for process trees a library starts and does not tie to the run (a
+  local Ray cluster's raylet, agents and workers): a watcher process notes every process below
+  `pid` as it appears and kills them once `pid` has ended (Linux, from /proc).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import contextlib
 import ctypes
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -105,3 +109,54 @@ def stop_processes(processes: Iterable, grace_s: float = TERMINATE_GRACE_S) -> N
         if process.is_alive():
             process.kill()
             process.join(1.0)
+
+
+def _stat(pid: int) -> tuple[int, int] | None:
+    """(parent pid, start time in clock ticks) of a live, non-zombie process, or None."""
+    try:
+        text = open(f"/proc/{pid}/stat").read()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()
+    return None if fields[0] == "Z" else (int(fields[1]), int(fields[19]))
+
+
+def process_tree(pid: int) -> dict[int, int]:
+    """pid -> start time of every live process below `pid` (Linux /proc)."""
+    children: dict[int, list[tuple[int, int]]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit() and (stat := _stat(int(entry))):
+            children.setdefault(stat[0], []).append((int(entry), stat[1]))
+    found, todo = {}, [pid]
+    while todo:
+        for child, start in children.get(todo.pop(), []):
+            if child not in found:
+                found[child] = start
+                todo.append(child)
+    return found
+
+
+def kill_tree_when_gone(pid: int) -> subprocess.Popen | None:
+    """Start a watcher that kills every process below `pid` once `pid` has ended (its parent: call it
+    with os.getpid()); None off Linux. Stop the watcher (kill()) once the tree was shut down in order."""
+    if not sys.platform.startswith("linux"):
+        return None
+    package_root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [package_root,
+                                                                     os.environ.get("PYTHONPATH")]))}
+    return subprocess.Popen([sys.executable, "-c", f"from dotsim.process_lifetime import _watch_tree; "
+                             f"_watch_tree({pid})"], env=env, start_new_session=True,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def _watch_tree(pid: int) -> None:
+    known: dict[int, int] = {}
+    while os.getppid() == pid:  # re-parented: `pid` ended
+        known.update(process_tree(pid))
+        known.pop(os.getpid(), None)
+        time.sleep(PARENT_POLL_S)
+    for child, start in known.items():
+        stat = _stat(child)
+        if stat is not None and stat[1] == start:  # the same process, not a new one with its pid
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child, signal.SIGKILL)
