@@ -268,6 +268,17 @@ def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tup
     return proc.wait(timeout=seconds), text
 
 
+def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
+    """kill -9 of `dotsim generate --ray local` mid-scene: its cluster (raylet, agents, the workers
+    running tasks) is gone within 10 s."""
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    command = ["generate", "--config", str(TINY), "--out", str(out), "--split", "train", "--scenes",
+               str(SCENES), "--seed", "3", "--workers", "2", "--no-progress", "--ray", "local"]
+    status, _ = run_of(command, lambda proc: bool(list(out.glob("shard_*/.tmp-scene_*"))), signal.SIGKILL)
+    assert status == -signal.SIGKILL
+
+
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
 def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
     sys.path.insert(0, str(REPO / "tests"))
