@@ -157,9 +157,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "device can switch it (RealSense, OpenNI2), the same pose with it off (channels ir, ambient, "
         "visibility), and the device's own depth where it has one (channel device_depth, never "
         "ground truth). Auto exposure is switched off. scene.json records the device (model, "
-        "serial, stream), its exposure settings, and each frame's number and timestamp. Ctrl-C or "
-        "an unplugged device ends the recording and keeps every complete frame. A live preview "
-        "shows when a display and an OpenCV with windows are there.",
+        "serial, stream), its exposure settings, and each frame's number and timestamp. Ctrl-C, "
+        "SIGTERM, SIGHUP or an unplugged device ends the recording and keeps every complete frame. A "
+        "live preview shows when a display and an OpenCV with windows are there.",
     )
     _device_arguments(rec)
     rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
