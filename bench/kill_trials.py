@@ -39,6 +39,8 @@ import sys
 import time
 from pathlib import Path
 
+from dotsim.process_lifetime import process_status, process_tree
+
 REPO = Path(__file__).resolve().parents[1]
 CHECK = """
 import json, sys
@@ -68,36 +70,11 @@ def run(code: Path, out: Path, scenes: int, *extra: str) -> tuple[int, str]:
     return proc.returncode, text.strip().splitlines()[-1] if text.strip() else ""
 
 
-def _stat(pid: int) -> tuple[int, int] | None:
-    """(parent pid, start time) of a running (not zombie) process, from /proc; None when gone."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rindex(")") + 2:].split()
-    return None if fields[0] == "Z" else (int(fields[1]), int(fields[19]))
-
-
-def below(pid: int) -> dict[int, int]:
-    """pid -> start time of every running process below `pid`."""
-    children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit() and (stat := _stat(int(entry.name))):
-            children.setdefault(stat[0], []).append(int(entry.name))
-    found, todo = {}, [pid]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            if child not in found and (stat := _stat(child)):
-                found[child] = stat[1]
-                todo.append(child)
-    return found
-
-
 def orphans(processes: dict[int, int], wait_s: float = ORPHAN_WAIT_S) -> int:
     """How many of `processes` (pid -> start time) are still running after up to wait_s seconds."""
     deadline = time.monotonic() + wait_s
     while True:
-        left = [pid for pid, start in processes.items() if (_stat(pid) or (0, None))[1] == start]
+        left = [pid for pid, start in processes.items() if (process_status(pid) or (0, None))[1] == start]
         if not left or time.monotonic() > deadline:
             return len(left)
         time.sleep(0.1)
@@ -150,7 +127,7 @@ def kill_trial(code: Path, base: Path, out: Path, total: int, delay: float | Non
     else:
         time.sleep(delay)
     killed_at = time.perf_counter() - start
-    family = below(proc.pid)
+    family = process_tree(proc.pid)
     finished = proc.poll() is not None
     if not finished:
         os.kill(proc.pid, signal.SIGKILL)  # the main process alone, as `kill -9 PID`
@@ -173,7 +150,7 @@ def ray_worker_trial(code: Path, base: Path, out: Path, total: int, reference: d
     family: dict[int, int] = {}
     victim = None
     while proc.poll() is None:
-        family.update(below(proc.pid))
+        family.update(process_tree(proc.pid))
         if victim is None and list(out.glob("shard_*/.tmp-scene_*")):
             rendering = [pid for pid in family if "_render_task" in _cmdline(pid)]
             if rendering:

@@ -111,7 +111,7 @@ def stop_processes(processes: Iterable, grace_s: float = TERMINATE_GRACE_S) -> N
             process.join(1.0)
 
 
-def _stat(pid: int) -> tuple[int, int] | None:
+def process_status(pid: int) -> tuple[int, int] | None:
     """(parent pid, start time in clock ticks) of a live, non-zombie process, or None."""
     try:
         text = open(f"/proc/{pid}/stat").read()
@@ -125,7 +125,7 @@ def process_tree(pid: int) -> dict[int, int]:
     """pid -> start time of every live process below `pid` (Linux /proc)."""
     children: dict[int, list[tuple[int, int]]] = {}
     for entry in os.listdir("/proc"):
-        if entry.isdigit() and (stat := _stat(int(entry))):
+        if entry.isdigit() and (stat := process_status(int(entry))):
             children.setdefault(stat[0], []).append((int(entry), stat[1]))
     found, todo = {}, [pid]
     while todo:
@@ -156,7 +156,7 @@ def _watch_tree(pid: int) -> None:
         known.pop(os.getpid(), None)
         time.sleep(PARENT_POLL_S)
     for child, start in known.items():
-        stat = _stat(child)
+        stat = process_status(child)
         if stat is not None and stat[1] == start:  # the same process, not a new one with its pid
             with contextlib.suppress(ProcessLookupError):
                 os.kill(child, signal.SIGKILL)

@@ -428,38 +428,19 @@ def test_verify_checks_index_json_summary_fields_and_repair_rewrites_them(sealed
 
 # ----------------------------------------------------------------------------- inputs checked before use
 
-CACHE_MANIFEST = """
-[split]
-name = "train"
-clutter_density = 1.0
-
-[[meshes]]
-name = "blob"
-generator = "noise_displaced_sphere"
-seeds = [0, 4]
-params = { subdivisions = 2 }
-scale = [0.1, 0.3]
-license = "CC0-1.0"
-
-[[textures]]
-name = "noise"
-generator = "fractal_noise"
-seeds = [0, 2]
-params = { size = 64, octaves = 3 }
-scale = [0.2, 0.5]
-license = "CC0-1.0"
-"""
-
-
 @pytest.fixture(scope="module")
 def asset_cache(tmp_path_factory):
-    """A small train asset cache (4 meshes, 2 textures), its manifest, and a tiny config using it."""
+    """A small test-split asset cache (tests/test_generate.py's, with 3 meshes) and its manifest."""
     from assets_manifest.cache import build_asset_cache
     from assets_manifest.manifest import load_manifest
 
+    sys.path.insert(0, str(REPO / "tests"))
+    from test_generate import CACHE_MANIFEST
+
     root = tmp_path_factory.mktemp("assets")
-    (root / "train.toml").write_text(CACHE_MANIFEST)
-    build_asset_cache(load_manifest(root / "train.toml"), root / "cache", "train", progress=False,
+    assert CACHE_MANIFEST.count("seeds = [0, 1]") == 2  # meshes, then textures
+    (root / "test.toml").write_text(CACHE_MANIFEST.replace("seeds = [0, 1]", "seeds = [0, 3]", 1))
+    build_asset_cache(load_manifest(root / "test.toml"), root / "cache", "test", progress=False,
                       log=lambda *args: None)
     return root
 
@@ -479,8 +460,8 @@ def garble(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
-def generate_line(config: Path, out: Path, scenes: int, capsys) -> tuple[int, str]:
-    status = dotsim_main(["generate", "--config", str(config), "--out", str(out), "--split", "train",
+def generate_line(config: Path, out: Path, scenes: int, capsys, split: str = "train") -> tuple[int, str]:
+    status = dotsim_main(["generate", "--config", str(config), "--out", str(out), "--split", split,
                           "--scenes", str(scenes), "--seed", "3", "--no-progress"])
     return status, capsys.readouterr().err
 
@@ -506,15 +487,15 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
     from generator.render_scenes import _sample, render_scenes
 
     cache, config = copied_cache(asset_cache, tmp_path)
-    texture = sorted((cache / "train" / "textures").glob("*.png"))[0]
+    texture = sorted((cache / "test" / "textures").glob("*.png"))[0]
     original = texture.read_bytes()
     garble(texture)
-    status, err = generate_line(config, tmp_path / "out", 1, capsys)
+    status, err = generate_line(config, tmp_path / "out", 1, capsys, "test")
     assert status == 2 and err.count("\n") == 1, err
     assert f"asset file {texture} does not match its sha256 in the index" in err, err
     # damaged after the run checked it (prepare_run) and before a render reads it: the scene fails
     texture.write_bytes(original)
-    job = prepare_run(load_config(config), tmp_path / "out", "train", 3)
+    job = prepare_run(load_config(config), tmp_path / "out", "test", 3)
     mesh = Path(next(p for p in map(Path, dataset_inputs(_sample(job, 0))) if p.suffix == ".npz"))
     garble(mesh)
     [result] = render_scenes(job, [0])
@@ -531,30 +512,30 @@ def dataset_inputs(spec) -> list[str]:
 
 def test_assets_check_reports_every_garbled_mesh(asset_cache, tmp_path, capsys):
     cache, _ = copied_cache(asset_cache, tmp_path)
-    meshes = sorted((cache / "train" / "meshes").glob("*.npz"))
+    meshes = sorted((cache / "test" / "meshes").glob("*.npz"))
     for mesh in meshes:
         garble(mesh)
-    assert dotsim_main(["assets", "check", "--cache", str(cache), "--train-manifest",
-                        str(asset_cache / "train.toml")]) == 1
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--test-manifest",
+                        str(asset_cache / "test.toml")]) == 1
     out = capsys.readouterr().out
     for mesh in meshes:
         assert f"problem: asset file {mesh.resolve()} does not match its sha256 in the index" in out, out
-    assert f"assets check: {len(meshes)} problem(s)" in out or "problem(s)" in out
+    assert "problem(s)" in out
 
 
 def test_an_asset_cache_entry_missing_keys_is_one_line(asset_cache, tmp_path, capsys):
     cache, config = copied_cache(asset_cache, tmp_path)
-    index_path = cache / "train" / "index.json"
+    index_path = cache / "test" / "index.json"
     index = json.loads(index_path.read_text())
     del index["meshes"][1]["path"]
     index_path.write_text(json.dumps(index))
-    status, err = generate_line(config, tmp_path / "out", 1, capsys)
+    status, err = generate_line(config, tmp_path / "out", 1, capsys, "test")
     assert status == 2 and err.count("\n") == 1 and "Traceback" not in err, err
     assert f"asset cache index {index_path.resolve()}: meshes entry 1 ({index['meshes'][1]['id']}) lacks " \
            "key(s) ['path']" in err, err
     assert not (tmp_path / "out").exists()
-    assert dotsim_main(["assets", "check", "--cache", str(cache), "--train-manifest",
-                        str(asset_cache / "train.toml")]) == 1
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--test-manifest",
+                        str(asset_cache / "test.toml")]) == 1
     assert "lacks key(s) ['path']" in capsys.readouterr().out
 
 
