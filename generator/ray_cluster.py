@@ -9,9 +9,9 @@ already wrote; scene k depends only on (config, k, seed), so the bytes equal a l
 whose node dies is retried by Ray; a scene that raises is logged in DATASET/logs/ as in a local
 run; a full disk stops the run. The driver shows progress and seals the dataset.
 
-Nothing outlives the driver: Ray kills the tasks of a job whose driver is gone, and a cluster
-started for the run (--ray local) is killed with it (dotsim.process_lifetime.kill_tree_when_gone),
-however the driver ends.
+Nothing outlives the driver: a cluster started for the run (--ray local) is killed with it
+(dotsim.process_lifetime.kill_tree_when_gone), however the driver ends; on a running cluster Ray
+itself ends the tasks of a job whose driver is gone.
 """
 
 from __future__ import annotations
