@@ -8,7 +8,8 @@ a Ray worker killed mid-scene; and a damaged scene.
    --workers W` (--workers, default 2) and kills its main process alone with SIGKILL (as `kill -9
    PID` does, not its process group) at a random moment (uniform over the time a whole extension
    takes; --during-seal trials wait for the last scene folder and kill 0-300 ms later, inside or
-   around the seal). Just before the kill it notes every process below the main one (workers,
+   around the seal; a run that ended before its moment is started again with half the delay, up to
+   KILL_ATTEMPTS times). Just before the kill it notes every process below the main one (workers,
    the resource tracker) and counts those still running 10 s after the kill: the orphans. It
    records what the kill left (complete scenes, scenes index.json lists, whether
    open_dataset(verify=True) passes), reruns the same command to completion, and checks: exit
@@ -54,6 +55,7 @@ except Exception as error:
 
 
 ORPHAN_WAIT_S = 10.0
+KILL_ATTEMPTS = 4
 
 
 def generate(code: Path, out: Path, scenes: int, *extra: str, **popen) -> subprocess.Popen:
@@ -115,29 +117,33 @@ def index_scenes(root: Path) -> int | None:
 
 def kill_trial(code: Path, base: Path, out: Path, total: int, delay: float | None, rng: random.Random,
                reference: dict, workers: int) -> dict:
-    shutil.rmtree(out, ignore_errors=True)
-    shutil.copytree(base, out)
-    proc = generate(code, out, total, "--workers", str(workers))
-    start = time.perf_counter()
-    if delay is None:  # wait for the last scene, then kill in or around the seal
-        last = out / f"shard_{(total - 1) // 2:05d}" / f"scene_{total - 1:07d}"
-        while not last.exists() and proc.poll() is None:
-            time.sleep(0.002)
-        time.sleep(rng.uniform(0.0, 0.3))
-    else:
-        time.sleep(delay)
-    killed_at = time.perf_counter() - start
-    family = process_tree(proc.pid)
-    finished = proc.poll() is not None
-    if not finished:
-        os.kill(proc.pid, signal.SIGKILL)  # the main process alone, as `kill -9 PID`
-    proc.wait()
+    for attempt in range(KILL_ATTEMPTS):  # a run that ended before its kill is tried again, sooner
+        shutil.rmtree(out, ignore_errors=True)
+        shutil.copytree(base, out)
+        proc = generate(code, out, total, "--workers", str(workers))
+        start = time.perf_counter()
+        if delay is None:  # wait for the last scene, then kill in or around the seal
+            last = out / f"shard_{(total - 1) // 2:05d}" / f"scene_{total - 1:07d}"
+            while not last.exists() and proc.poll() is None:
+                time.sleep(0.002)
+            time.sleep(rng.uniform(0.0, 0.3 / 2 ** attempt))
+        else:
+            time.sleep(delay / 2 ** attempt)
+        killed_at = time.perf_counter() - start
+        family = process_tree(proc.pid)
+        finished = proc.poll() is not None
+        if not finished:
+            os.kill(proc.pid, signal.SIGKILL)  # the main process alone, as `kill -9 PID`
+        proc.wait()
+        if not finished:
+            break
     left_running = orphans(family)
     left = {"complete": complete(out), "index": index_scenes(out), "opens": opened(code, out)["ok"],
             "leftovers": len(list(out.rglob(".tmp-*")))}
     code_rerun, last_line = run(code, out, total, "--workers", str(workers))
     after, ok = checked(code, out, total, reference)
-    return {"killed_at": round(killed_at, 2), "finished_before_kill": finished, "processes": len(family),
+    return {"killed_at": round(killed_at, 2), "finished_before_kill": finished, "attempts": attempt + 1,
+            "processes": len(family),
             "orphans": left_running, "left": left, "rerun_exit": code_rerun, "rerun": last_line, **after,
             "ok": ok and code_rerun == 0 and left_running == 0}
 
@@ -224,11 +230,13 @@ def main(argv: list[str] | None = None) -> int:
     damaged_ok = status == 0 and frame_sums(trial_dir) == reference and opened(code, trial_dir)["ok"]
     print(f"damaged scene rerun: exit {status}: {line}; byte-identical and opens: {damaged_ok}")
     good = sum(r["ok"] for r in results)
-    kills = [r for r in results if "left" in r]
+    kills = [r for r in results if "left" in r and not r["finished_before_kill"]]
     stale = sum(1 for r in kills if not r["left"]["opens"] or r["left"]["index"] != r["left"]["complete"])
     orphaned = sum(r["orphans"] for r in results)
-    print(f"summary: {good} of {len(results)} trials right ({len(kills)} kills -9 of the main process, "
-          f"{len(results) - len(kills)} --ray local with a worker killed mid-scene); {orphaned} orphaned "
+    ray = [r for r in results if "left" not in r]
+    print(f"summary: {good} of {len(results)} trials right ({len(kills)} kills -9 of a running main process, "
+          f"{sum(r['killed_worker'] for r in ray)} --ray local runs with a worker killed mid-scene); "
+          f"{orphaned} orphaned "
           f"process(es) {ORPHAN_WAIT_S:.0f} s after a kill or a run's end, over "
           f"{sum(r['processes'] for r in results)} processes the runs had; {stale} kill(s) left a stale or "
           f"broken seal before the rerun; damaged scene redone: {damaged_ok}")
