@@ -2,9 +2,11 @@
 
 `generate()` validates everything before it writes anything (config values, output directory,
 Blender executable, an existing dataset's config), then:
-  1. gets the dataset folder ready (`prepare_run`): removes partial scenes left by a crashed run,
-     writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
-     textures it needs (generator/resources.py);
+  1. gets the dataset folder ready (`prepare_run`): takes its writer lock (dotsim.dataset.lock; a
+     second local writer is refused naming the holder), removes partial scenes left by a crashed
+     run, writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
+     textures it needs (generator/resources.py), and notes the sha256 of every input file a render
+     reads, which each worker checks before it renders a scene;
   2. skips complete scenes (resume), removes damaged ones (a frame deleted after the fact) and
      renders them with the others in W spawned worker processes
      (generator/render_scenes.py: sample, render, post-render, write each scene atomically; a
