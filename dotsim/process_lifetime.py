@@ -121,6 +121,16 @@ def process_status(pid: int) -> tuple[int, int] | None:
     return None if fields[0] == "Z" else (int(fields[1]), int(fields[19]))
 
 
+def is_zombie(pid: int) -> bool:
+    """True for a process that has ended and is not yet reaped (it runs and writes nothing): after a
+    kill -9, a worker re-parented to an init that reaps slowly stays one for a while (Linux)."""
+    try:
+        text = open(f"/proc/{pid}/stat").read()
+    except OSError:
+        return False
+    return text[text.rindex(")") + 2] == "Z"
+
+
 def process_tree(pid: int) -> dict[int, int]:
     """pid -> start time of every live process below `pid` (Linux /proc)."""
     children: dict[int, list[tuple[int, int]]] = {}
