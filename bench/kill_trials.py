@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.util
 import json
 import os
 import random
@@ -194,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="render workers of each run (default 2)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    if args.ray_trials and importlib.util.find_spec("ray") is None:
+        print('no ray here (pip install "dotsim[ray]"): the --ray local trials are left out')
+        args.ray_trials = 0
     code, total = args.code.resolve(), args.base + args.extra
     args.out.mkdir(parents=True, exist_ok=True)
     base, reference_dir, trial_dir = args.out / "base", args.out / "reference", args.out / "trial"
