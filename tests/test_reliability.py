@@ -633,6 +633,8 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
 
 
+# TensorBoard's writer thread meets the full disk first: its traceback must not reach the user either.
+@pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
     """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
     the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""

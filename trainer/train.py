@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -121,6 +122,13 @@ def disk_full_in(run_dir: str | Path):
     OSError (TensorBoard's event file, written by a thread of its own) becomes the one-line
     DiskFullError every dotsim command prints. Checkpoints are written atomically, so the last good
     one stays."""
+    previous = threading.excepthook
+
+    def quiet(args) -> None:  # TensorBoard's writer thread: its error is raised again in this one
+        if not is_disk_full(args.exc_value):
+            previous(args)
+
+    threading.excepthook = quiet
     try:
         yield
     except DiskFullError:
@@ -130,6 +138,7 @@ def disk_full_in(run_dir: str | Path):
             raise
         raise disk_full_error(Path(error.filename or Path(run_dir) / "tb"), None) from None
     finally:
+        threading.excepthook = previous
         for bar in list(tqdm._instances):  # the message starts a line of its own, not the bar's
             bar.close()
 
