@@ -89,7 +89,8 @@ def default_manifest_path(split: str) -> Path:
     return MANIFEST_DIR / f"{split}.toml"
 
 
-def _index_path(cache_dir: str | Path, split: str) -> Path:
+def cache_index_path(cache_dir: str | Path, split: str) -> Path:
+    """Where the index.json of a split's cache lives."""
     return Path(cache_dir) / split / "index.json"
 
 
@@ -99,7 +100,7 @@ def _rebuild_hint(cache_dir, split) -> str:
 
 def read_index(cache_dir: str | Path, split: str) -> dict:
     """The parsed index.json of a split; AssetCacheError if missing, unreadable or incomplete."""
-    path = _index_path(cache_dir, split)
+    path = cache_index_path(cache_dir, split)
     hint = _rebuild_hint(cache_dir, split)
     if not path.is_file():
         raise AssetCacheError(f"no asset cache index at {path}: {hint}")
@@ -117,22 +118,56 @@ def read_index(cache_dir: str | Path, split: str) -> dict:
     return index
 
 
+# What each mesh and texture entry of index.json must hold, and of which JSON type.
+ENTRY_KEYS = {"id": str, "kind": str, "path": str, "scale_hint": list, "sha256": str, "content_sha256": str,
+              "license": str, "source": dict}
+
+
+def _check_entry(entry, where: str, hint: str) -> None:
+    """AssetCacheError naming the entry and the keys it lacks (or holds of the wrong type)."""
+    if not isinstance(entry, dict):
+        raise AssetCacheError(f"{where} is not an object: {hint}")
+    missing = [key for key in ENTRY_KEYS if key not in entry]
+    wrong = [key for key, kind in ENTRY_KEYS.items() if key in entry and not isinstance(entry[key], kind)]
+    if missing or wrong:
+        what = (f"lacks key(s) {missing}" if missing else "") + (" and " if missing and wrong else "") + \
+               (f"has key(s) {wrong} of the wrong type" if wrong else "")
+        raise AssetCacheError(f"{where} {what} (needs {', '.join(ENTRY_KEYS)}): {hint}")
+
+
+def asset_file_problem(path: Path, sha256: str) -> str | None:
+    """Why a cached file cannot be used (missing, or not the bytes its index entry records), or None."""
+    if not path.is_file():
+        return f"asset file {path} listed in {path.parents[1] / 'index.json'} is missing"
+    if sha256_file(path) != sha256:
+        return f"asset file {path} does not match its sha256 in the index (changed or corrupt)"
+    return None
+
+
 def load_asset_cache(cache_dir: str | Path, split: str, verify: bool = False) -> AssetCache:
-    """The built assets of `split` under `cache_dir`. Checks that every listed file exists (and with
-    `verify`, that its sha256 matches); raises AssetCacheError naming the index or file and the
-    command that rebuilds it."""
+    """The built assets of `split` under `cache_dir`. Checks that every index entry holds the keys
+    it needs and every listed file exists (and with `verify`, that its sha256 matches); raises
+    AssetCacheError naming the index, entry or file and the command that rebuilds it."""
     index = read_index(cache_dir, split)
-    root = _index_path(cache_dir, split).parent.resolve()
+    root = cache_index_path(cache_dir, split).parent.resolve()
     hint = _rebuild_hint(cache_dir, split)
+    if not isinstance(index.get("clutter_density"), int | float):
+        raise AssetCacheError(f"asset cache index {root / 'index.json'} lacks a number clutter_density: "
+                              f"{hint}")
     lists = {}
     for key in ("meshes", "textures"):
         entries = []
-        for e in index.get(key, []):
+        listed = index.get(key, [])
+        if not isinstance(listed, list):
+            raise AssetCacheError(f"asset cache index {root / 'index.json'}: {key} is not a list: {hint}")
+        for number, e in enumerate(listed):
+            _check_entry(e, f"asset cache index {root / 'index.json'}: {key} entry {number}"
+                            f"{' (' + str(e['id']) + ')' if isinstance(e, dict) and 'id' in e else ''}", hint)
             path = root / e["path"]
-            if not path.is_file():
-                raise AssetCacheError(f"asset file {path} listed in {root / 'index.json'} is missing: {hint}")
-            if verify and sha256_file(path) != e["sha256"]:
-                raise AssetCacheError(f"asset file {path} does not match its sha256 in the index: {hint}")
+            if not path.is_file() or verify:
+                problem = asset_file_problem(path, e["sha256"])
+                if problem:
+                    raise AssetCacheError(f"{problem}: {hint}")
             entries.append(
                 AssetEntry(
                     e["id"],

@@ -7,7 +7,9 @@ from pathlib import Path
 from assets_manifest.cache import (
     DEFAULT_CACHE_DIR,
     AssetCacheError,
+    asset_file_problem,
     build_asset_cache,
+    cache_index_path,
     default_manifest_path,
     load_asset_cache,
 )
@@ -64,21 +66,32 @@ def _check(args) -> int:
     indexes = {}
     for split in SPLITS:
         try:
-            cache = load_asset_cache(args.cache, split, verify=True)
+            # Every file is checked below, each mismatch its own problem (verify=True stops at the first).
+            cache = load_asset_cache(args.cache, split, verify=False)
         except AssetCacheError as exc:
-            print(f"note: {exc}")
+            if cache_index_path(args.cache, split).exists():
+                problems.append(str(exc))  # a cache that is there but cannot be used
+            else:
+                print(f"note: {exc}")  # a split not built
             continue
         indexes[split] = cache.index
+        damaged = set()
+        for entry in cache.meshes + cache.textures:
+            problem = asset_file_problem(Path(entry.path), entry.sha256)
+            if problem:
+                problems.append(problem)
+                damaged.add(entry.path)
         if split in manifests and cache.index["manifest"]["sha256"] != manifests[split].sha256:
             problems.append(
                 f"cache {cache.root} was built from another manifest: rebuild with "
                 f"`dotsim assets build --split {split} --cache {args.cache}`"
             )
         for entry in cache.meshes:
-            reason = _validate_mesh_file(entry.path)
+            reason = None if entry.path in damaged else _validate_mesh_file(entry.path)
             if reason:
                 problems.append(f"{entry.path}: {reason}")
-        print(f"{split}: {len(cache.meshes)} meshes, {len(cache.textures)} textures verified in {cache.root}")
+        print(f"{split}: {len(cache.meshes)} meshes, {len(cache.textures)} textures checked in {cache.root}"
+              f"{f' ({len(damaged)} damaged)' if damaged else ''}")
     if len(manifests) == 2:
         problems += find_overlaps(
             manifests["train"], manifests["test"], indexes.get("train"), indexes.get("test")

@@ -179,9 +179,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "device can switch it (RealSense, OpenNI2), the same pose with it off (channels ir, ambient, "
         "visibility), and the device's own depth where it has one (channel device_depth, never "
         "ground truth). Auto exposure is switched off. scene.json records the device (model, "
-        "serial, stream), its exposure settings, and each frame's number and timestamp. Ctrl-C or "
-        "an unplugged device ends the recording and keeps every complete frame. A live preview "
-        "shows when a display and an OpenCV with windows are there.",
+        "serial, stream), its exposure settings, and each frame's number and timestamp. Ctrl-C, "
+        "SIGTERM, SIGHUP or an unplugged device ends the recording and keeps every complete frame. A "
+        "live preview shows when a display and an OpenCV with windows are there.",
     )
     _device_arguments(rec)
     rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
@@ -415,7 +415,7 @@ def _record(args: argparse.Namespace) -> int:
     if summary["stopped"]:
         print(f"dotsim capture record: stopped: {summary['stopped']}; kept every complete frame: {kept}",
               file=sys.stderr)
-        return 130 if "Ctrl-C" in summary["stopped"] else 1
+        return 128 + summary["signal"] if summary["signal"] else 1
     print(f"recorded {kept}")
     return 0
 

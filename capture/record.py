@@ -4,14 +4,16 @@ stores real frames (docs/CAPTURE.md "Recording").
 Per pose: a projector-on frame and, where the device can switch its projector, a projector-off
 frame of the same pose; the device's own depth (of the on frame) where it has one, stored as the
 channel `device_depth`, never as `depth` (ground truth). A scene is written atomically when its
-frames are complete. Ctrl-C or a device that stops giving frames ends the recording: the frames
+frames are complete. Ctrl-C, SIGTERM or SIGHUP (under dotsim.process_lifetime.stop_signals, as
+`dotsim capture record` runs) or a device that stops giving frames ends the recording: the frames
 already complete are kept (the last scene may have fewer frames), the dataset is sealed and the
-summary says what was kept.
+summary says what was kept. The recording holds the dataset's writer lock (dotsim.dataset.lock).
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -24,6 +26,7 @@ from capture.frames import CaptureError
 from capture.import_frames import scene_meta
 from capture.rectify import Rectifier, rectifier
 from dotsim import dataset, pattern_store
+from dotsim.dataset.lock import writer_lock
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
 from dotsim.rig_files import Lens
@@ -116,8 +119,9 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     The rig's camera must have the stream's size. pause_s: seconds between poses (to move the sensor
     or the scene). white_level: the raw value stored as 1.0 (default: the device's full scale).
     Returns a summary: dataset, scenes, frames, channels, stopped (None, or why the recording ended
-    early: the frames recorded until then are kept). lens: the calibrated camera (its distortion is
-    rectified away; capture.rectify).
+    early: the frames recorded until then are kept), signal (the number of the signal that stopped
+    it: SIGINT for Ctrl-C; else None). lens: the calibrated camera (its distortion is rectified
+    away; capture.rectify).
     """
     for name, value in (("--scenes", scenes), ("--frames", frames_per_scene)):
         if int(value) != value or value < 1:
@@ -137,8 +141,15 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     if pattern is not None and pattern.image.shape != (rig.projector.height, rig.projector.width):
         raise CaptureError(f"pattern {pattern.source} is {pattern.width} x {pattern.height} px but rig "
                            f"{rig.name!r} projector is {rig.projector.width} x {rig.projector.height} px")
-    if out_dir.exists():
-        dataset.remove_partial_scenes(out_dir)
+    with writer_lock(out_dir, "dotsim capture record"):
+        return _record(device, rig, out_dir, scenes, frames_per_scene, split, settle, pause_s, white_level,
+                       pattern, dot_window, visibility_threshold, scenes_per_shard, progress, preview)
+
+
+def _record(device: Device, rig: Rig, out_dir: Path, scenes: int, frames_per_scene: int, split: str,
+            settle: int, pause_s: float, white_level: float, pattern: DotPattern | None, dot_window: int,
+            visibility_threshold: float, scenes_per_shard: int, progress: bool, preview: bool) -> dict:
+    dataset.remove_partial_scenes(out_dir)
     pattern_entry = None
     if pattern is not None:
         pattern_store.store_pattern(out_dir, pattern)
@@ -157,7 +168,7 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
         bar = tqdm(total=scenes * frames_per_scene, desc=f"recording {device.name}", unit="pose")
     written = frames_kept = 0
     pending: list[tuple[dict, dict]] = []
-    stopped = None
+    stopped = signum = None
 
     def write(scene_index: int) -> None:
         nonlocal written, frames_kept
@@ -181,8 +192,9 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
                 if bar is not None:
                     bar.update()
             write(scene_index)
-    except KeyboardInterrupt:
-        stopped = "interrupted (Ctrl-C)"
+    except KeyboardInterrupt as stop:  # Ctrl-C, or dotsim.process_lifetime.Stopped (SIGTERM, SIGHUP)
+        signum = getattr(stop, "signum", signal.SIGINT)
+        stopped = str(stop) if signum != signal.SIGINT else "interrupted (Ctrl-C)"
     except DeviceError as error:  # unplugged (DeviceGone), or a projector that stopped switching
         stopped = str(error)
     finally:
@@ -194,4 +206,4 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     if written:
         dataset.seal_dataset(out_dir)
     return {"dataset": str(out_dir), "scenes": written, "frames": frames_kept, "stopped": stopped,
-            "channels": list(channels)}
+            "channels": list(channels), "signal": signum}

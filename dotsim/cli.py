@@ -6,6 +6,7 @@ import sys
 
 from dotsim import __version__
 from dotsim.file_io import DiskFullError
+from dotsim.process_lifetime import Stopped, stop_signals
 
 # Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int` and may
 # set `errors`, {error type: exit status}: the errors its command expects (bad input named in the
@@ -43,7 +44,12 @@ def main(argv: list[str] | None = None) -> int:
     # atomic writer left nothing half-written behind.
     errors = {DiskFullError: 1, **getattr(args, "errors", {})}
     try:
-        return int(args.func(args) or 0)
+        # SIGTERM and SIGHUP stop a command as Ctrl-C does: its workers are stopped, never orphaned.
+        with stop_signals():
+            return int(args.func(args) or 0)
+    except Stopped as stop:
+        print(f"dotsim {args.command}: {stop}", file=sys.stderr)
+        return 128 + stop.signum
     except tuple(errors) as error:
         print(f"dotsim {args.command}: error: {error}", file=sys.stderr)
         return next(status for kind, status in errors.items() if isinstance(error, kind))

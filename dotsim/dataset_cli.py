@@ -4,21 +4,26 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from dotsim.dataset import FormatError, repair_dataset, seal_dataset, verify_dataset
+from dotsim.dataset.lock import writer_lock
 from dotsim.dataset.verify import format_indices
 
 VERIFY_DESCRIPTION = """\
 Check a dataset end to end, as after copying it between machines or after a crash: every frame
-against the sha256 its scene.json recorded at write time, every scene against its shard.json,
-every shard.json and dataset-level file against index.json, and the seal against the scene
-folders on disk. Prints one line per problem, naming the file; exit status 1 when any.
+against the sha256 its scene.json recorded at write time, every scene.json against its entry in
+shard.json, every shard.json and dataset-level file against index.json, index.json's counts and
+versions against the shard.json files, and the seal against the scene folders on disk. Only
+checksums are trusted. Prints one line per problem, naming the file; exit status 1 when any.
 
-With --repair: removes the damaged scenes (a frame missing or corrupt, scene.json missing or
-invalid) and the leftovers of crashed writers, and seals again, so that rerunning the same
-`dotsim generate` command renders exactly the removed scenes. A dataset-level file that no longer
-matches index.json is not repaired (restore it; pattern.png and generate.json may be deleted
-instead, `dotsim generate` writes them again from its config).
+With --repair: removes what differs from its seal and seals again from what is intact: damaged
+scenes (a frame missing or corrupt, scene.json missing, invalid or changed after it was sealed),
+shard.json files index.json does not vouch for (derived again from the scenes' own checksums)
+and the leftovers of crashed writers, so that rerunning the same `dotsim generate` command
+renders exactly the removed scenes. It never hashes a changed file into the seal. A dataset-level
+file that no longer matches index.json is not repaired (restore it; pattern.png and generate.json
+may be deleted instead, `dotsim generate` writes them again from its config).
 """
 
 SEAL_DESCRIPTION = """\
@@ -48,6 +53,14 @@ def add_parser(subparsers) -> None:
 
 
 def _verify(args: argparse.Namespace) -> int:
+    if args.repair and Path(args.dataset).is_dir():
+        # repair removes scenes: no generate may be writing them meanwhile
+        with writer_lock(args.dataset, "dotsim verify --repair"):
+            return _verify_and_repair(args)
+    return _verify_and_repair(args)
+
+
+def _verify_and_repair(args: argparse.Namespace) -> int:
     report = verify_dataset(args.dataset)
     for problem in report.problems:
         print(problem.line())
@@ -63,7 +76,8 @@ def _verify(args: argparse.Namespace) -> int:
         return 1
     repair = repair_dataset(report)
     redo = report.damaged_scenes
-    print(f"repair: removed {len(repair.removed_scenes)} damaged scene(s) and "
+    shard_files = f", {len(repair.removed_shard_files)} shard.json" if repair.removed_shard_files else ""
+    print(f"repair: removed {len(repair.removed_scenes)} damaged scene(s){shard_files} and "
           f"{len(repair.removed_leftovers)} leftover(s)")
     if repair.seal is None:
         print("repair: not sealed, a dataset-level file no longer matches index.json (listed above); "

@@ -66,14 +66,18 @@ def _size_text(n: int) -> str:
     return f"{n} bytes"
 
 
-def disk_full_error(path: str | os.PathLike, needed: int, exact: bool = True) -> DiskFullError:
-    """The DiskFullError for a write of `needed` bytes to `path` (`exact` False: at least that many)."""
+def disk_full_error(path: str | os.PathLike, needed: int | None, exact: bool = True) -> DiskFullError:
+    """The DiskFullError for a write of `needed` bytes to `path` (`exact` False: at least that many;
+    None: a write of unknown size, by a library that does not say)."""
     path = Path(path)
     try:
         free = f"{_size_text(shutil.disk_usage(path.parent).free)} free"
     except OSError:
         free = "free space unknown"
-    amount = _size_text(needed) if exact else f"more than {_size_text(needed)}"
+    if needed is None:
+        amount = "more space"
+    else:
+        amount = _size_text(needed) if exact else f"more than {_size_text(needed)}"
     return DiskFullError(f"{path}: no space left on device: writing it needs {amount}, {free} on "
                          f"{path.parent}; free some space and rerun")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from dotsim.dataset import FormatError
@@ -21,7 +22,11 @@ stops the run with a message naming the file, key and value. Rerunning the same 
 complete scenes are skipped, half-written and damaged ones (a frame deleted) are redone, and the
 dataset is sealed again (shard.json, index.json; `dotsim verify DIR` checks every checksum). A
 failing scene is logged in DIR/logs/ and the run goes on; the exit status is 1 when any scene
-failed or the disk is full, 2 on a config error.
+failed or the disk is full, 2 on a config error. Every input a render reads (textures, meshes,
+pattern) is checked against its recorded sha256 first. One writer per DIR: a second run into it
+is refused, naming the first one's pid (--no-seal range tasks take no lock). The render workers
+never outlive the run: Ctrl-C, SIGTERM and SIGHUP stop them (exit status 128 + the signal), and
+a run killed outright (kill -9) takes them with it.
 
 Past one machine (docs/SCALE.md): --ray renders on a Ray cluster (one task per two scenes, retried
 when a node dies); --slurm submits a Slurm job array (one task per range of scenes, each the same
@@ -199,7 +204,9 @@ def _run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     try:
         return _run(args)
-    except KeyboardInterrupt:
-        print("dotsim generate: interrupted; complete scenes are kept, rerun the same command to resume",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as stop:  # Ctrl-C, or SIGTERM / SIGHUP (dotsim.process_lifetime.Stopped)
+        signum = getattr(stop, "signum", signal.SIGINT)
+        what = str(stop) if signum != signal.SIGINT else "interrupted"
+        print(f"dotsim generate: {what}; workers stopped, complete scenes are kept, rerun the same "
+              "command to resume", file=sys.stderr)
+        return 128 + signum

@@ -2,9 +2,11 @@
 
 `generate()` validates everything before it writes anything (config values, output directory,
 Blender executable, an existing dataset's config), then:
-  1. gets the dataset folder ready (`prepare_run`): removes partial scenes left by a crashed run,
-     writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
-     textures it needs (generator/resources.py);
+  1. gets the dataset folder ready (`prepare_run`): takes its writer lock (dotsim.dataset.lock; a
+     second local writer is refused naming the holder), removes partial scenes left by a crashed
+     run, writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
+     textures it needs (generator/resources.py), and notes the sha256 of every input file a render
+     reads, which each worker checks before it renders a scene;
   2. skips complete scenes (resume), removes damaged ones (a frame deleted after the fact) and
      renders them with the others in W spawned worker processes
      (generator/render_scenes.py: sample, render, post-render, write each scene atomically; a
@@ -19,6 +21,7 @@ Scene k is sampled from (config, k, base seed) alone, so the output does not dep
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import json
 import os
@@ -35,12 +38,13 @@ from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
-from dotsim.dataset.seal import seal_shard
-from dotsim.file_io import json_bytes
+from dotsim.dataset.lock import writer_lock
+from dotsim.dataset.seal import seal_shard, vouched_shards
+from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
 from generator.config import Config, ConfigError, check_output_dir
 from generator.render_scenes import LOG_DIR, RUN_IN_BLENDER, RenderJob, SceneResult, render_pool
-from generator.resources import config_pattern, split_assets
+from generator.resources import config_pattern, input_checksums, split_assets
 from generator.scene_spec import SPLITS
 
 RUN_FILE = "generate.json"
@@ -131,7 +135,8 @@ def check_blender(blender: str | None) -> str | None:
 
 
 def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 0,
-                blender: str | None = None, backend=None, own: range | None = None) -> RenderJob:
+                blender: str | None = None, backend=None, own: range | None = None,
+                hold: contextlib.ExitStack | None = None) -> RenderJob:
     """Check a run and get its dataset folder `out` ready; the RenderJob that renders its scenes.
 
     Raises ConfigError before anything is written when an argument, the output directory, the
@@ -143,6 +148,8 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     own: the scenes this run writes while other runs write other ranges into `out` at the same time
     (a Slurm array task; the Slurm driver passes an empty range): only their half-written scenes are
     removed, whatever machine left them. None: every leftover of a writer not running here.
+    hold: where the dataset's writer lock (dotsim.dataset.lock) is entered, before anything is
+    written, for as long as the caller keeps it; DatasetBusyError when another writer holds it.
     """
     if split not in SPLITS:
         raise ConfigError(f"--split {split!r}: allowed: train or test")
@@ -165,6 +172,8 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
         backend.start(out, config)
 
     out.mkdir(parents=True, exist_ok=True)
+    if hold is not None:
+        hold.enter_context(writer_lock(out, "dotsim generate"))
     if own is None:
         dataset.remove_partial_scenes(out)
     elif own:
@@ -176,8 +185,10 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     if not (out / RUN_FILE).exists():
         dataset.write_dataset_file(out, RUN_FILE, json_bytes(record))
     assets = cached or split_assets(config, split, out)
+    # store_pattern found the file holding this pattern: its bytes now are the ones to check against
+    inputs = input_checksums(assets, pattern_file, sha256_file(pattern_file))
     return RenderJob(config, out, split, seed, assets.with_pattern(str(pattern_file), pattern.sha256),
-                     pattern_entry(pattern), software, blender)
+                     pattern_entry(pattern), software, blender, inputs)
 
 
 def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
@@ -200,9 +211,17 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1)):
         if not isinstance(value, int) or isinstance(value, bool) or value < low:
             raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
+    # One writer per dataset folder, except the runs of disjoint ranges a cluster starts (seal=False).
+    with contextlib.ExitStack() as hold:
+        return _generate(config, out, split, range(start, start + scenes), workers, seed, blender, progress,
+                         seal, backend, hold if seal else None)
+
+
+def _generate(config: Config, out: str | os.PathLike, split: str, indices: range, workers: int, seed: int,
+              blender: str | None, progress: bool, seal: bool, backend, hold) -> RunSummary:
     began = time.perf_counter()
-    indices = range(start, start + scenes)
-    job = prepare_run(config, out, split, seed, blender, backend, own=None if seal else indices)
+    start, scenes = indices.start, len(indices)
+    job = prepare_run(config, out, split, seed, blender, backend, own=None if seal else indices, hold=hold)
     out = job.out
 
     spp = config.output.scenes_per_shard
@@ -210,6 +229,7 @@ def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     # A final scene folder only ever appears complete, so one that is not was damaged after the
     # fact (a frame deleted, a bad copy): remove it and render it again.
     damaged = [i for i in todo if dataset.remove_scene(out, i, spp)]
+    _unseal(out, todo, spp)
     summary = RunSummary(out=out, skipped=scenes - len(todo), redone=damaged)
     batch = 1 if job.blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
     batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
@@ -260,17 +280,35 @@ def seal_run(config: Config, out: str | os.PathLike, split: str, scenes: int, st
     if not (out / RUN_FILE).is_file():
         raise ConfigError(f"--out {out}: no {RUN_FILE} (no dataset was started here); check --out")
     _check_existing_run(out, _run_record(config, split, seed))
-    dataset.remove_partial_scenes(out, include_live=True)
-    spp = config.output.scenes_per_shard
-    summary = RunSummary(out=out)
-    for index in range(start, start + scenes):
-        if dataset.is_scene_complete(out, index, spp):
-            summary.skipped += 1
-        else:
-            summary.failed.append(index)
-    _seal(summary)
+    with writer_lock(out, "dotsim generate --seal-only"):
+        dataset.remove_partial_scenes(out, include_live=True)
+        spp = config.output.scenes_per_shard
+        summary = RunSummary(out=out)
+        for index in range(start, start + scenes):
+            if dataset.is_scene_complete(out, index, spp):
+                summary.skipped += 1
+            else:
+                summary.failed.append(index)
+        _seal(summary)
     summary.seconds = time.perf_counter() - began
     return summary
+
+
+def _unseal(out: Path, todo: list[int], scenes_per_shard: int) -> None:
+    """Drop the scenes about to be rendered from the shard.json files that still list them (removed
+    as damaged above, or by hand): a sealed scene is never sealed again with other bytes, so its
+    old entry goes before the scene is written anew. Raises FormatError when another scene of such
+    a shard changed after it was sealed (`dotsim verify --repair` removes it)."""
+    vouched = vouched_shards(out)
+    for shard_index in sorted({index // scenes_per_shard for index in todo}):
+        shard = out / dataset.shard_name(shard_index)
+        try:
+            sealed = json.loads((shard / dataset.SHARD_FILE).read_bytes())["scenes"]
+            listed = {scene["name"] for scene in sealed}
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # no shard.json (or none readable): nothing sealed to drop
+        if any(dataset.scene_name(i) in listed for i in todo if i // scenes_per_shard == shard_index):
+            seal_shard(shard, shard_index, scenes_per_shard, vouched.get(shard.name))
 
 
 def _seal_own_shards(out: Path, indices: range, scenes_per_shard: int) -> None:

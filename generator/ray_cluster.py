@@ -8,6 +8,10 @@ process for all the batches it gets, as a local pool worker does, and skips scen
 already wrote; scene k depends only on (config, k, seed), so the bytes equal a local run's. A task
 whose node dies is retried by Ray; a scene that raises is logged in DATASET/logs/ as in a local
 run; a full disk stops the run. The driver shows progress and seals the dataset.
+
+Nothing outlives the driver: a cluster started for the run (--ray local) is killed with it
+(dotsim.process_lifetime.kill_tree_when_gone), however the driver ends; on a running cluster Ray
+itself ends the tasks of a job whose driver is gone.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from dotsim.file_io import DiskFullError
+from dotsim.process_lifetime import kill_tree_when_gone
 from generator.config import ConfigError
 from generator.pipeline import RUN_FILE
 from generator.render_scenes import RenderJob, SceneResult, failed_batch, render_scenes
@@ -90,6 +95,7 @@ class RayBackend:
         self.max_in_flight = max_in_flight
         self.scenes_per_task = scenes_per_task
         self.ray = None
+        self.watcher = None
 
     # --------------------------------------------------------------------- connect and check
 
@@ -107,6 +113,9 @@ class RayBackend:
                 # store instead of Ray's default of 30% of the memory in /dev/shm.
                 ray.init(num_cpus=self.cpus, include_dashboard=False, object_store_memory=LOCAL_OBJECT_STORE,
                          **kwargs)
+                # The cluster is this run's: killed with it, however the run ends (Ray's agents
+                # outlived a driver killed with -9).
+                self.watcher = kill_tree_when_gone(os.getpid())
             else:
                 ray.init(address=self.address, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -204,4 +213,8 @@ class RayBackend:
         if self.ray is not None and self.ray.is_initialized():
             self.ray.shutdown()
         self.ray = None
+        if self.watcher is not None:  # shut down in order: nothing left to kill
+            self.watcher.kill()
+            self.watcher.wait()
+            self.watcher = None
 

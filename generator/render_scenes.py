@@ -25,17 +25,19 @@ import tempfile
 import time
 import traceback
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from dotsim import dataset
 from dotsim.file_io import DiskFullError, atomic_write_bytes, map_in_threads
+from dotsim.process_lifetime import die_with_parent, exec_dies_with_parent, stop_processes
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
+from generator.resources import check_inputs
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
-from generator.scene_spec import SceneSpec
+from generator.scene_spec import AssetMesh, SceneSpec
 
 LOG_DIR = "logs"
 RUN_IN_BLENDER = Path(__file__).resolve().parent / "blender" / "run_in_blender.py"
@@ -47,7 +49,9 @@ class RenderJob:
 
     out: the dataset folder (prepared: pattern stored, textures written); seed: the base seed;
     pattern_meta: the pattern entry recorded in every scene.json; versions: software versions
-    recorded there; blender: a Blender executable, or None for bpy as a module.
+    recorded there; blender: a Blender executable, or None for bpy as a module; inputs: path ->
+    recorded sha256 of the files a render reads (generator.resources.input_checksums), checked
+    before each scene is rendered.
     """
     config: Config
     out: Path
@@ -57,6 +61,7 @@ class RenderJob:
     pattern_meta: dict
     versions: dict
     blender: str | None
+    inputs: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -107,12 +112,14 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
     """`render_scenes` of every batch in `workers` spawned processes; `on_results` gets each batch's
     results as they come (a worker that died reports its batch failed).
 
-    Ctrl-C, a full disk or any other error that stops the run cancels the batches not yet started
-    and terminates the workers at once (the default executor shutdown would render every queued
-    scene first); the next run removes the scenes they left half-written.
+    Ctrl-C, SIGTERM, SIGHUP (dotsim.process_lifetime.stop_signals), a full disk or any other error
+    that stops the run cancels the batches not yet started and terminates the workers at once (the
+    default executor shutdown would render every queued scene first); a run killed outright takes
+    its workers with it (each dies with its parent: dotsim.process_lifetime.die_with_parent). The
+    next run removes the scenes they left half-written.
     """
     pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                  initializer=_init_worker, initargs=(job,))
+                                                  initializer=_init_worker, initargs=(job, os.getpid()))
     try:
         futures = {pool.submit(_render_batch, b): b for b in batches}
         for future in concurrent.futures.as_completed(futures):
@@ -126,8 +133,7 @@ def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
             on_results(results)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
-        for worker in multiprocessing.active_children():
-            worker.terminate()
+        stop_processes(multiprocessing.active_children())
         raise
     pool.shutdown()
 
@@ -158,7 +164,21 @@ def read_raw_npz(path: Path, frame_count: int) -> list[dict[str, np.ndarray]]:
 
 
 def _sample(job: RenderJob, index: int) -> SceneSpec:
-    return sample_scene_spec(job.config, index, job.seed, job.split, job.resources)
+    """Scene `index`'s spec, once every input file it reads still has its recorded sha256."""
+    spec = sample_scene_spec(job.config, index, job.seed, job.split, job.resources)
+    check_inputs(job.inputs, spec_inputs(spec))
+    return spec
+
+
+def spec_inputs(spec: SceneSpec) -> list[str]:
+    """The files rendering `spec` reads: the pattern, the textures and the asset meshes."""
+    files = [spec.pattern.path]
+    for obj in spec.objects:
+        if obj.material.texture is not None:
+            files.append(obj.material.texture.path)
+        if isinstance(obj.mesh, AssetMesh):
+            files.append(obj.mesh.path)
+    return files
 
 
 def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> int:
@@ -224,7 +244,7 @@ def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult
             spec_paths[-1].write_text(json.dumps(spec.to_dict()))
         command = [job.blender, "--background", "--factory-startup", "--python", str(RUN_IN_BLENDER),
                    "--", *map(str, spec_paths), "--out", str(tmp)]
-        proc = subprocess.run(command, capture_output=True, text=True)
+        proc = subprocess.run(command, capture_output=True, text=True, preexec_fn=exec_dies_with_parent)
         blender_share = (time.perf_counter() - start) / len(indices)
         for index, spec in specs.items():
             raw_path = tmp / f"{dataset.scene_name(index)}_raw.npz"
@@ -266,7 +286,9 @@ def _process_renderer():
 _POOL_JOB: dict = {}
 
 
-def _init_worker(job: RenderJob) -> None:
+def _init_worker(job: RenderJob, parent_pid: int) -> None:
+    # Killed with the run, however it ends: never a worker left rendering queued scenes for no one.
+    die_with_parent(parent_pid)
     # Ctrl-C reaches the whole process group; the parent decides (it terminates the workers), so a
     # render is never interrupted half-way inside Blender, which swallows the exception and goes on.
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -72,20 +72,22 @@ def build_rig(config: Config) -> Rig:
 
 @dataclass(frozen=True)
 class MeshAsset:
-    """A mesh from the asset cache: its .npz path and id, its largest extent as stored (m), and the
-    range of largest extents (m) to scale it to."""
+    """A mesh from the asset cache: its .npz path and id, its largest extent as stored (m), the
+    range of largest extents (m) to scale it to, and the sha256 the cache recorded for the file."""
     path: str
     id: str
     extent: float
     size_range: tuple[float, float]
+    sha256: str = ""
 
 
 @dataclass(frozen=True)
 class TextureAsset:
-    """A reflectance texture (PNG) and the range of its tile size in metres (None: the config's
-    [scene] texture_scale decides)."""
+    """A reflectance texture (PNG), the range of its tile size in metres (None: the config's
+    [scene] texture_scale decides) and the sha256 recorded when the file was made ("": none)."""
     path: str
     tile_size: tuple[float, float] | None = None
+    sha256: str = ""
 
 
 @dataclass(frozen=True)

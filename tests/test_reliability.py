@@ -4,11 +4,17 @@ fsync otherwise) reported in one line that names the file, leaving nothing half-
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
+import json
 import os
 import shutil
+import signal
 import subprocess
+import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -152,26 +158,416 @@ def test_cluster_tasks_leave_the_seal_to_one_final_seal(sealed, tmp_path, capsys
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
 
 
+# ----------------------------------------------------------------------------- processes and writers
+
+
+def running(pid: int) -> bool:
+    """True while process `pid` exists and is not a zombie (a zombie holds no files and runs nothing)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def descendants(pid: int) -> set[int]:
+    """Every process below `pid` (children, their children, ...), from /proc."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        ppid = int(text[text.rindex(")") + 2:].split()[1])
+        children.setdefault(ppid, []).append(int(stat.parent.name))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            if child not in found:
+                found.add(child)
+                todo.append(child)
+    return found
+
+
+def start_generate(out: Path, workers: int = 2) -> subprocess.Popen:
+    """`dotsim generate` of SCENES tiny scenes in a process of its own, from this checkout, with its
+    stdout a pipe (as `dotsim generate ... | tee log` has it)."""
+    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(TINY), "--out", str(out),
+               "--split", "train", "--scenes", str(SCENES), "--seed", "3", "--workers", str(workers),
+               "--no-progress"]
+    return subprocess.Popen(command, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def wait_rendering(proc: subprocess.Popen, out: Path, workers: int) -> set[int]:
+    """Wait until the run has its workers and a scene half-written; the run's processes then."""
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if list(out.glob("shard_*/.tmp-scene_*")) and len(descendants(proc.pid)) >= workers:
+            return descendants(proc.pid)
+        time.sleep(0.02)
+    pytest.fail(f"the run never had {workers} workers rendering (exit {proc.poll()})")
+
+
+def output_closed_within(proc: subprocess.Popen, seconds: float) -> str | None:
+    """The run's output once every holder of its stdout closed it, or None after `seconds`
+    (a `| tee log` would hang)."""
+    text: list[str] = []
+    reader = threading.Thread(target=lambda: text.append(proc.stdout.read()), daemon=True)
+    reader.start()
+    reader.join(seconds)
+    return None if reader.is_alive() else text[0]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM, signal.SIGHUP],
+                         ids=["kill-9", "SIGTERM", "SIGHUP"])
+def test_a_stopped_run_leaves_no_process_behind(sealed, tmp_path, signum):
+    """kill -9 of `dotsim generate --workers 2` mid-scene: within 10 s no process of the run is left
+    (workers, resource tracker), its stdout is closed, and the rerun equals a clean run byte for
+    byte. SIGTERM and SIGHUP tear the pool down and exit 128 + the signal."""
+    out = tmp_path / "stopped"
+    proc = start_generate(out)
+    family = wait_rendering(proc, out, workers=2)
+    os.kill(proc.pid, signum)
+    text = output_closed_within(proc, 10.0)
+    assert text is not None, "the run's stdout stayed open 10 s after it was stopped"
+    deadline = time.monotonic() + 10.0
+    while [pid for pid in family if running(pid)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in family if running(pid)], f"left running: {[p for p in family if running(p)]}"
+    assert proc.wait(timeout=10) == (-signal.SIGKILL if signum == signal.SIGKILL else 128 + signum)
+    if signum != signal.SIGKILL:
+        assert f"stopped by {signal.Signals(signum).name}; workers stopped" in text, text
+        return
+    summary = rerun(out)
+    assert summary.done + summary.skipped == SCENES and not summary.failed
+    assert frame_sums(out) == frame_sums(sealed)
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+    assert not leftovers(out)
+
+
+def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tuple[int, str]:
+    """Start `command` (a dotsim command line) from this checkout, wait until ready(proc) is true,
+    send `signum` to its main process and check by pid that none of its processes is left after
+    `seconds`; (exit status, output)."""
+    proc = subprocess.Popen([sys.executable, "-m", "dotsim.cli", *command], cwd=REPO, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 300
+    while not ready(proc):
+        assert proc.poll() is None and time.monotonic() < deadline, f"never ready (exit {proc.poll()})"
+        time.sleep(0.02)
+    family = descendants(proc.pid)
+    os.kill(proc.pid, signum)
+    text = output_closed_within(proc, seconds)
+    assert text is not None, f"the output stayed open {seconds} s after the stop"
+    deadline = time.monotonic() + seconds
+    while [pid for pid in family if running(pid)] and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not [pid for pid in family if running(pid)], f"left running: {[p for p in family if running(p)]}"
+    return proc.wait(timeout=seconds), text
+
+
+def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
+    """kill -9 of `dotsim generate --ray local` mid-scene: its cluster (raylet, agents, the workers
+    running tasks) is gone within 10 s."""
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    command = ["generate", "--config", str(TINY), "--out", str(out), "--split", "train", "--scenes",
+               str(SCENES), "--seed", "3", "--workers", "2", "--no-progress", "--ray", "local"]
+    status, _ = run_of(command, lambda proc: bool(list(out.glob("shard_*/.tmp-scene_*"))), signal.SIGKILL)
+    assert status == -signal.SIGKILL
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
+def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
+    sys.path.insert(0, str(REPO / "tests"))
+    from trainer_fixtures import make_dataset
+
+    data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
+    command = ["train", "--config", str(REPO / "configs" / "train_tiny.toml"), "--data", str(data),
+               "--out", str(run), "--nproc", "2"]
+    status, text = run_of(command, lambda proc: (run / "tb").is_dir() and len(descendants(proc.pid)) >= 2,
+                          signum)
+    assert status == (-signal.SIGKILL if signum == signal.SIGKILL else 128 + signum), text
+    if signum == signal.SIGTERM:
+        assert "dotsim train: stopped by SIGTERM\n" in text, text
+
+
+def test_capture_record_stopped_by_sigterm_keeps_its_frames(tmp_path):
+    import cv2
+
+    from dotsim.rig import get_preset
+    from dotsim.rig_files import rig_file_json
+
+    rig = get_preset("structure_core").scaled(0.1)
+    video = tmp_path / "ir.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30,
+                             (rig.camera.width, rig.camera.height), isColor=False)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        writer.write(rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    writer.release()
+    (tmp_path / "rig.json").write_bytes(rig_file_json(rig))
+    out = tmp_path / "rec"
+    command = ["capture", "record", "--device", f"opencv:{video}", "--rig", str(tmp_path / "rig.json"),
+               "--out", str(out), "--scenes", "10", "--frames", "2", "--pause", "0.2", "--no-progress",
+               "--no-preview"]
+    status, text = run_of(command, lambda proc: (out / "shard_00000" / "scene_0000000").is_dir(),
+                          signal.SIGTERM)
+    assert status == 128 + signal.SIGTERM, text
+    assert "stopped: stopped by SIGTERM; kept every complete frame" in text, text
+    assert len(dataset.open_dataset(out, verify=True).scenes) >= 1
+
+
+HOLD_LOCK = """
+import sys, time
+from dotsim.dataset.lock import writer_lock
+with writer_lock(sys.argv[1], "dotsim generate"):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_second_writer_is_refused_naming_the_holder_and_range_tasks_go_on(sealed, tmp_path, capsys):
+    out = tmp_path / "locked"
+    shutil.copytree(sealed, out)
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(out)], cwd=REPO, text=True,
+                              env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
+                            "--scenes", str(SCENES), "--seed", "3", "--no-progress"]) == 1
+        assert capsys.readouterr().err == (f"dotsim generate: error: {out}: another writer holds this "
+                                           f"dataset "
+                                           f"(pid {holder.pid}: dotsim generate); wait for it to end, or "
+                                           f"write elsewhere\n")
+        assert dotsim_main(["verify", str(out), "--repair"]) == 2
+        assert f"(pid {holder.pid}: dotsim generate)" in capsys.readouterr().err
+        # a cluster task writing its own range (--no-seal) takes no lock
+        task = generate(load_config(TINY), out, "train", 2, start=4, seed=3, progress=False, seal=False)
+        assert (task.skipped, task.failed) == (2, [])
+    finally:
+        holder.kill()
+        holder.wait()
+    # the kernel dropped the killed holder's lock: the next writer goes ahead
+    assert rerun(out).skipped == SCENES
+
+
+# ----------------------------------------------------------------------------- only checksums are trusted
+
+
+def test_repair_removes_a_scene_edited_after_sealing_and_never_reseals_it(sealed, tmp_path, capsys):
+    """A hand edit of a sealed scene.json (its frames untouched, so scene.json still lists their
+    right checksums) is damage: seal refuses it, repair removes the scene, the rerun renders it."""
+    out = tmp_path / "edited"
+    shutil.copytree(sealed, out)
+    scene_json = out / "shard_00001" / "scene_0000003" / "scene.json"
+    text = scene_json.read_text()
+    fx = text.index('"fx": ') + len('"fx": ')
+    scene_json.write_text(text[:fx] + "1" + text[fx:])  # e.g. 111.544 -> 1111.544
+    assert dotsim_main(["verify", str(out)]) == 1
+    assert f"{scene_json}: sha256 differs from its entry in {scene_json.parents[1] / 'shard.json'} " \
+           "(changed after it was sealed); repair removes the scene" in capsys.readouterr().out
+    assert dotsim_main(["seal", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{scene_json}: differs from its entry" in err, err
+    assert dotsim_main(["verify", str(out), "--repair"]) == 0
+    assert "repair: removed 1 damaged scene(s)" in capsys.readouterr().out
+    assert not scene_json.parent.exists()
+    assert dotsim_main(["verify", str(out)]) == 0
+    summary = rerun(out)
+    assert (summary.done, summary.skipped) == (1, SCENES - 1)
+    assert scene_json.read_bytes() == (sealed / scene_json.relative_to(out)).read_bytes()
+    assert frame_sums(out) == frame_sums(sealed)
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+def test_a_wrong_checksum_inside_shard_json_is_mended_by_repair_and_by_seal(sealed, tmp_path, capsys):
+    for mend in (["verify", "--repair"], ["seal"]):
+        out = tmp_path / mend[-1].strip("-")
+        shutil.copytree(sealed, out)
+        shard_json = out / "shard_00001" / "shard.json"
+        shard = json.loads(shard_json.read_text())
+        shard["scenes"][0]["files"]["frame_1.exr"] = "0" * 64
+        shard_json.write_text(json.dumps(shard))
+        assert dotsim_main(["verify", str(out)]) == 1
+        lines = capsys.readouterr().out.splitlines()
+        assert f"{shard_json}: its entry for scene_0000002 does not list the checksums scene.json " \
+               "records; repair derives it again from the frames" in lines
+        assert dotsim_main([mend[0], str(out), *mend[1:]]) == 0
+        capsys.readouterr()
+        assert dotsim_main(["verify", str(out)]) == 0, capsys.readouterr().out
+        assert shard_json.read_bytes() == (sealed / "shard_00001" / "shard.json").read_bytes()
+        assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+        assert sorted(p.parent.name for p in out.glob("shard_*/scene_*/scene.json")) == \
+            sorted(p.parent.name for p in sealed.glob("shard_*/scene_*/scene.json"))
+
+
+@pytest.mark.parametrize("key, value", [
+    ("scene_count", 7), ("frame_count", 23), ("split_counts", {"train": 5}), ("scenes_per_shard", 3),
+    ("dotsim_version", "9.9.9"), ("shards.1.scene_count", 1)])
+def test_verify_checks_index_json_summary_fields_and_repair_rewrites_them(sealed, tmp_path, capsys, key,
+                                                                           value):
+    out = tmp_path / "summary"
+    shutil.copytree(sealed, out)
+    index = json.loads((out / "index.json").read_text())
+    *path, last = key.split(".")
+    where = index
+    for part in path:
+        where = where[int(part)] if isinstance(where, list) else where[part]
+    where[last] = value
+    (out / "index.json").write_text(json.dumps(index))
+    assert dotsim_main(["verify", str(out)]) == 1
+    top = key.split(".")[0]
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith(f"{out / 'index.json'}: {top} is ") for line in lines), lines
+    assert dotsim_main(["verify", str(out), "--repair"]) == 0
+    assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+# ----------------------------------------------------------------------------- inputs checked before use
+
+@pytest.fixture(scope="module")
+def asset_cache(tmp_path_factory):
+    """A small test-split asset cache (tests/test_generate.py's, with 3 meshes) and its manifest."""
+    from assets_manifest.cache import build_asset_cache
+    from assets_manifest.manifest import load_manifest
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from test_generate import CACHE_MANIFEST
+
+    root = tmp_path_factory.mktemp("assets")
+    assert CACHE_MANIFEST.count("seeds = [0, 1]") == 2  # meshes, then textures
+    (root / "test.toml").write_text(CACHE_MANIFEST.replace("seeds = [0, 1]", "seeds = [0, 3]", 1))
+    build_asset_cache(load_manifest(root / "test.toml"), root / "cache", "test", progress=False,
+                      log=lambda *args: None)
+    return root
+
+
+def copied_cache(asset_cache: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of the cache and a tiny config rendering from it: (cache, config)."""
+    shutil.copytree(asset_cache / "cache", tmp_path / "cache")
+    config = tmp_path / "cached.toml"
+    config.write_text(TINY.read_text() + '\n[assets]\nsource = "cache"\ncache_dir = "cache"\n')
+    return tmp_path / "cache", config
+
+
+def garble(path: Path) -> None:
+    """Zero 64 bytes in the middle of a file, as a bad disk or copy would."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 64] = bytes(64)
+    path.write_bytes(bytes(data))
+
+
+def generate_line(config: Path, out: Path, scenes: int, capsys, split: str = "train") -> tuple[int, str]:
+    status = dotsim_main(["generate", "--config", str(config), "--out", str(out), "--split", split,
+                          "--scenes", str(scenes), "--seed", "3", "--no-progress"])
+    return status, capsys.readouterr().err
+
+
+def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_path, capsys):
+    out = tmp_path / "textures"
+    shutil.copytree(sealed, out)
+    texture = sorted((out / TEXTURE_DIR).glob("*.png"))[1]
+    garble(texture)
+    for record in (True, False):  # textures/checksums.json, or a dataset from before it (no record)
+        if not record:
+            (out / TEXTURE_DIR / "checksums.json").unlink()
+        status, err = generate_line(TINY, out, SCENES + 1, capsys)
+        assert status == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"dotsim generate: error: {texture}: sha256 "), err
+        assert "differs from the " in err, err
+        assert not (out / "shard_00003").exists()
+
+
+def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
+                                                                                      capsys):
+    from generator.pipeline import prepare_run
+    from generator.render_scenes import _sample, render_scenes
+
+    cache, config = copied_cache(asset_cache, tmp_path)
+    texture = sorted((cache / "test" / "textures").glob("*.png"))[0]
+    original = texture.read_bytes()
+    garble(texture)
+    status, err = generate_line(config, tmp_path / "out", 1, capsys, "test")
+    assert status == 2 and err.count("\n") == 1, err
+    assert f"asset file {texture} does not match its sha256 in the index" in err, err
+    # damaged after the run checked it (prepare_run) and before a render reads it: the scene fails
+    texture.write_bytes(original)
+    job = prepare_run(load_config(config), tmp_path / "out", "test", 3)
+    mesh = Path(next(p for p in map(Path, dataset_inputs(_sample(job, 0))) if p.suffix == ".npz"))
+    garble(mesh)
+    [result] = render_scenes(job, [0])
+    assert not result.ok and f"{mesh}: sha256 " in result.error, result.error
+    assert "recorded when it was made" in result.error
+    assert not dataset.is_scene_complete(tmp_path / "out", 0, 2)
+
+
+def dataset_inputs(spec) -> list[str]:
+    from generator.render_scenes import spec_inputs
+
+    return spec_inputs(spec)
+
+
+def test_assets_check_reports_every_garbled_mesh(asset_cache, tmp_path, capsys):
+    cache, _ = copied_cache(asset_cache, tmp_path)
+    meshes = sorted((cache / "test" / "meshes").glob("*.npz"))
+    for mesh in meshes:
+        garble(mesh)
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--test-manifest",
+                        str(asset_cache / "test.toml")]) == 1
+    out = capsys.readouterr().out
+    for mesh in meshes:
+        assert f"problem: asset file {mesh.resolve()} does not match its sha256 in the index" in out, out
+    assert "problem(s)" in out
+
+
+def test_an_asset_cache_entry_missing_keys_is_one_line(asset_cache, tmp_path, capsys):
+    cache, config = copied_cache(asset_cache, tmp_path)
+    index_path = cache / "test" / "index.json"
+    index = json.loads(index_path.read_text())
+    del index["meshes"][1]["path"]
+    index_path.write_text(json.dumps(index))
+    status, err = generate_line(config, tmp_path / "out", 1, capsys, "test")
+    assert status == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert f"asset cache index {index_path.resolve()}: meshes entry 1 ({index['meshes'][1]['id']}) lacks " \
+           "key(s) ['path']" in err, err
+    assert not (tmp_path / "out").exists()
+    assert dotsim_main(["assets", "check", "--cache", str(cache), "--test-manifest",
+                        str(asset_cache / "test.toml")]) == 1
+    assert "lacks key(s) ['path']" in capsys.readouterr().out
+
+
 # ----------------------------------------------------------------------------- a full disk
+
+
+@contextlib.contextmanager
+def tmpfs(mount: Path, size: str):
+    """A real tmpfs of `size` mounted at `mount` (root only; else the test is skipped)."""
+    mount.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root; the fsync-level ENOSPC test still runs")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", str(mount)], check=True)
 
 
 @pytest.fixture
 def small_disk(tmp_path):
     """A real 8 MB tmpfs mounted at tmp_path / "disk" (root only), unmounted afterwards."""
-    mount = tmp_path / "disk"
-    mount.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a tmpfs needs root; the fsync-level ENOSPC test still runs")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount)],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-    yield mount
-    subprocess.run(["umount", str(mount)], check=True)
+    with tmpfs(tmp_path / "disk", "8m") as mount:
+        yield mount
 
 
-def fill(disk: Path) -> None:
-    """Fill the filesystem until a write fails with ENOSPC (a real full disk)."""
+def fill(disk: Path, leave: int = 0) -> None:
+    """Fill the filesystem until a write fails with ENOSPC (a real full disk), then free `leave`
+    bytes again."""
     with open(disk / "filler", "wb") as stream:
         try:
             while True:
@@ -182,6 +578,8 @@ def fill(disk: Path) -> None:
     with pytest.raises(OSError):
         (disk / "probe").write_bytes(b"x")
     (disk / "probe").unlink(missing_ok=True)
+    if leave:
+        os.truncate(disk / "filler", (disk / "filler").stat().st_size - leave)
 
 
 def assert_one_line_naming(err: str, path: Path) -> None:
@@ -198,7 +596,7 @@ def test_full_disk_while_writing_the_builtin_textures(sealed, small_disk, capsys
     assert dotsim_main(["generate", "--config", str(TINY), "--out", str(out), "--split", "train",
                         "--scenes", "1", "--seed", "3", "--no-progress"]) == 1
     err = capsys.readouterr().err
-    assert_one_line_naming(err, out / TEXTURE_DIR / sorted((sealed / TEXTURE_DIR).iterdir())[0].name)
+    assert_one_line_naming(err, out / TEXTURE_DIR / sorted((sealed / TEXTURE_DIR).glob("*.png"))[0].name)
     assert not leftovers(small_disk)
 
 
@@ -233,6 +631,44 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
     (small_disk / "filler").unlink()
     assert dotsim_main(["seal", str(out)]) == 0
     assert (out / "index.json").read_bytes() == (sealed / "index.json").read_bytes()
+
+
+# TensorBoard's writer thread meets the full disk first: its traceback must not reach the user either.
+@pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
+    """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
+    the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from trainer_fixtures import make_dataset
+
+    from trainer.train import load_checkpoint
+
+    data = make_dataset(tmp_path / "data", scenes=2)
+    tiny = (REPO / "configs" / "train_tiny.toml").read_text()
+    for steps in (2, 4):
+        (tmp_path / f"train_{steps}.toml").write_text(tiny.replace("max_steps = 200", f"max_steps = {steps}"))
+
+    def train(steps: int, *resume: str) -> int:
+        return dotsim_main(["train", "--config", str(tmp_path / f"train_{steps}.toml"), "--data", str(data),
+                            "--out", str(run), *resume])
+
+    with tmpfs(tmp_path / "disk", "40m") as disk:
+        run = disk / "run"
+        assert train(2) == 0
+        good = (run / "checkpoint.pt").read_bytes()
+        capsys.readouterr()
+        for leave, named in ((0, run / "tb"), (1 << 20, run / "checkpoint.pt")):
+            fill(disk, leave)  # nothing left; then room for TensorBoard's events, not for a checkpoint
+            assert train(4, "--resume") == 1
+            full = capsys.readouterr().err
+            err = full.splitlines()[-1]  # after the progress bar
+            assert "Traceback" not in full, full
+            assert err.startswith(f"dotsim train: error: {named}") and "no space left on device" in err, err
+            assert (run / "checkpoint.pt").read_bytes() == good
+            assert not list(disk.rglob(".tmp-*"))
+            (disk / "filler").unlink()
+        assert load_checkpoint(run / "checkpoint.pt")[0]["step"] == 2
+        assert train(4, "--resume") == 0
 
 
 def test_enospc_at_fsync_names_the_file_and_leaves_nothing(tmp_path, monkeypatch):

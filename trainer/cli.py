@@ -15,13 +15,14 @@ EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointEr
 
 def _train(args: argparse.Namespace) -> None:
     from trainer.distributed import run_on_ranks
-    from trainer.train import train
+    from trainer.train import disk_full_in, train
 
     if args.nproc < 1:
         raise DataError(f"--nproc {args.nproc}: need at least 1 process")
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
-    run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
-        split=args.split)
+    with disk_full_in(args.out):
+        run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
+            split=args.split)
 
 
 def _eval(args: argparse.Namespace) -> None:

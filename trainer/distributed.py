@@ -21,6 +21,7 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
+from dotsim.process_lifetime import die_with_parent, stop_processes
 from trainer.data import DataError
 
 
@@ -77,7 +78,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _rank_main(rank: int, env: dict, threads: int, fn, args, kwargs, outcomes) -> None:
+def _rank_main(rank: int, launcher: int, env: dict, threads: int, fn, args, kwargs, outcomes) -> None:
+    die_with_parent(launcher)  # a launcher killed outright takes its ranks with it
     os.environ.update(env, RANK=str(rank), LOCAL_RANK=str(rank))
     torch.set_num_threads(threads)
     # pickled here: torch's queue would share tensors through this process's memory, gone once it exits
@@ -99,12 +101,14 @@ def _rank_main(rank: int, env: dict, threads: int, fn, args, kwargs, outcomes) -
 def run_on_ranks(nproc: int, fn, *args, **kwargs):
     """Run fn(*args, **kwargs) in `nproc` local processes that form one process group, as torchrun
     would, and return rank 0's result. The CPU threads are shared out among the processes. When a rank
-    raises, the others are stopped and the first exception reported is raised here."""
+    raises, the others are stopped and the first exception reported is raised here. Ctrl-C, SIGTERM or
+    SIGHUP here (dotsim.process_lifetime.stop_signals) stops every rank; a launcher killed outright
+    takes them with it (each dies with its parent)."""
     env = {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(_free_port()), "WORLD_SIZE": str(nproc)}
     threads = max(1, torch.get_num_threads() // nproc)
     outcomes = mp.get_context("spawn").SimpleQueue()
-    ranks = mp.start_processes(_rank_main, args=(env, threads, fn, args, kwargs, outcomes), nprocs=nproc,
-                               join=False, start_method="spawn")
+    ranks = mp.start_processes(_rank_main, args=(os.getpid(), env, threads, fn, args, kwargs, outcomes),
+                               nprocs=nproc, join=False, start_method="spawn")
     received = []
 
     def drain() -> None:  # as we go: a rank writing into a full pipe would wait for ever
@@ -121,6 +125,9 @@ def run_on_ranks(nproc: int, fn, *args, **kwargs):
         errors = [e for e, _ in received if e is not None]
         if errors:
             raise errors[0] from None
+        raise
+    except BaseException:  # Ctrl-C, a stop signal: no rank goes on alone
+        stop_processes(ranks.processes)
         raise
     drain()
     return next(value for e, value in received if e is None)

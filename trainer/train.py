@@ -7,8 +7,10 @@ deterministic, and a resumed run continues with the losses an unbroken run would
 
 from __future__ import annotations
 
+import contextlib
 import math
 import random
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -18,7 +20,7 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
-from dotsim.file_io import atomic_writer
+from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full
 from dotsim.rig import Rig
 from trainer.config import Config, config_from_dict
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
@@ -83,9 +85,62 @@ def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int):
     return opt, sched
 
 
+class _WriteErrors:
+    """The file object torch.save writes through: keeps the OSError a write raised, which torch's
+    writer reports only as RuntimeError("unexpected pos ...")."""
+
+    def __init__(self, stream):
+        self.stream, self.error = stream, None
+
+    def write(self, data) -> int:
+        try:
+            return self.stream.write(data)
+        except OSError as error:
+            self.error = error
+            raise
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
 def atomic_torch_save(obj, path: Path) -> None:
+    """torch.save to `path` atomically: a save that fails (a full disk: DiskFullError naming the
+    file) leaves the previous file as it was."""
     with atomic_writer(path) as stream:
-        torch.save(obj, stream)
+        writes = _WriteErrors(stream)
+        try:
+            torch.save(obj, writes)
+        except RuntimeError:
+            if writes.error is not None:
+                raise writes.error from None  # atomic_writer turns ENOSPC into its one-line DiskFullError
+            raise
+
+
+@contextlib.contextmanager
+def disk_full_in(run_dir: str | Path):
+    """Around a training run: a full disk under the run folder that a library reports as a plain
+    OSError (TensorBoard's event file, written by a thread of its own) becomes the one-line
+    DiskFullError every dotsim command prints. Checkpoints are written atomically, so the last good
+    one stays."""
+    previous = threading.excepthook
+
+    def quiet(args) -> None:  # TensorBoard's writer thread: its error is raised again in this one
+        if not is_disk_full(args.exc_value):
+            previous(args)
+
+    threading.excepthook = quiet
+    try:
+        yield
+    except DiskFullError:
+        raise
+    except OSError as error:
+        if not is_disk_full(error):
+            raise
+        raise disk_full_error(Path(error.filename or Path(run_dir) / "tb"), None) from None
+    finally:
+        threading.excepthook = previous
+        for bar in list(tqdm._instances):  # the message starts a line of its own, not the bar's
+            bar.close()
 
 
 def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:

@@ -7,9 +7,14 @@ ends costs a listing and the small files, not a re-hash of every frame:
 
 - a shard whose shard.json already lists exactly the complete scenes in its folder, with the
   same scene.json sha256, is kept (its frames are not read);
-- a shard that gained, lost or changed scenes gets a new shard.json; only the scenes its old
-  shard.json does not list (or lists with another scene.json) have their frames hashed, and a
-  frame that differs from the sha256 its scene.json recorded at write time is refused;
+- a shard that gained or lost scenes gets a new shard.json; only the scenes its old shard.json
+  does not list have their frames hashed, and a frame that differs from the sha256 its scene.json
+  recorded at write time is refused;
+- a scene whose scene.json differs from its entry in the old shard.json was changed after it was
+  sealed: it is refused, never hashed into the seal again (`dotsim verify --repair` removes it and
+  the generator renders it again); an entry of a shard.json that index.json does not vouch for
+  (a seal killed between the two files, or a hand edit) is kept only when it agrees with its
+  scene.json, else derived again from the frames;
 - index.json is rebuilt from the shard.json files, then the seal is checked against the disk
   again; if a writer changed a shard meanwhile the seal is redone, so two seals running at once
   (or a seal racing a writer) still end with index.json true to the disk.
@@ -78,6 +83,24 @@ def _read_shard(shard_path: Path) -> tuple[bytes, dict]:
         return b"", {}
 
 
+def entry_agrees(entry: dict, sdir: Path, index: int, scene_bytes: bytes) -> bool:
+    """True when a shard.json entry says what the scene's scene.json says: its name, index, the
+    sha256 of scene.json and each frame's sha256 as scene.json recorded it (no frame is read)."""
+    try:
+        meta = parse_scene_meta(sdir / SCENE_FILE, scene_bytes)
+    except FormatError:
+        return False
+    files = {SCENE_FILE: sha256_bytes(scene_bytes)} | {e["file"]: e["sha256"] for e in meta["frames"]}
+    return (entry.get("name"), entry.get("scene_index"), entry.get("files"),
+            entry.get("frame_count")) == (sdir.name, index, files, meta["frame_count"])
+
+
+def changed_after_sealing(path: Path, shard_path: Path) -> str:
+    """The message for a scene.json whose sha256 differs from its sealed entry."""
+    return (f"{path}: differs from its entry in {shard_path} (changed after it was sealed; a sealed "
+            f"scene is never sealed again with other bytes); {_REPAIR_HINT}")
+
+
 def _scene_entry(sdir: Path, index: int, scene_bytes: bytes) -> dict:
     """shard.json entry of one scene, hashing its frames and comparing them with scene.json."""
     meta = parse_scene_meta(sdir / SCENE_FILE, scene_bytes)
@@ -106,11 +129,18 @@ class ShardSeal:
     hashed: int
 
 
-def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int) -> ShardSeal | None:
+def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int,
+               vouched_sha256: str | None = None) -> ShardSeal | None:
     """Bring one shard's shard.json up to date with the complete scenes in its folder; None when
-    the shard holds no scene (then it has no shard.json any more)."""
+    the shard holds no scene (then it has no shard.json any more).
+
+    vouched_sha256: the sha256 index.json records for this shard.json; when the file has it, its
+    entries are trusted as they are, else each entry kept must agree with its scene.json. Raises
+    FormatError naming a scene.json that differs from its entry (changed after sealing).
+    """
     path = shard / SHARD_FILE
     old_bytes, old_json = _read_shard(path)
+    vouched = bool(old_bytes) and sha256_bytes(old_bytes) == vouched_sha256
     previous = {s.get("name"): s for s in old_json.get("scenes", []) if isinstance(s, dict)}
     scenes, hashed = [], 0
     for index, sdir in scene_dirs(shard):
@@ -123,8 +153,9 @@ def seal_shard(shard: Path, shard_index: int, scenes_per_shard: int) -> ShardSea
             raise FormatError(f"{sdir / SCENE_FILE}: missing (a scene folder without scene.json is "
                               f"damaged); {_REPAIR_HINT}") from None
         old = previous.get(sdir.name)
-        if old is not None and old.get("scene_index") == index and \
-                old.get("files", {}).get(SCENE_FILE) == sha256_bytes(scene_bytes):
+        if old is not None and old.get("files", {}).get(SCENE_FILE) != sha256_bytes(scene_bytes):
+            raise FormatError(changed_after_sealing(sdir / SCENE_FILE, path))
+        if old is not None and (vouched or entry_agrees(old, sdir, index, scene_bytes)):
             scenes.append(old)
         else:
             scenes.append(_scene_entry(sdir, index, scene_bytes))
@@ -156,20 +187,37 @@ def _dataset_files(root: Path) -> dict[str, str]:
             if p.is_file() and p.name != INDEX_FILE and not p.name.startswith(".")}
 
 
-def build_index(root: Path, scenes_per_shard: int, shards: list[ShardSeal]) -> dict:
-    """index.json's dict from the seals of the shards that hold scenes, in order."""
+def index_summary(scenes_per_shard: int, shards: list[tuple[dict, str]], dotsim_version: str) -> dict:
+    """index.json's fields but `files`, from (shard.json dict, sha256 of its bytes) of the shards
+    that hold scenes, in order: what seal_dataset writes and dotsim verify checks."""
     splits: dict[str, int] = {}
     entries, scene_count, frame_count = [], 0, 0
-    for seal in shards:
-        shard = seal.shard_json
+    for shard, sha in shards:
         for scene in shard["scenes"]:
             splits[str(scene.get("split"))] = splits.get(str(scene.get("split")), 0) + 1
             frame_count += scene["frame_count"]
-        scene_count += shard["scene_count"]
-        entries.append({"name": shard["shard"], "scene_count": shard["scene_count"], "sha256": seal.sha256})
-    return {"format_version": FORMAT_VERSION, "dotsim_version": DOTSIM_VERSION,
+        scene_count += len(shard["scenes"])
+        entries.append({"name": shard["shard"], "scene_count": len(shard["scenes"]), "sha256": sha})
+    return {"format_version": FORMAT_VERSION, "dotsim_version": dotsim_version,
             "scenes_per_shard": scenes_per_shard, "shards": entries, "scene_count": scene_count,
-            "frame_count": frame_count, "split_counts": splits, "files": _dataset_files(root)}
+            "frame_count": frame_count, "split_counts": splits}
+
+
+def build_index(root: Path, scenes_per_shard: int, shards: list[ShardSeal]) -> dict:
+    """index.json's dict from the seals of the shards that hold scenes, in order."""
+    summary = index_summary(scenes_per_shard, [(seal.shard_json, seal.sha256) for seal in shards],
+                            DOTSIM_VERSION)
+    return summary | {"files": _dataset_files(root)}
+
+
+def vouched_shards(root: Path) -> dict[str, str]:
+    """shard name -> the sha256 index.json records for its shard.json (empty without a readable
+    index.json)."""
+    try:
+        entries = load_json(root / INDEX_FILE).get("shards", [])
+        return {e["name"]: e["sha256"] for e in entries if isinstance(e, dict)}
+    except (FormatError, KeyError, TypeError, AttributeError):
+        return {}
 
 
 def _seal_holds(root: Path, index: dict, listed: dict[str, list[str]]) -> bool:
@@ -205,8 +253,9 @@ def seal_dataset(dataset_dir: str | os.PathLike, max_rounds: int = MAX_SEAL_ROUN
     for rounds in range(1, max_rounds + 1):
         result.rounds = rounds
         shards, listed = [], {}
+        vouched = vouched_shards(root)
         for shard_index, shard in shard_dirs(root):
-            seal = seal_shard(shard, shard_index, scenes_per_shard)
+            seal = seal_shard(shard, shard_index, scenes_per_shard, vouched.get(shard.name))
             if seal is None:
                 continue
             result.scenes_hashed += seal.hashed

@@ -41,6 +41,7 @@ from dotsim.file_io import (
     sha256_bytes,
     temporary_name,
 )
+from dotsim.process_lifetime import is_zombie
 
 _TMP_PID_RE = re.compile(r"-(\d+)$")
 _TMP_SCENE_RE = re.compile(re.escape(TMP_PREFIX) + r"scene_(\d+)(-\d+)?$")
@@ -175,7 +176,7 @@ def _pid_alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    return True
+    return not is_zombie(pid)  # a killed writer not yet reaped writes nothing more
 
 
 def leftovers(dataset_dir: str | os.PathLike, include_live: bool = False) -> list[Path]:
