@@ -143,12 +143,13 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
                            f"{rig.name!r} projector is {rig.projector.width} x {rig.projector.height} px")
     with writer_lock(out_dir, "dotsim capture record"):
         return _record(device, rig, out_dir, scenes, frames_per_scene, split, settle, pause_s, white_level,
-                       pattern, dot_window, visibility_threshold, scenes_per_shard, progress, preview)
+                       pattern, dot_window, visibility_threshold, scenes_per_shard, progress, preview, lens)
 
 
 def _record(device: Device, rig: Rig, out_dir: Path, scenes: int, frames_per_scene: int, split: str,
             settle: int, pause_s: float, white_level: float, pattern: DotPattern | None, dot_window: int,
-            visibility_threshold: float, scenes_per_shard: int, progress: bool, preview: bool) -> dict:
+            visibility_threshold: float, scenes_per_shard: int, progress: bool, preview: bool,
+            lens: Lens | None) -> dict:
     dataset.remove_partial_scenes(out_dir)
     pattern_entry = None
     if pattern is not None:

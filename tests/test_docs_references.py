@@ -206,7 +206,8 @@ def test_documented_bench_modules_make_targets_and_configs_are_real():
         problems += [f"{where}: no make target {t}" for t in tokens if not t.startswith("-") and "=" not in t
                      and not PLACEHOLDER.search(t) and t not in targets]
     for name in DOCUMENTS:
-        for config in sorted(set(re.findall(r"(?<![\w/])(?:dotsim/)?configs/[\w.-]+\.toml", (REPO / name).read_text()))):
+        named = re.findall(r"(?<![\w/])(?:dotsim/)?configs/[\w.-]+\.toml", (REPO / name).read_text())
+        for config in sorted(set(named)):
             if not (REPO / config).is_file():
                 problems.append(f"{name}: {config} does not exist")
     assert not problems, "\n".join(problems)
