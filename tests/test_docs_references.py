@@ -267,7 +267,7 @@ def test_the_rig_file_example_reads_as_written(tmp_path):
     indent = len(block.group(1))
     (tmp_path / "calibration.yaml").write_text("".join(line[indent:] + "\n"
                                                        for line in block.group(0).splitlines()))
-    rig = load_rig_file(tmp_path / "calibration.yaml")
+    rig = load_rig_file(tmp_path / "calibration.yaml").rig
     sizes = (rig.camera.width, rig.camera.height, rig.projector.width, rig.projector.height)
     assert sizes == (640, 480, 1600, 1200)
     assert (rig.camera.fx, rig.camera.cx, rig.projector.fx, rig.projector.cy) == (600, 319.5, 1200, 599.5)

@@ -285,7 +285,7 @@ def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
     from trainer_fixtures import make_dataset
 
     data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
-    command = ["train", "--config", str(REPO / "configs" / "train_tiny.toml"), "--data", str(data),
+    command = ["train", "--config", str(REPO / "dotsim" / "configs" / "train_tiny.toml"), "--data", str(data),
                "--out", str(run), "--nproc", "2"]
     status, text = run_of(command, lambda proc: (run / "tb").is_dir() and len(descendants(proc.pid)) >= 2,
                           signum)
@@ -644,7 +644,7 @@ def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp
     from trainer.train import load_checkpoint
 
     data = make_dataset(tmp_path / "data", scenes=2)
-    tiny = (REPO / "configs" / "train_tiny.toml").read_text()
+    tiny = (REPO / "dotsim" / "configs" / "train_tiny.toml").read_text()
     for steps in (2, 4):
         (tmp_path / f"train_{steps}.toml").write_text(tiny.replace("max_steps = 200", f"max_steps = {steps}"))
 
