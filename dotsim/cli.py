@@ -16,6 +16,7 @@ SUBCOMMAND_MODULES = [
     "dotsim.show",
     "dotsim.pattern_cli",
     "dotsim.dataset_cli",
+    "dotsim.stats",
     "trainer.cli",
     "capture.cli",
 ]

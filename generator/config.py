@@ -108,10 +108,12 @@ class SceneConfig:
     distance: FloatRange = setting((0.3, 10.0), "depth of object centres in front of the camera "
                                    "(or projector), m, and never beyond the room's walls",
                                    low=0.05, high=100.0)
-    distance_sampling: str = setting("uniform", "how object depths are drawn within `distance` (uniform: "
-                                     "rendered pixel depths spread from 0.3 to 5 m, median about 1 m; "
-                                     "log-uniform crowds the view with near objects)",
-                                     choices=("log-uniform", "uniform"))
+    distance_sampling: str = setting("uniform", "how object depths are drawn within `distance`: uniform "
+                                     "(as many objects in each metre of depth; near ones fill much of the "
+                                     "view), log-uniform (crowds the view with near objects) or volume "
+                                     "(density ~ depth^2: clutter spread evenly through the room; more of "
+                                     "the view far away). docs/CONFIG.md 'Shaping the depth distribution'",
+                                     choices=("log-uniform", "uniform", "volume"))
     in_view_share: float = setting(0.85, "share of objects placed inside the camera's view; the rest go "
                                    "inside the projector's view only, to cast shadows the camera cannot "
                                    "see", low=0.0, high=1.0)

@@ -120,6 +120,24 @@ def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(math.exp(rng.uniform(math.log(low), math.log(high))))
 
 
+def _volume_uniform(rng: np.random.Generator, low: float, high: float) -> float:
+    """A depth in [low, high] with density proportional to depth squared: points spread uniformly
+    through the volume of a viewing frustum, as clutter spread evenly over a room's floor space
+    looks from where the camera stands (uniform in depth puts as many objects in the first metre as
+    in any later one, where they fill far more of the view)."""
+    if high <= low:
+        return float(low)
+    return float(np.cbrt(rng.uniform(low**3, high**3)))
+
+
+# [scene] distance_sampling -> how an object's depth is drawn within [near, limit]
+DISTANCE_SAMPLERS = {
+    "uniform": lambda rng, low, high: _uniform(rng, (low, high)),
+    "log-uniform": _log_uniform,
+    "volume": _volume_uniform,
+}
+
+
 def camera_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """world_from_camera rotation (OpenCV axes) of a camera at yaw (about world z; 0 looks along +y),
     pitch (positive looks up) and roll (about the optical axis), radians."""
@@ -211,8 +229,7 @@ def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot
             ray_cam = rig.R.T @ np.array([(x - proj.cx) / proj.fx, (y - proj.cy) / proj.fy, 1.0])
         exit_t = ray_box_exit(cam_pos + cam_rot @ origin_cam, cam_rot @ ray_cam, room_lo, room_hi)
         limit = max(near, min(far, exit_t - 0.05))
-        t = (_log_uniform(rng, near, limit) if config.scene.distance_sampling == "log-uniform"
-             else _uniform(rng, (near, limit)))
+        t = DISTANCE_SAMPLERS[config.scene.distance_sampling](rng, near, limit)
         point_cam = origin_cam + t * ray_cam
         if in_view or point_cam[2] <= 0:
             break
