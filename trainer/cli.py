@@ -90,9 +90,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
     p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
     p.add_argument("--val-data", default=None, metavar="DIR",
-                   help="dataset whose --val-split frames choose SGBM's preprocessing (plain or LCN) by o(0.5), "
-                   "e.g. the training data (SGBM learns nothing from it); never the evaluated frames. "
-                   "Default: none, SGBM plain")
+                   help="dataset whose --val-split frames choose SGBM's preprocessing (plain or LCN) "
+                   "by o(0.5), e.g. the training data (SGBM learns nothing from it), never the evaluated "
+                   "frames. Default: none (SGBM plain)")
     p.add_argument("--val-split", default="train", help="split of --val-data (default train)")
     p.add_argument("--val-frames", type=int, default=8, metavar="N",
                    help="validation frames, spread over the split (default 8; 0 = all)")

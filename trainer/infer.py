@@ -3,8 +3,9 @@
 Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
 Outputs per input, named after it: NAME.exr (float32 channels disparity [camera px] and depth [m], nan
-where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none),
-NAME.ply (binary little-endian: x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue).
+where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none,
+with a legend under it), NAME.ply (binary little-endian: x, y, z in metres in the OpenCV camera frame,
+IR grey as red/green/blue; only depths within the rig's max_depth).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from dotsim.rig import Rig, backproject
 from dotsim.show import colourise
 from trainer.data import DataError
 from trainer.evaluate import load_model, predict_disparity
+from trainer.legend import with_legend
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
@@ -77,6 +79,16 @@ def ply_bytes(points: np.ndarray, grey: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+DISPARITY_SWATCHES = (((0, 0, 0), "black: no estimate"),)
+
+
+def cloud_pixels(depth: np.ndarray, rig: Rig) -> np.ndarray:
+    """Pixels the point cloud keeps: a depth in (0, rig.max_depth]. A column the network puts at (or
+    past) the pattern's position at infinity gives a depth of hundreds of metres or none, and such
+    points would dwarf the scene in a viewer; the rig's range is what it was trained on."""
+    return np.isfinite(depth) & (depth > 0) & (depth <= rig.max_depth)
+
+
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
           progress: bool = True, precision: str = "float32") -> list[Path]:
     """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
@@ -95,9 +107,10 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
         write_exr(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
-        write_image(out_dir / f"{name}.png", colourise(disparity, lo, hi))
+        write_image(out_dir / f"{name}.png", with_legend(colourise(disparity, lo, hi), lo, hi,
+                                                         "px disparity (near = high)", DISPARITY_SWATCHES))
         points = backproject(depth, rig.camera)
-        keep = np.isfinite(depth) & (depth > 0)
+        keep = cloud_pixels(depth, rig)
         grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
         atomic_write_bytes(out_dir / f"{name}.ply", ply_bytes(points[keep].astype(np.float32), grey[keep]))
         written.append(out_dir / f"{name}.exr")

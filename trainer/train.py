@@ -263,5 +263,6 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         last = f"{losses[-1]:.4f}" if losses else "n/a (already complete)"
         print(f"trained {len(losses)} step(s) to step {step}/{total_steps} in {seconds:.1f} s "
               f"({len(losses) * t.batch_size / max(seconds, 1e-9):.1f} samples/s on {ranks.world} "
-              f"process(es)), last loss {last}; checkpoint {ckpt_path}")
+              f"process(es)), last loss {last}; checkpoint {ckpt_path}; TensorBoard logs in "
+              f"{out_dir / 'tb'} (tensorboard --logdir {out_dir / 'tb'})")
     return {"step": step, "losses": losses, "seconds": seconds}
