@@ -120,21 +120,23 @@ def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(math.exp(rng.uniform(math.log(low), math.log(high))))
 
 
-def _volume_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    """A depth in [low, high] with density proportional to depth squared: points spread uniformly
-    through the volume of a viewing frustum, as clutter spread evenly over a room's floor space
-    looks from where the camera stands (uniform in depth puts as many objects in the first metre as
-    in any later one, where they fill far more of the view)."""
+def _spread_uniform(rng: np.random.Generator, low: float, high: float, dimensions: int) -> float:
+    """A depth in [low, high] with density proportional to depth ** (dimensions - 1): points spread
+    evenly over a viewing wedge's floor area (dimensions 2) or through a frustum's volume (3), as
+    clutter spread evenly through a room looks from where the camera stands. Uniform in depth (1)
+    puts as many objects in the first metre as in any later one, and there they fill far more of
+    the view."""
     if high <= low:
         return float(low)
-    return float(np.cbrt(rng.uniform(low**3, high**3)))
+    return float(rng.uniform(low**dimensions, high**dimensions) ** (1.0 / dimensions))
 
 
 # [scene] distance_sampling -> how an object's depth is drawn within [near, limit]
 DISTANCE_SAMPLERS = {
     "uniform": lambda rng, low, high: _uniform(rng, (low, high)),
     "log-uniform": _log_uniform,
-    "volume": _volume_uniform,
+    "area": lambda rng, low, high: _spread_uniform(rng, low, high, 2),
+    "volume": lambda rng, low, high: _spread_uniform(rng, low, high, 3),
 }
 
 
