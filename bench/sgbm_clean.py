@@ -19,6 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from dotsim.config_schema import read_toml
@@ -38,6 +39,19 @@ from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 CLEAN = {"lighting": {"world_strength": [0.0, 0.0], "extra_lights": [0, 0]},
          "sensor": {"shot_noise": 0.0, "read_noise": 0.0}}
+
+
+# Below this many quantisation steps of local contrast (max - min of the IR over 5 x 5 px) a lit
+# pixel's dots are barely in the image: with the noise off the visibility mask's margin (sigmas of
+# noise) is zero, so such pixels count as visible though 10 bits hold nothing of their dots.
+FAINT_LSB = 4
+
+
+def dot_contrast(ir: np.ndarray) -> np.ndarray:
+    """max - min of the IR image over each pixel's 5 x 5 neighbourhood."""
+    ir = np.asarray(ir, np.float32)
+    kernel = np.ones((5, 5), np.uint8)
+    return cv2.dilate(ir, kernel) - cv2.erode(ir, kernel)
 
 
 def clean_config(path: Path, scale: float):
@@ -63,12 +77,13 @@ def main(argv=None) -> int:
     print(summary.line())
     frames, rig, _ = list_frames(args.out, "test")
     reference = load_reference(args.out, rig)
+    bits = read_toml(args.config).get("sensor", {}).get("bit_depth", 10)
     nearest = sgbm_nearest_depth(frames)
     n_disp = num_disparities_for(rig, nearest)
     ranges = {"all": None, **{f"{a:g}-{b:g} m": (a, b) for a, b in zip(DEPTH_BINS[:-1], DEPTH_BINS[1:],
                                                                        strict=True)}}
     rows = {(p, r): np.zeros(1 + len(THRESHOLDS), np.int64) for p in PREPROCESSINGS
-            for r in [*ranges, "off edges"]}
+            for r in [*ranges, "off edges", f"contrast < {FAINT_LSB} LSB", f"contrast >= {FAINT_LSB} LSB"]}
     missing = dict.fromkeys(PREPROCESSINGS, 0)
     for ref in frames:
         f = read_frame(ref.path, channels=("ir", "visibility", "edge", "depth", "disparity"))
@@ -79,6 +94,9 @@ def main(argv=None) -> int:
             selections = {r: lit if lim is None else lit & (f["depth"] >= lim[0]) & (f["depth"] < lim[1])
                           for r, lim in ranges.items()}
             selections["off edges"] = lit & (f["edge"] == 0)
+            faint = dot_contrast(f["ir"]) < FAINT_LSB / 2**bits
+            selections[f"contrast < {FAINT_LSB} LSB"] = lit & faint
+            selections[f"contrast >= {FAINT_LSB} LSB"] = lit & ~faint
             for r, sel in selections.items():
                 pixels, over = outlier_counts(pred, gt, sel)
                 rows[(p, r)] += np.array([pixels, *over])

@@ -34,6 +34,7 @@ DISPARITY_STEP = 0.5  # camera px
 THRESHOLDS_M = (1.0, 2.0)
 REGIONS = (8, 8)  # (rows, columns) of the grid over the projector image
 THIN_SHARE = 0.1  # a region with less than this share of the mean region's lit pixels is "barely shown"
+NEAREST_VIEW_M = 0.2  # the nearest surface considered when asking which regions the camera can see
 
 
 @dataclass
@@ -53,6 +54,7 @@ class CoverageStats:
     columns: np.ndarray = field(default=None)
     rows: np.ndarray = field(default=None)
     regions: np.ndarray = field(default=None)
+    reachable: np.ndarray = field(default=None)
 
     def __post_init__(self):
         depth_bins = math.ceil(self.rig.max_depth / DEPTH_STEP)
@@ -62,6 +64,7 @@ class CoverageStats:
         self.columns = np.zeros(self.rig.projector.width, np.int64)
         self.rows = np.zeros(self.rig.projector.height, np.int64)
         self.regions = np.zeros(REGIONS, np.int64)
+        self.reachable = reachable_regions(self.rig)
 
     @property
     def max_disparity(self) -> float:
@@ -98,9 +101,10 @@ class CoverageStats:
         """JSON-safe figures (shares of pixels, depths in m, disparities in camera px)."""
         share = _share
         vis = self.depth_visible
-        mean_region = self.regions.mean()
-        thin = [[int(r), int(c)] for r, c in zip(*np.nonzero(self.regions < THIN_SHARE * mean_region),
-                                                 strict=True)] if mean_region else []
+        seen = self.regions[self.reachable]
+        mean_region = seen.mean() if seen.size else 0.0
+        thin = np.nonzero(self.reachable & (self.regions < THIN_SHARE * mean_region))
+        thin = [[int(r), int(c)] for r, c in zip(*thin, strict=True)] if mean_region else []
         return {
             "frames": self.frames,
             "pixels": self.pixels,
@@ -121,8 +125,11 @@ class CoverageStats:
                 "share_rows_lit": share(int((self.rows > 0).sum()), self.rows.size),
                 "region_grid": list(REGIONS),
                 "region_lit_pixels": self.regions.tolist(),
+                "regions_in_camera_view": int(self.reachable.sum()),
                 "regions_barely_shown": thin,
-                "barely_shown_means": f"fewer than {THIN_SHARE:g} x the mean region's lit pixels",
+                "barely_shown_means": f"in the camera's view at some depth from {NEAREST_VIEW_M:g} m to "
+                                      f"max_depth, with fewer than {THIN_SHARE:g} x the mean lit pixels of "
+                                      "such regions",
             },
             "histograms": {
                 "depth_step_m": DEPTH_STEP, "depth_all": _trimmed(self.depth_all),
@@ -130,6 +137,23 @@ class CoverageStats:
                 "disparity_step_px": DISPARITY_STEP, "disparity_visible": _trimmed(self.disparity_visible),
             },
         }
+
+
+def reachable_regions(rig: Rig) -> np.ndarray:
+    """bool REGIONS grid: the projector regions some camera pixel sees, for a surface at some depth
+    from NEAREST_VIEW_M to the rig's max_depth (the rest of the pattern is outside the camera's view
+    whatever the scene: the camera's field is narrower than the projector's)."""
+    cam, proj = rig.camera, rig.projector
+    step = max(1, min(cam.width, cam.height) // 64)
+    seen = np.zeros(REGIONS, bool)
+    for depth in np.geomspace(NEAREST_VIEW_M, rig.max_depth, 24):
+        plane = np.full((cam.height, cam.width), depth)
+        xp, yp, _ = project_to_projector(backproject(plane, cam)[::step, ::step], rig)
+        inside = (xp >= -0.5) & (xp < proj.width - 0.5) & (yp >= -0.5) & (yp < proj.height - 0.5)
+        col = np.clip(np.rint(xp[inside]).astype(np.int64), 0, proj.width - 1)
+        row = np.clip(np.rint(yp[inside]).astype(np.int64), 0, proj.height - 1)
+        seen[row * REGIONS[0] // proj.height, col * REGIONS[1] // proj.width] = True
+    return seen
 
 
 def _share(count: int, total: int) -> float:
@@ -205,8 +229,9 @@ def format_summary(s: dict) -> str:
         f"all valid depth: {val['share_beyond_1m']:.1%} beyond 1 m, {val['share_beyond_2m']:.1%} beyond 2 m, "
         f"median {val['median_m']:.2f} m",
         f"pattern coverage: {cov['share_columns_lit']:.1%} of projector columns and "
-        f"{cov['share_rows_lit']:.1%} of rows lit on visible pixels; {len(thin)} of "
-        f"{cov['region_grid'][0] * cov['region_grid'][1]} regions barely shown "
+        f"{cov['share_rows_lit']:.1%} of rows lit on visible pixels; of the {cov['region_grid'][0]} x "
+        f"{cov['region_grid'][1]} projector regions {cov['regions_in_camera_view']} are ever in the "
+        f"camera's view and {len(thin)} of those barely shown "
         f"({cov['barely_shown_means']})" + (f": (row, column) {thin}" if thin else ""),
     ])
 
@@ -256,18 +281,20 @@ def draw(stats: CoverageStats, title: str) -> np.ndarray:
     _bars(canvas, w + 30, 30, [(stats.disparity_visible[:cut], VISIBLE_COLOUR)], 64, disparity_top,
           "disparity px", "disparity of visible pixels")
     grid = stats.regions.astype(np.float64)
-    mean = grid.mean()
+    mean = grid[stats.reachable].mean() if stats.reachable.any() else 0.0
     side = h - 40
     cells = np.zeros((*REGIONS, 3), np.uint8)
     level = np.clip(grid / max(grid.max(), 1), 0, 1)
     cells[...] = (level * 255).astype(np.uint8)[..., None]
-    cells[grid < THIN_SHARE * mean] = (40, 40, 200)
+    cells[stats.reachable & (grid < THIN_SHARE * mean)] = (40, 40, 200)
+    cells[~stats.reachable] = (90, 60, 60)
     image = cv2.resize(cells, (side, side), interpolation=cv2.INTER_NEAREST)
     x0 = 2 * (w + 20) + 20
     canvas[50 : 50 + side, x0 : x0 + side] = image
     cv2.putText(canvas, f"projector regions {REGIONS[0]}x{REGIONS[1]}: lit pixels", (x0, 44), FONT, 0.42,
                 TEXT, 1, cv2.LINE_AA)
-    cv2.putText(canvas, "white = most, red = barely shown", (x0, 50 + side + 16), FONT, 0.38, TEXT, 1,
+    cv2.putText(canvas, "white = most, red = barely shown, blue = never in view", (x0, 50 + side + 16), FONT,
+                0.38, TEXT, 1,
                 cv2.LINE_AA)
     s = stats.summary()
     line = (f"visible: {s['share_visible']:.1%} of pixels, {s['visible']['share_beyond_1m']:.1%} beyond 1 m, "

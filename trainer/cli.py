@@ -20,8 +20,10 @@ def _train(args: argparse.Namespace) -> None:
     if args.nproc < 1:
         raise DataError(f"--nproc {args.nproc}: need at least 1 process")
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
+    if args.minutes < 0:
+        raise DataError(f"--minutes {args.minutes}: need 0 (no time limit) or more")
     run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
-        split=args.split)
+        split=args.split, max_seconds=args.minutes * 60)
 
 
 def _eval(args: argparse.Namespace) -> None:
@@ -71,6 +73,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--nproc", type=int, default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
                    "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
+    p.add_argument("--minutes", type=float, default=0.0, metavar="M",
+                   help="stop (with a checkpoint) after the first step that ends past M minutes of training "
+                   "(default 0: run the config's epochs / max_steps)")
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(

@@ -236,6 +236,11 @@ def overall(rows: list[dict], method: str) -> dict:
     return next(r for r in rows if r["method"] == method and r["range"] == "all")
 
 
+def chosen_sgbm(rows: list[dict]) -> str:
+    """The SGBM variant the network is judged against (chosen on validation frames)."""
+    return next(r["method"] for r in rows if r["chosen"])
+
+
 def verdict(rows: list[dict], sgbm_method: str) -> str:
     """One line: the network against the chosen SGBM at o(0.5) and o(2), and the seed's ratio."""
     net, sgbm = overall(rows, "network"), overall(rows, sgbm_method)
@@ -324,7 +329,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
             write_image(out_dir / "errors" / name, strip)
     rows = []
     for (method, name), c in counts.items():
-        row = {"method": method, "range": name, "pixels": int(c[0]), "outside": int(c[1])}
+        row = {"method": method, "range": name, "pixels": int(c[0]), "outside": int(c[1]),
+               "chosen": method == sgbm_chosen}
         for k, t in enumerate(THRESHOLDS):
             row[f"o({t:g})"] = c[2 + k] / c[0] if c[0] else float("nan")
         rows.append(row)

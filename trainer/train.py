@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from dotsim.file_io import atomic_writer
 from dotsim.rig import Rig
-from trainer.config import Config, config_from_dict
+from trainer.config import Config, config_from_dict, resolution_mismatch
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
 from trainer.model import GigaDepthNet, autocast
@@ -174,6 +174,9 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     if t.batch_size % ranks.world:
         raise DataError(f"[train].batch_size {t.batch_size} is the global batch and must divide evenly "
                         f"among the {ranks.world} processes")
+    mismatch = resolution_mismatch(cfg, rig.camera.width, rig.camera.height)
+    if mismatch and progress and ranks.main:
+        print(f"warning: {mismatch}", flush=True)
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch)
