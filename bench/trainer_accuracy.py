@@ -155,7 +155,7 @@ def main(argv=None) -> int:
           f"trained {trained_s / 60:.1f} min, {steps} steps, {steps / max(trained_s, 1e-9):.2f} steps/s "
           f"(batch {base['train']['batch_size']}, {args.threads} thread(s))\n{rates}\n"
           f"o(0.5) network / {sgbm_method} (chosen on the training frames): {ratio:.3f} "
-          f"(goal <= 0.5: {'met' if ratio <= 0.5 else 'not met'}; the seed's 0.18)")
+          f"(goal <= 0.5: {'met' if ratio <= 0.5 else 'not met'}; GigaDepth's 0.18)")
     return 0
 
 

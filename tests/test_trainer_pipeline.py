@@ -113,7 +113,7 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     rows = evaluate(trained["run"] / "checkpoint.pt", data, tmp_path / "eval", progress=False)
     md = (tmp_path / "eval" / "eval.md").read_text()
     assert "| network | all |" in md and "| sgbm-plain | all |" in md and "| sgbm-lcn | all |" in md
-    assert "verdict: the network is" in md and "10.4 %" in md  # the seed's reference figures
+    assert "verdict: the network is" in md and "10.4 %" in md  # GigaDepth's reference figures
     with open(tmp_path / "eval" / "eval.csv") as f:
         table = list(csv.DictReader(f))
     assert len(table) == len(rows) == 3 * 6

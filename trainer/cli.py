@@ -85,7 +85,7 @@ def add_parser(subparsers) -> None:
         "plain and LCN-preprocessed) on the same frames: o(t) = share of valid pixels (pattern visible, "
         "finite GT) whose disparity error exceeds t = 0.5, 1, 2, 5 camera pixels at full resolution (no "
         "estimate, or GT outside a method's range, counts as an outlier), overall and per GT depth range, "
-        "with the seed's reference figures and a one-line verdict against the SGBM variant chosen on "
+        "with GigaDepth's reference figures and a one-line verdict against the SGBM variant chosen on "
         "--val-data. Writes OUT/eval.md, OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM "
         "error, with a legend: 0-5 px turbo, outliers black, no GT grey).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")

@@ -217,7 +217,7 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
 
 
 # GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): the only published figures on data like ours.
-SEED_REFERENCE = ("GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): SGM o(0.5) 10.4 %, GigaDepth "
+GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): SGM o(0.5) 10.4 %, GigaDepth "
                   "o(0.5) 1.9 % (5.5x fewer outliers)")
 
 
@@ -242,7 +242,7 @@ def chosen_sgbm(rows: list[dict]) -> str:
 
 
 def verdict(rows: list[dict], sgbm_method: str) -> str:
-    """One line: the network against the chosen SGBM at o(0.5) and o(2), and the seed's ratio."""
+    """One line: the network against the chosen SGBM at o(0.5) and o(2), and GigaDepth's ratio."""
     net, sgbm = overall(rows, "network"), overall(rows, sgbm_method)
     if not net["pixels"]:
         return "verdict: no valid pixels were scored"
@@ -253,7 +253,7 @@ def verdict(rows: list[dict], sgbm_method: str) -> str:
                      f"({net[t]:.4f} vs {sgbm[t]:.4f})")
     ratio = net["o(0.5)"] / sgbm["o(0.5)"] if sgbm["o(0.5)"] else float("inf")
     return (f"verdict: the network is {parts[0]} and {parts[1]}; o(0.5) ratio network / SGBM {ratio:.2f} "
-            f"(the seed's: 0.18; the goal: at most 0.5)")
+            f"(GigaDepth's: 0.18; the goal: at most 0.5)")
 
 
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
@@ -267,7 +267,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
     `val_frames` frames spread over `val_split` of val_data, never on the evaluated frames; without
-    val_data it is plain (the seed's)."""
+    val_data it is plain (GigaDepth's)."""
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     model, cfg, rig = load_model(checkpoint, device)
     frames, data_rig, _ = list_frames(data_dir, split)
@@ -345,7 +345,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         f"SGBM: {n_disp} disparities (reaching {nearest:.3g} m, the nearest depth of the config and the "
         f"data), block 5, P1 200, P2 800; {outside} valid pixel(s) lie outside its range. {choice}; "
         f"'sgbm-plain' and 'sgbm-lcn' are both listed.\n"
-        f"Reference: {SEED_REFERENCE}.\n\n")
+        f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     line = verdict(rows, sgbm_chosen)
     atomic_write_bytes(out_dir / "eval.md", (header + table + "\n" + line + "\n").encode())
     buf = io.StringIO()

@@ -8,7 +8,7 @@ d_max = fx b / z_near, rounded up to a multiple of 16 (num_disparities_for). Bot
 numDisparities columns on the left, or the leftmost columns would get no estimate.
 
 Two preprocessings (PREPROCESSINGS): "plain" scales each image to 8 bit by its own 99.5th percentile
-(the IR and the pattern have unrelated units); "lcn" first applies the seed's local contrast
+(the IR and the pattern have unrelated units); "lcn" first applies GigaDepth's local contrast
 normalisation (dotsim.lcn, 11 px window), which evens out the falloff of the dots' brightness with
 distance and albedo, then maps +-its 99.5th absolute percentile to 0..255. Which is better depends on
 the data: trainer.evaluate picks it on validation frames, never on the frames it reports.
@@ -25,7 +25,7 @@ from dotsim.lcn import lcn
 from dotsim.rig import Rig
 
 PREPROCESSINGS = ("plain", "lcn")
-LCN_WINDOW = 11  # the seed's window
+LCN_WINDOW = 11  # GigaDepth's window
 # eps of the LCN, in the images' units (IR and pattern both 0..1): about the sensor's read noise, so
 # flat dark regions stay flat instead of having their noise blown up to full contrast.
 LCN_EPS = 0.003
