@@ -8,7 +8,8 @@
 - pattern coverage: where in the projector image the visible pixels' light comes from (each visible
   pixel's point projected into the projector: its column and row), per projector column and row and
   per region of a grid over the projector image. GigaDepth's authors note that a network fails where
-  its training data barely shows part of the pattern: such regions are listed.
+  its training data barely shows part of the pattern: such regions are listed, apart from the regions
+  the camera never sees at any depth (its field of view is narrower than the projector's).
 
 Frames are read only through dotsim.dataset's reader. Pure numpy + OpenCV.
 """
@@ -323,7 +324,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "valid pixels and the visible ones, visibility = 1, where the network learns), the share of "
         "visible and of edge pixels, the share of visible pixels beyond 1 m and 2 m, and pattern "
         "coverage: which projector columns, rows and regions (an 8 x 8 grid) the visible pixels are lit "
-        "from; regions with under a tenth of the mean region's lit pixels are listed as barely shown. "
+        "from; regions the camera can see at some depth but with under a tenth of the mean such region's "
+        "lit pixels are listed as barely shown, apart from those it never sees (its field is narrower). "
         "Prints a summary, draws a PNG and writes the figures as JSON.")
     parser.add_argument("path", metavar="DIR", help="sealed dotsim dataset")
     parser.add_argument("--split", default="all", help="scene split: all (default), train or test")
