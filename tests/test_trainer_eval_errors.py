@@ -156,3 +156,16 @@ def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
     assert len(list((tmp_path / "eval" / "errors").iterdir())) == 1
     assert sorted(p.name for p in (tmp_path / "inf").iterdir()) == [
         "scene_0000001_frame_0.exr", "scene_0000001_frame_0.ply", "scene_0000001_frame_0.png"]
+
+
+def test_config_resolution_mismatch_is_named():
+    """train_cpu's 56 lines divide 608 x 448's 224 half-resolution rows; train_tiny's 47 do not (it is
+    sized for 128 x 94: 47 rows), and the message says which rows and what to choose."""
+    from trainer.config import resolution_mismatch
+
+    assert resolution_mismatch(load_config("configs/train_cpu.toml"), 608, 448) is None
+    assert resolution_mismatch(load_config("configs/train_tiny.toml"), 128, 94) is None
+    message = resolution_mismatch(load_config("configs/train_tiny.toml"), 608, 448)
+    assert "lines = 47" in message and "224 half-resolution rows" in message
+    assert "4.77 rows per line" in message
+    assert "lines = 56" in resolution_mismatch(load_config("configs/train_cpu.toml"), 128, 94)  # 56 > 47 rows
