@@ -169,3 +169,19 @@ def test_config_resolution_mismatch_is_named():
     assert "lines = 47" in message and "224 half-resolution rows" in message
     assert "4.77 rows per line" in message
     assert "lines = 56" in resolution_mismatch(load_config("configs/train_cpu.toml"), 128, 94)  # 56 > 47 rows
+
+
+def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
+    """The SGBM variant the verdict uses is the one with the lower o(0.5) on the validation frames (here
+    the train split, scored separately by a full evaluate of it), and validation frames overlapping the
+    evaluated ones are refused."""
+    rows = evaluate(run["ckpt"], run["data"], tmp_path / "e", progress=False, val_data=run["data"])
+    chosen = {r["method"] for r in rows if r["chosen"]}
+    assert len(chosen) == 1 and chosen <= {"sgbm-plain", "sgbm-lcn"}
+    on_train = evaluate(run["ckpt"], run["data"], tmp_path / "t", split="train", progress=False)
+    rates = {r["method"]: r["o(0.5)"] for r in on_train if r["range"] == "all" and r["method"] != "network"}
+    assert min(rates, key=rates.get) == chosen.pop()
+    assert "chosen on 2 validation frame(s)" in (tmp_path / "e" / "eval.md").read_text()
+    with pytest.raises(DataError, match="overlap the evaluated frames"):
+        evaluate(run["ckpt"], run["data"], tmp_path / "o", progress=False, val_data=run["data"],
+                 val_split="test")

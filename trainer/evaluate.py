@@ -194,7 +194,7 @@ def spread(frames: list, count: int) -> list:
     """`count` items spread evenly over `frames` (all of them when there are fewer)."""
     if count <= 0 or len(frames) <= count:
         return list(frames)
-    return [frames[round(k * (len(frames) - 1) / (count - 1 if count > 1 else 1))] for k in range(count)]
+    return [frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)]
 
 
 def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disparities: int
@@ -207,18 +207,17 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
     for ref in frames:
         f = read_frame(ref.path, channels=EVAL_CHANNELS)
         valid, gt = valid_pixels(f), f["disparity"].astype(np.float64)
+        pixels += int(valid.sum())
         for name in PREPROCESSINGS:
             pred = sgbm_disparity(f["ir"].astype(np.float32), reference, num_disparities, preprocessing=name)
-            n, (over,) = outlier_counts(pred, gt, valid, thresholds=(0.5,))
-            outliers[name] += over
-        pixels += n
+            outliers[name] += outlier_counts(pred, gt, valid, thresholds=(0.5,))[1][0]
     rates = {name: outliers[name] / pixels if pixels else float("nan") for name in PREPROCESSINGS}
     return min(PREPROCESSINGS, key=lambda name: (not rates[name] <= 1, rates[name])), rates
 
 
 # GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): the only published figures on data like ours.
-GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): SGM o(0.5) 10.4 %, GigaDepth "
-                  "o(0.5) 1.9 % (5.5x fewer outliers)")
+GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): SGM o(0.5) 10.4 %, "
+                       "GigaDepth o(0.5) 1.9 % (5.5x fewer outliers)")
 
 
 def format_table(rows: list[dict]) -> str:
