@@ -63,13 +63,23 @@ dataset: assets-train
 testset: assets
 	$(BIN)/dotsim generate --config $(CONFIG) --out $(TEST_DATA) --split test --scenes $(SCENES) --workers $(WORKERS) --seed 1
 
-RUN ?= $(OUT)/runs/tiny
+# The network sized for make dataset's 608 x 448 frames, trained for MINUTES on this machine's CPU
+# (a rerun continues the run for MINUTES more). What to expect: docs/TRAINER.md "make train / make eval".
+TRAIN_CONFIG ?= train_cpu
+MINUTES ?= 20
+RUN ?= $(OUT)/runs/cpu
 
 train: setup
-	$(BIN)/dotsim train --config train_tiny --data $(DATA) --out $(RUN)
+	@echo "make train: $(MINUTES) min of $(TRAIN_CONFIG) on $(DATA) (4 scenes by default) is a SMOKE RUN: it shows the"
+	@echo "  pipeline works, not a useful network (measured: it does not beat SGBM). A real CPU run is hundreds of"
+	@echo "  scenes and hours (bench.trainer_accuracy: 300 scenes, ~3 h to render, 100 min to train; docs/TRAINER.md"
+	@echo "  \"make train / make eval\")."
+	$(BIN)/dotsim train --config $(TRAIN_CONFIG) --data $(DATA) --out $(RUN) --minutes $(MINUTES) --resume
 
+# The test split of its own (make testset); SGBM's preprocessing (plain or LCN) is chosen on the
+# training frames, never on the test frames.
 eval: testset
-	$(BIN)/dotsim eval --checkpoint $(RUN)/checkpoint.pt --data $(TEST_DATA) --out $(RUN)/eval
+	$(BIN)/dotsim eval --checkpoint $(RUN)/checkpoint.pt --data $(TEST_DATA) --val-data $(DATA) --out $(RUN)/eval
 
 # The Blender extension: dist/dotsim-<version>-<platform>.zip per platform PyPI has wheels for
 # (downloaded once into build/addon_wheels/); `make addon PLATFORMS="--platform linux-x64"` for one.

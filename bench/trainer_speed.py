@@ -56,9 +56,10 @@ def main(argv=None) -> int:
     print(f"making a {rig.camera.width}x{rig.camera.height} frame and the reference image ...", flush=True)
     pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0).image.astype(np.float64)
     rng = np.random.default_rng(0)
-    ir = synthetic_frame(random_depth(rig, rng), rig, pattern, rng)["ir"].astype(np.float32)
+    depth = random_depth(rig, rng)
+    ir = synthetic_frame(depth, rig, pattern, rng)["ir"].astype(np.float32)
     reference = reference_image(pattern, rig, supersample=2)
-    n_disp = num_disparities_for(rig)
+    n_disp = num_disparities_for(rig, float(np.nanmin(depth)))  # the range this frame's depths need
 
     results = {"StereoSGBM": median_seconds(lambda: sgbm_disparity(ir, reference, n_disp), args.repeats)}
     configs = {"tiny": "dotsim/configs/train_tiny.toml"}

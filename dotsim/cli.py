@@ -20,6 +20,7 @@ SUBCOMMAND_MODULES = [
     "dotsim.pattern_cli",
     "dotsim.dataset_cli",
     "dotsim.config_cli",
+    "dotsim.stats",
     "trainer.cli",
     "capture.cli",
 ]

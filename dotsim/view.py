@@ -26,7 +26,7 @@ import numpy as np
 
 from dotsim import dataset as ds
 from dotsim.file_io import temporary_name
-from dotsim.pointcloud import depth_points, grey_levels
+from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
 from dotsim.show import colourise, grey_for_display, scene_path_of
 
@@ -135,9 +135,8 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
             # beyond the rig's range are left out (a few near-zero disparities would put points
             # hundreds of metres away and the viewer's camera with them)
-            depth = np.where(pred["depth"] <= rig.max_depth, pred["depth"], np.inf)
-            points, _ = depth_points(depth, rig.camera, grey)
-            keep = np.isfinite(depth) & (depth > 0)
+            points, _ = depth_points(pred["depth"], rig.camera, grey, rig.max_depth)
+            keep = cloud_pixels(pred["depth"], rig.max_depth)
             colours = _rgb(colourise(error, 0.0, ERROR_RANGE_PX)[keep][:, None])[:, 0]
             colours[~np.isfinite(error[keep])] = 128
             rec.log(f"world/pose_{k}/prediction", rr.Points3D(points, colors=colours,

@@ -122,6 +122,26 @@ def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(math.exp(rng.uniform(math.log(low), math.log(high))))
 
 
+def _spread_uniform(rng: np.random.Generator, low: float, high: float, dimensions: int) -> float:
+    """A depth in [low, high] with density proportional to depth ** (dimensions - 1): points spread
+    evenly over a viewing wedge's floor area (dimensions 2) or through a frustum's volume (3), as
+    clutter spread evenly through a room looks from where the camera stands. Uniform in depth (1)
+    puts as many objects in the first metre as in any later one, and there they fill far more of
+    the view."""
+    if high <= low:
+        return float(low)
+    return float(rng.uniform(low**dimensions, high**dimensions) ** (1.0 / dimensions))
+
+
+# [scene] distance_sampling -> how an object's depth is drawn within [near, limit]
+DISTANCE_SAMPLERS = {
+    "uniform": lambda rng, low, high: _uniform(rng, (low, high)),
+    "log-uniform": _log_uniform,
+    "area": lambda rng, low, high: _spread_uniform(rng, low, high, 2),
+    "volume": lambda rng, low, high: _spread_uniform(rng, low, high, 3),
+}
+
+
 def camera_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """world_from_camera rotation (OpenCV axes) of a camera at yaw (about world z; 0 looks along +y),
     pitch (positive looks up) and roll (about the optical axis), radians."""
@@ -213,8 +233,7 @@ def _object_position(rng: np.random.Generator, config: Config, rig: Rig, cam_rot
             ray_cam = rig.R.T @ np.array([(x - proj.cx) / proj.fx, (y - proj.cy) / proj.fy, 1.0])
         exit_t = ray_box_exit(cam_pos + cam_rot @ origin_cam, cam_rot @ ray_cam, room_lo, room_hi)
         limit = max(near, min(far, exit_t - 0.05))
-        t = (_log_uniform(rng, near, limit) if config.scene.distance_sampling == "log-uniform"
-             else _uniform(rng, (near, limit)))
+        t = DISTANCE_SAMPLERS[config.scene.distance_sampling](rng, near, limit)
         point_cam = origin_cam + t * ray_cam
         if in_view or point_cam[2] <= 0:
             break

@@ -215,3 +215,18 @@ def test_textures_and_glossy_shares():
                 assert texture["scale"] == pytest.approx(extent * 2.0)
             else:
                 assert 0.5 * extent * 0.999 <= texture["scale"] <= 4.0 * extent * 1.001
+
+
+def test_area_and_volume_distance_sampling_follow_depth_powers():
+    """area: density ~ z, so P(z < x) = (x^2 - a^2) / (b^2 - a^2); volume: density ~ z^2 (cubes)."""
+    from generator.sample_scene import DISTANCE_SAMPLERS
+
+    rng = np.random.default_rng(3)
+    a, b = 0.3, 10.0
+    for name, power in (("uniform", 1), ("area", 2), ("volume", 3)):
+        z = np.array([DISTANCE_SAMPLERS[name](rng, a, b) for _ in range(20000)])
+        assert a <= z.min() and z.max() <= b
+        for x in (1.0, 2.0, 5.0):
+            expected = (x**power - a**power) / (b**power - a**power)
+            assert abs(np.mean(z < x) - expected) < 0.01, (name, x)
+    assert DISTANCE_SAMPLERS["area"](rng, 2.0, 2.0) == 2.0

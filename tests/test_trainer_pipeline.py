@@ -112,10 +112,11 @@ def test_model_input_lcn_equals_numpy_lcn(data):
 def test_eval_table_matches_independent_count_from_infer_output(data, trained, tmp_path):
     rows = evaluate(trained["run"] / "checkpoint.pt", data, tmp_path / "eval", progress=False)
     md = (tmp_path / "eval" / "eval.md").read_text()
-    assert "| network | all |" in md and "| sgbm | all |" in md
+    assert "| network | all |" in md and "| sgbm-plain | all |" in md and "| sgbm-lcn | all |" in md
+    assert "verdict: the network is" in md and "10.4 %" in md  # GigaDepth's reference figures
     with open(tmp_path / "eval" / "eval.csv") as f:
         table = list(csv.DictReader(f))
-    assert len(table) == len(rows) == 2 * 6
+    assert len(table) == len(rows) == 3 * 6
     pngs = sorted((tmp_path / "eval" / "errors").glob("*.png"))
     assert len(pngs) == 2 and cv2.imread(str(pngs[0])).shape[1] > 3 * 128
     # recompute the network's overall o(1) from infer's EXRs and the GT, by hand
@@ -147,9 +148,11 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
 
     ch = OpenEXR.File(str(tmp_path / "out" / "captured.exr"), separate_channels=True).channels()
     depth, disp = ch["depth"].pixels, ch["disparity"].pixels
-    ok = np.isfinite(depth)
-    np.testing.assert_allclose(disp[ok], rig.camera.fx * rig.baseline / depth[ok], rtol=1e-5)
-    assert cv2.imread(str(tmp_path / "out" / "captured.png")).shape == (94, 128, 3)
+    finite = np.isfinite(depth)
+    np.testing.assert_allclose(disp[finite], rig.camera.fx * rig.baseline / depth[finite], rtol=1e-5)
+    ok = finite & (depth <= rig.max_depth)
+    colour = cv2.imread(str(tmp_path / "out" / "captured.png"))
+    assert colour.shape[1] == 128 and colour.shape[0] > 94  # the legend is drawn under the image
     import trimesh
 
     cloud = trimesh.load(tmp_path / "out" / "captured.ply")  # PLY read back by trimesh's own parser
@@ -160,6 +163,30 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
     cam = rig.camera
     np.testing.assert_allclose(pts["x"], (u - cam.cx) * depth[ok] / cam.fx, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(pts["y"], (v - cam.cy) * depth[ok] / cam.fy, rtol=1e-5, atol=1e-6)
+
+
+def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path):
+    """A checkpoint whose rig's max_depth is the median predicted depth: the PLY holds exactly the
+    pixels with a depth up to it, none beyond (the EXR keeps every depth)."""
+    import OpenEXR
+
+    frames, _, _ = list_frames(data, "test")
+    infer(trained["run"] / "checkpoint.pt", [frames[0].path], tmp_path / "full", progress=False)
+    name = f"{frames[0].path.parent.name}_{frames[0].path.stem}"
+    depth = OpenEXR.File(str(tmp_path / "full" / f"{name}.exr"), separate_channels=True
+                         ).channels()["depth"].pixels
+    limit = float(np.nanmedian(depth))
+    ckpt = torch.load(trained["run"] / "checkpoint.pt", weights_only=False)
+    ckpt["rig"]["max_depth"] = limit
+    torch.save(ckpt, tmp_path / "near.pt")
+    infer(tmp_path / "near.pt", [frames[0].path], tmp_path / "near", progress=False)
+    raw = (tmp_path / "near" / f"{name}.ply").read_bytes()
+    head, body = raw.split(b"end_header\n", 1)
+    pts = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("c", "u1", 3)])
+    kept = np.isfinite(depth) & (depth > 0) & (depth <= limit)
+    assert 0 < len(pts) == int(kept.sum()) < int(np.isfinite(depth).sum())
+    assert pts["z"].max() <= limit
+    np.testing.assert_array_equal(np.sort(pts["z"]), np.sort(depth[kept]))
 
 
 def test_unet_backbone_trains_a_step(data, tmp_path):

@@ -20,16 +20,19 @@ def _train(args: argparse.Namespace) -> None:
     if args.nproc < 1:
         raise DataError(f"--nproc {args.nproc}: need at least 1 process")
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
+    if args.minutes < 0:
+        raise DataError(f"--minutes {args.minutes}: need 0 (no time limit) or more")
     with disk_full_in(args.out):
         run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
-            split=args.split)
+            split=args.split, max_seconds=args.minutes * 60)
 
 
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
-             max_frames=args.max_frames, images=args.images, precision=args.precision)
+             max_frames=args.max_frames, images=args.images, precision=args.precision,
+             val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames)
 
 
 def _infer(args: argparse.Namespace) -> None:
@@ -75,21 +78,34 @@ def add_parser(subparsers) -> None:
     p.add_argument("--nproc", type=int, default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
                    "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
+    p.add_argument("--minutes", type=float, default=0.0, metavar="M",
+                   help="stop (with a checkpoint) after the first step that ends past M minutes of training "
+                   "(default 0: run the config's epochs / max_steps)")
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(
         "eval", help="outlier rates o(0.5..5) of a checkpoint and of StereoSGBM, error images",
         description="Evaluate a checkpoint and OpenCV StereoSGBM (IR vs the pattern as seen from infinity, "
-        "GigaDepth's settings) on the same frames: o(t) = share of valid pixels (pattern visible, finite "
-        "GT) whose disparity error exceeds t = 0.5, 1, 2, 5 camera pixels at full resolution (no "
-        "estimate counts as an outlier), overall and per GT depth range. Writes OUT/eval.md, OUT/eval.csv "
-        "and OUT/errors/*.png (IR | network error | SGBM error; 0-5 px turbo, outliers black, no GT grey).")
+        "block 5, P1 200, P2 800; its disparity range reaches the nearest depth of the data's config and GT; "
+        "plain and LCN-preprocessed) on the same frames: o(t) = share of valid pixels (pattern visible, "
+        "finite GT) whose disparity error exceeds t = 0.5, 1, 2, 5 camera pixels at full resolution (no "
+        "estimate, or GT outside a method's range, counts as an outlier), overall and per GT depth range, "
+        "with GigaDepth's reference figures and a one-line verdict against the SGBM variant chosen on "
+        "--val-data. Writes OUT/eval.md, OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM "
+        "error, with a legend: 0-5 px turbo, outliers black, no GT grey).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
     p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
     p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
+    p.add_argument("--val-data", default=None, metavar="DIR",
+                   help="dataset whose --val-split frames choose SGBM's preprocessing (plain or LCN) "
+                   "by o(0.5), e.g. the training data (SGBM learns nothing from it), never the evaluated "
+                   "frames. Default: none (SGBM plain)")
+    p.add_argument("--val-split", default="train", help="split of --val-data (default train)")
+    p.add_argument("--val-frames", type=int, default=8, metavar="N",
+                   help="validation frames, spread over the split (default 8; 0 = all)")
     _add_inference_device(p)
     p.set_defaults(func=_eval, errors=EXPECTED_ERRORS)
 

@@ -174,6 +174,19 @@ def validate(cfg: Config, source: str = "<dict>") -> None:
                    f"{levels} weights")
 
 
+def resolution_mismatch(cfg: Config, camera_width: int, camera_height: int) -> str | None:
+    """Why `cfg` does not fit a camera of this size, or None. The per-line weight tables are made for
+    a number of half-resolution rows: `lines` must divide them (each line then covers whole rows, as
+    configured) and not exceed them (lines beyond the last row would never train)."""
+    rows = (camera_height + 1) // 2
+    lines = cfg.model.lines
+    if lines <= rows and rows % lines == 0:
+        return None
+    return (f"[model] lines = {lines} does not fit the data's {camera_width} x {camera_height} camera "
+            f"({rows} half-resolution rows, {rows / lines:.2f} rows per line): the config was sized for "
+            f"another resolution; choose lines dividing {rows} (the built-in train_cpu: 608 x 448)")
+
+
 def config_reference_markdown() -> str:
     """docs/TRAIN_CONFIG.md: every key with its type, allowed values, default and meaning."""
     return config_schema.reference_markdown(Config, "Training configuration reference", (

@@ -3,9 +3,9 @@
 Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
 Outputs per input, named after it: NAME.exr (float32 channels disparity [camera px] and depth [m], nan
-where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none),
-NAME.ply (dotsim.pointcloud: binary, through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey
-as red/green/blue).
+where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none,
+with a legend under it), NAME.ply (dotsim.pointcloud: binary, through trimesh; x, y, z in metres in the
+OpenCV camera frame, IR grey as red/green/blue; only depths within the rig's max_depth).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from dotsim.rig import Rig
 from dotsim.show import colourise
 from trainer.data import DataError
 from trainer.evaluate import load_model, predict_disparity
+from trainer.legend import with_legend
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
@@ -61,6 +62,9 @@ def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     atomic_write_bytes(path, stream.getvalue())
 
 
+DISPARITY_SWATCHES = (((0, 0, 0), "black: no estimate"),)
+
+
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
           progress: bool = True, precision: str = "float32") -> list[Path]:
     """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
@@ -79,8 +83,11 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
         write_exr(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
-        write_image(out_dir / f"{name}.png", colourise(disparity, lo, hi))
-        write_ply(out_dir / f"{name}.ply", *depth_points(depth, rig.camera, grey_levels(ir)))
+        write_image(out_dir / f"{name}.png", with_legend(colourise(disparity, lo, hi), lo, hi,
+                                                         "px disparity (near = high)", DISPARITY_SWATCHES))
+        # the rig's range is what the network was trained on: a column at (or past) the pattern's
+        # position at infinity gives depths of hundreds of metres that would dwarf the scene
+        write_ply(out_dir / f"{name}.ply", *depth_points(depth, rig.camera, grey_levels(ir), rig.max_depth))
         written.append(out_dir / f"{name}.exr")
     if progress:
         print(f"wrote disparity/depth EXR, PNG and PLY for {len(written)} frame(s) to {out_dir}")

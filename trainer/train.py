@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full
 from dotsim.rig import Rig
-from trainer.config import Config, config_from_dict
+from trainer.config import Config, config_from_dict, resolution_mismatch
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
 from trainer.model import GigaDepthNet, autocast
@@ -229,6 +229,9 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     if t.batch_size % ranks.world:
         raise DataError(f"[train].batch_size {t.batch_size} is the global batch and must divide evenly "
                         f"among the {ranks.world} processes")
+    mismatch = resolution_mismatch(cfg, rig.camera.width, rig.camera.height)
+    if mismatch and progress and ranks.main:
+        print(f"warning: {mismatch}", flush=True)
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch)
@@ -318,5 +321,6 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         last = f"{losses[-1]:.4f}" if losses else "n/a (already complete)"
         print(f"trained {len(losses)} step(s) to step {step}/{total_steps} in {seconds:.1f} s "
               f"({len(losses) * t.batch_size / max(seconds, 1e-9):.1f} samples/s on {ranks.world} "
-              f"process(es)), last loss {last}; checkpoint {ckpt_path}")
+              f"process(es)), last loss {last}; checkpoint {ckpt_path}; TensorBoard logs in "
+              f"{out_dir / 'tb'} (tensorboard --logdir {out_dir / 'tb'})")
     return {"step": step, "losses": losses, "seconds": seconds}

@@ -1,0 +1,118 @@
+"""What each CPU training-speed idea would buy, by counting, plus an optional short timing.
+
+    python -m bench.trainer_cpu_recipe [--config train_cpu] [--time 20] [--threads 1]
+
+Counts (exact, machine-independent): the FLOPs of one training step (forward and backward, batch
+[train].batch_size) split into the backbone's convolutions and the tree's heads, for several crop
+sizes, with torch's FlopCounterMode on a real network of the config at 608 x 448; and the parameters
+Adam reads and writes every step (it updates every table entry, though a batch touches few). What the
+counts say about each idea:
+
+- crops / row bands: the backbone's FLOPs grow with the pixels of the crop, so samples/s in pixels
+  is fixed by the backbone; a crop buys nothing per pixel, only more distinct images per step;
+- sampling pixels for the branch heads: the heads run on the valid pixels only and are the small
+  share printed below, so sampling them can save at most that share;
+- channels_last and torch.compile change no count: only a timing can tell (--time N: N steps of each,
+  after 3 warm-up steps, on synthetic batches; on a shared machine those figures are noise-prone and
+  are printed as such).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from dotsim.rig import get_preset
+from trainer.config import load_config
+from trainer.model import GigaDepthNet
+from trainer.train import build_model
+
+CROPS = ((96, 64), (192, 128), (304, 224), (608, 448))  # (width, height), full-resolution px
+VALID_SHARE = 0.55  # share of visible pixels (dotsim stats on make dataset's data: about this)
+
+
+def synthetic_batch(cfg, rows: int, width: int, height: int, seed: int = 0) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    b = cfg.train.batch_size
+    h, w = height // 2, width // 2
+    return {"ir": torch.rand(b, 1, height, width, generator=g),
+            "row0": torch.randint(0, max(rows - h, 0) + 1, (b,), generator=g) // 2 * 2,
+            "column": torch.rand(b, h, w, generator=g),
+            "valid": torch.rand(b, h, w, generator=g) < VALID_SHARE,
+            "edge": torch.zeros(b, h, w)}
+
+
+def step_loss(model: GigaDepthNet, batch: dict) -> torch.Tensor:
+    terms = model.loss_terms(model.features(batch["ir"]), batch["row0"], batch["column"], batch["valid"])
+    return sum(ce.sum() for ce in terms["ce"]) + terms["l1"].sum()
+
+
+def count(model: GigaDepthNet, batch: dict) -> tuple[float, float]:
+    """(backbone GFLOP, heads GFLOP) of one forward + backward."""
+    with FlopCounterMode(display=False) as backbone_counter:
+        feat = model.features(batch["ir"])
+        feat.sum().backward()
+    model.zero_grad(set_to_none=True)
+    with FlopCounterMode(display=False) as total_counter:
+        step_loss(model, batch).backward()
+    model.zero_grad(set_to_none=True)
+    backbone = backbone_counter.get_total_flops()
+    return backbone / 1e9, (total_counter.get_total_flops() - backbone) / 1e9
+
+
+def steps_per_second(model: GigaDepthNet, batch: dict, steps: int, channels_last: bool = False) -> float:
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
+        batch = {**batch, "ir": batch["ir"].contiguous(memory_format=torch.channels_last)}
+    for k in range(steps + 3):
+        if k == 3:
+            start = time.perf_counter()
+        opt.zero_grad(set_to_none=True)
+        step_loss(model, batch).backward()
+        opt.step()
+    return steps / (time.perf_counter() - start)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default="train_cpu")
+    parser.add_argument("--time", type=int, default=0, metavar="N", help="also time N steps of each idea")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.config)
+    rig = get_preset("structure_core").scaled(0.5)  # 608 x 448
+    rows = rig.camera.height
+    torch.manual_seed(0)
+    model = build_model(cfg, rig)
+    params = sum(p.numel() for p in model.parameters())
+    backbone_params = sum(p.numel() for p in model.backbone.parameters())
+    print(f"{args.config} at {rig.camera.width} x {rig.camera.height}: {params / 1e6:.1f} M parameters "
+          f"({backbone_params / 1e3:.0f} k in the backbone); Adam reads and writes all of them every step "
+          f"({4 * params * 4 / 1e6:.0f} MB of parameter, gradient and two moment tensors)\n")
+    print("| crop (px) | batch | backbone GFLOP/step | heads GFLOP/step | heads share | "
+          "MFLOP per full-res px |\n|---|---|---|---|---|---|")
+    for width, height in CROPS:
+        batch = synthetic_batch(cfg, rows, width, height)
+        backbone, heads = count(model, batch)
+        pixels = cfg.train.batch_size * width * height
+        print(f"| {width} x {height} | {cfg.train.batch_size} | {backbone:.2f} | {heads:.3f} | "
+              f"{heads / (backbone + heads):.1%} | {(backbone + heads) * 1e3 / pixels:.3f} |")
+    if args.time:
+        crop = (cfg.data.crop_width or rig.camera.width, cfg.data.crop_height or rig.camera.height)
+        batch = synthetic_batch(cfg, rows, *crop)
+        print(f"\nsteps/s of {args.time} steps, {crop[0]} x {crop[1]} crops, {args.threads} thread(s), "
+              "TAKEN ON A SHARED, BUSY MACHINE (relative at best):")
+        print(f"  contiguous (as trained): {steps_per_second(model, batch, args.time):.2f}")
+        print(f"  channels_last: {steps_per_second(build_model(cfg, rig), batch, args.time, True):.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
