@@ -2,8 +2,9 @@
 
     python -m bench.direct_settings [--width 608] [--repeats 3] [--scene 0]
 
-Renders scene --scene of the built-in structure_core config (built-in primitives; scene 0 has extra
-lights, so it takes the direct render) at --width, then the scene's direct renders (one per pose,
+Renders scene --scene of the built-in structure_core config (built-in primitives; scene 1 has two
+extra lights, so the generator takes the direct render for it; scene 0 has none, and its direct
+render is run here all the same) at --width, then the scene's direct renders (one per pose,
 as SceneRenderer.render_poses runs them) once per variant, the variants taking turns, and prints
 per variant the median wall and CPU seconds per frame and the largest difference of its R and G
 (projector_direct, flood_direct) from the renderer's own direct render. Variants, each a change on
