@@ -269,13 +269,15 @@ def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tup
 
 
 def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
-    """kill -9 of `dotsim generate --ray local` mid-scene: its cluster (raylet, agents, the workers
-    running tasks) is gone within 10 s."""
+    """kill -9 of `dotsim generate --ray local` mid-run, once its first scene is under way or done:
+    its cluster (raylet, agents, the workers running tasks) is gone within 10 s."""
     pytest.importorskip("ray")
     out = tmp_path / "ray"
+    # enough scenes that the run is still going when one is seen (a tiny scene's temporary folder
+    # can come and go between two looks on idle cores)
     command = ["generate", "--config", str(TINY), "--out", str(out), "--split", "train", "--scenes",
-               str(SCENES), "--seed", "3", "--workers", "2", "--no-progress", "--ray", "local"]
-    status, _ = run_of(command, lambda proc: bool(list(out.glob("shard_*/.tmp-scene_*"))), signal.SIGKILL)
+               str(8 * SCENES), "--seed", "3", "--workers", "2", "--no-progress", "--ray", "local"]
+    status, _ = run_of(command, lambda proc: bool(list(out.glob("shard_*/*scene_*"))), signal.SIGKILL)
     assert status == -signal.SIGKILL
 
 

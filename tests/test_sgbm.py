@@ -11,8 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
+from dotsim.config_schema import read_toml
+from dotsim.configs import builtin_path
 from dotsim.rig import get_preset
-from generator.config import load_config
+from generator.config import config_from_dict
 from generator.sample_scene import build_rig
 from trainer.sgbm import PREPROCESSINGS, max_disparity, num_disparities_for, sgbm_disparity
 
@@ -33,7 +35,11 @@ def shifted_pair(height: int, width: int, disparity: float, seed: int = 0):
 
 
 def structure_core_half():
-    config = load_config("structure_core")
+    """The shipped structure_core config (its rig and scene distance; primitives, so no asset cache
+    is needed) and its rig at half size."""
+    data = read_toml(builtin_path("structure_core"))
+    data["assets"] = {"source": "primitives"}
+    config = config_from_dict(data, "structure_core")
     return config, build_rig(config).scaled(0.5)
 
 
