@@ -44,6 +44,8 @@ LINE = 18  # text line height, px
 GAP = 6  # between tiles, px
 LABEL_WIDTH = 70  # left column with the frame labels, px
 BAR_HEIGHT = 14
+LEGEND_BAR_WIDTH = 160  # the colour bar of legend_strip, px
+SWATCH = 12  # a legend swatch's side, px
 BACKGROUND = (40, 40, 40)
 TEXT_COLOUR = (235, 235, 235)
 SUBTLE_COLOUR = (170, 200, 230)
@@ -212,6 +214,34 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
         _text(sheet, line, GAP, y)
         y += LINE
     return sheet, SheetLayout(tiles=tiles, tile_size=(tile_w, tile_h))
+
+
+def legend_strip(width: int, low: float, high: float, unit: str,
+                 swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
+    """A BGR strip `width` px wide to stack under a colourise()d image, so that a reader sees what
+    every colour means without the docs: 'low [bar] high unit' on the first row, then one row per
+    (BGR colour, meaning) swatch (e.g. black = no estimate)."""
+    strip = np.full(((1 + len(swatches)) * LINE + 4, width, 3), BACKGROUND, np.uint8)
+    label = _fmt(low)
+    _text(strip, label, 4, LINE - 5)
+    x = 8 + cv2.getTextSize(label, FONT, TEXT_SCALE, 1)[0][0]
+    bar_w = max(16, min(LEGEND_BAR_WIDTH, width - x - 120))
+    if x + bar_w <= width:
+        strip[3:LINE - 3, x:x + bar_w] = colourise(np.linspace(low, high, bar_w)[None].repeat(LINE - 6, 0),
+                                                   low, high)
+    _text(strip, f"{_fmt(high)} {unit}", x + bar_w + 4, LINE - 5, width=width - x - bar_w - 8)
+    for k, (colour, meaning) in enumerate(swatches, start=1):
+        y = k * LINE
+        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), colour, -1)
+        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), TEXT_COLOUR, 1)
+        _text(strip, meaning, 8 + SWATCH, y + LINE - 5, width=width - 12 - SWATCH)  # smaller where narrow
+    return strip
+
+
+def with_legend(image: np.ndarray, low: float, high: float, unit: str,
+                swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
+    """image (H, W, 3) BGR with legend_strip(...) stacked under it."""
+    return np.concatenate([image, legend_strip(image.shape[1], low, high, unit, swatches)], axis=0)
 
 
 def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:

@@ -32,9 +32,9 @@ from dotsim.rig import (
     projector_column_to_depth,
     reference_image,
 )
+from dotsim.show import with_legend
 from trainer.config import Config
 from trainer.data import DataError, FrameRef, list_frames
-from trainer.legend import with_legend
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 from trainer.train import build_model, check_rig, load_checkpoint

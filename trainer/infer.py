@@ -21,10 +21,9 @@ from dotsim.file_io import atomic_write_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
-from dotsim.show import colourise
+from dotsim.show import colourise, with_legend
 from trainer.data import DataError
 from trainer.evaluate import load_model, predict_disparity
-from trainer.legend import with_legend
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
