@@ -22,16 +22,15 @@ from pathlib import Path
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.rig import PRESETS
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import DEVICES, DIRECT_LIGHT, PRIMITIVE_SHAPES
-
-RIG_PRESETS = ("structure_core", "kinect_v1", "realsense_d415")
 
 
 @dataclass(frozen=True)
 class RigConfig:
     preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
-                          "dotsim/rigs/); ignored when `file` is set", choices=RIG_PRESETS)
+                          "dotsim/rigs/); ignored when `file` is set", choices=tuple(PRESETS))
     file: str = setting("", "rig file instead of the preset (camera, projector and pose): dotsim rig JSON "
                         "(as in scene.json or from `dotsim capture info`), a cv2.stereoCalibrate result, "
                         "stereo_calib's intrinsics.yml (its extrinsics.yml beside it is read too) or a "
@@ -311,12 +310,12 @@ def load_config(path: str | os.PathLike) -> Config:
 def with_rig(config: Config, spec: str) -> Config:
     """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file: a preset
     name, or a rig file (any layout dotsim.rig_files reads). Raises ConfigError naming --rig."""
-    if spec in RIG_PRESETS:
+    if spec in PRESETS:
         rig = replace(config.rig, preset=spec, file="")
     elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
         rig = replace(config.rig, file=str(Path(spec).resolve()))
     else:
-        raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(RIG_PRESETS)}) nor a rig file "
+        raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a rig file "
                           f"({', '.join(RIG_FILE_SUFFIXES)})")
     config = replace(config, rig=rig)
     try:
