@@ -111,24 +111,27 @@ def stop_processes(processes: Iterable, grace_s: float = TERMINATE_GRACE_S) -> N
             process.join(1.0)
 
 
-def process_status(pid: int) -> tuple[int, int] | None:
-    """(parent pid, start time in clock ticks) of a live, non-zombie process, or None."""
+def _stat_fields(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command name (state first), or None (no such process,
+    or not Linux)."""
     try:
         text = open(f"/proc/{pid}/stat").read()
     except OSError:
         return None
-    fields = text[text.rindex(")") + 2:].split()
-    return None if fields[0] == "Z" else (int(fields[1]), int(fields[19]))
+    return text[text.rindex(")") + 2:].split()
+
+
+def process_status(pid: int) -> tuple[int, int] | None:
+    """(parent pid, start time in clock ticks) of a live, non-zombie process, or None."""
+    fields = _stat_fields(pid)
+    return None if fields is None or fields[0] == "Z" else (int(fields[1]), int(fields[19]))
 
 
 def is_zombie(pid: int) -> bool:
     """True for a process that has ended and is not yet reaped (it runs and writes nothing): after a
     kill -9, a worker re-parented to an init that reaps slowly stays one for a while (Linux)."""
-    try:
-        text = open(f"/proc/{pid}/stat").read()
-    except OSError:
-        return False
-    return text[text.rindex(")") + 2] == "Z"
+    fields = _stat_fields(pid)
+    return fields is not None and fields[0] == "Z"
 
 
 def process_tree(pid: int) -> dict[int, int]:

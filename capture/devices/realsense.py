@@ -10,13 +10,13 @@ pyrealsense2 `software_device` fed with rendered frames (tests/test_capture_reco
 
 from __future__ import annotations
 
-import hashlib
 import time
 from pathlib import Path
 
 import numpy as np
 
 from capture.devices import Device, DeviceError, DeviceFrame, DeviceGone, require_extra
+from dotsim.file_io import sha256_file
 from dotsim.rig import Intrinsics, Rig
 from dotsim.rig_files import device_rig
 
@@ -253,7 +253,7 @@ class RealSenseRecording(RealSenseDevice):
         self.poses = _pose_count(states) if self.can_switch_emitter else len(states)
         self._pending: DeviceFrame | None = None
         if count_poses:
-            self.info.update(kind="realsense-recording", file=str(path.resolve()), sha256=_sha256(path))
+            self.info.update(kind="realsense-recording", file=str(path.resolve()), sha256=sha256_file(path))
 
     @staticmethod
     def _emitter_states(path: Path) -> list[bool | None]:
@@ -304,10 +304,3 @@ def _pose_count(states: list[bool | None]) -> int:
             want = not want
     return poses
 
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
