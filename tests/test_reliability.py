@@ -200,10 +200,12 @@ def start_generate(out: Path, workers: int = 2) -> subprocess.Popen:
 
 
 def wait_rendering(proc: subprocess.Popen, out: Path, workers: int) -> set[int]:
-    """Wait until the run has its workers and a scene half-written; the run's processes then."""
+    """Wait until the run has its workers and its first scene on disk (half or wholly written: a scene
+    is encoded in memory, so its temp folder lives only milliseconds); the run's processes then, with
+    the other scenes still rendering."""
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and proc.poll() is None:
-        if list(out.glob("shard_*/.tmp-scene_*")) and len(descendants(proc.pid)) >= workers:
+        if list(out.glob("shard_*/*scene_*")) and len(descendants(proc.pid)) >= workers:
             return descendants(proc.pid)
         time.sleep(0.02)
     pytest.fail(f"the run never had {workers} workers rendering (exit {proc.poll()})")
