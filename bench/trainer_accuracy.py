@@ -36,15 +36,13 @@ import torch
 
 from generator.config import load_config as load_generator_config
 from generator.pipeline import generate
+from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import list_frames
 from trainer.evaluate import THRESHOLDS, chosen_sgbm, evaluate, overall
 from trainer.train import train
 
 OUTLIER_KEYS = tuple(f"o({t:g})" for t in THRESHOLDS)
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from trainer_fixtures import make_dataset  # noqa: E402
 
 
 def generated_datasets(root: Path = Path("out")) -> tuple[Path, Path] | None:

@@ -19,12 +19,10 @@ from pathlib import Path
 
 import torch
 
+from tests.trainer_fixtures import make_dataset
 from trainer.config import load_config
 from trainer.distributed import run_on_ranks
 from trainer.train import train
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from trainer_fixtures import make_dataset  # noqa: E402
 
 
 def main(argv=None) -> int:

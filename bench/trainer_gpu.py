@@ -30,14 +30,12 @@ import numpy as np
 import torch
 
 from dotsim.patterns import generate_dot_pattern
+from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames, make_loader
 from trainer.evaluate import PRECISIONS, load_model, predict_disparity
 from trainer.model import LOW_PRECISION, autocast
 from trainer.train import batch_loss, build_model, make_optimizer, train
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame  # noqa: E402
 
 PUBLISHED_MS = 60.0  # GigaDepth's conv network per 1216 x 896 frame on a GPU; its UNet ablation 1 s
 

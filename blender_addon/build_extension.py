@@ -35,7 +35,7 @@ MANIFEST_TEMPLATE = ADDON_DIR / "blender_manifest.template.toml"
 BLENDER_PYTHON = "3.11"  # Blender 4.2 to 5.0 bundle CPython 3.11
 # What the preview imports besides dotsim and what Blender bundles (numpy, Cython, requests and
 # zstandard: the bpy module's own requirements). Found by running the panel's operators with an
-# import hook; tests/test_blender_extension.py checks that each of these is imported and that
+# import hook; tests/blender_addon/test_blender_extension.py checks that each of these is imported and that
 # nothing else is missing. Versions: the ones installed here, which the tests run with.
 PREVIEW_DISTRIBUTIONS = (
     "opencv-contrib-python-headless",  # dotsim.pattern_store: pattern resizing

@@ -3,7 +3,7 @@
 GigaDepth feeds the network [IR, LCN(IR)]: LCN removes the slow falloff of projector brightness
 with distance and albedo so the dots look alike everywhere. The numpy version (lcn) is the
 reference; the torch version (lcn_torch) is what the trainer runs, on batches, and agrees with it
-(tests/test_lcn.py). Both use the population std of the window and reflect padding that does not
+(tests/dotsim/test_lcn.py). Both use the population std of the window and reflect padding that does not
 repeat the border pixel (numpy 'reflect' == torch 'reflect' == OpenCV BORDER_REFLECT_101).
 """
 

@@ -1,7 +1,9 @@
-"""Fixtures shared by the trainer's test modules."""
+"""Fixtures shared by test modules in several folders (tests/trainer/ and tests/dotsim/)."""
 
 import pytest
 import torch
+
+from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")
@@ -11,3 +13,10 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """A tiny oracle dataset (tests/trainer_fixtures.py): 3 train scenes and 1 test scene of 2 frames.
+    Modules that need another size define their own `data`."""
+    return make_dataset(tmp_path_factory.mktemp("ds"), scenes=3, frames_per_scene=2, test_scenes=1)

@@ -20,6 +20,9 @@ THIS = PurePosixPath("tests") / Path(__file__).name
 OUTPUT_FILES = {"eval.md"}
 # A name like docs/FORMAT.md or GEOMETRY.md, not part of a longer path or URL.
 MD_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)*[\w-]+\.md)\b")
+# A source file named by its path in the repository (tests/dotsim/test_rig.py), so that moving or renaming
+# a module or a test leaves no reference behind.
+PY_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)+[\w-]+\.py)\b")
 OUTSIDE = re.compile(r"ARCHITECTURE\.md|\bplan\.md|\.\./shared|/work/|\bthe seed's\b", re.IGNORECASE)
 
 
@@ -68,6 +71,15 @@ def test_named_documents_exist():
     assert not missing, "documents named but not in the repository:\n" + "\n".join(missing)
 
 
+def test_named_source_files_exist():
+    files = tracked_text_files()
+    tracked = set(files)
+    missing = [f"{name}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(1)}"
+               for name, text in files.items() if name != THIS
+               for m in PY_REFERENCE.finditer(text) if not resolves(m.group(1), name, tracked)]
+    assert not missing, "source files named but not in the repository:\n" + "\n".join(missing)
+
+
 def test_no_documents_from_outside():
     files = tracked_text_files()
     cited = [f"{name}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)}"
@@ -86,6 +98,8 @@ def test_the_checks_catch_what_they_should():
     assert resolves("../README.md", PurePosixPath("docs/FORMAT.md"), tracked)
     assert resolves("docs/FORMAT.md", PurePosixPath("generator/config.py"), tracked)
     assert not resolves("docs/SCENE.md", PurePosixPath("generator/config.py"), tracked)
+    line = "(tests/dotsim/test_rig.py) and config.py, python -m bench.run_all, https://x.org/tests/y.py"
+    assert [m.group(1) for m in PY_REFERENCE.finditer(line)] == ["tests/dotsim/test_rig.py"]
     # built from parts, so that this file does not itself name the documents it bans
     md, shared = ".md", "shared/"
     for line in (f"(see ARCHITECTURE{md})", f"/work/plan{md}", f"../{shared}x", "The seed's UNet ablation"):

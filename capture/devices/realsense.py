@@ -5,7 +5,7 @@ the left IR camera's frame, so pixel-aligned with it) and the projector's `emitt
 option; both streams are opened on it and paired by frame number with an rs.syncer. The frame
 metadata `frame_emitter_mode` says whether the projector lit a frame, so recording waits for the
 state it asked for rather than guessing a settling time. The same code drives a
-pyrealsense2 `software_device` fed with rendered frames (tests/test_capture_record.py).
+pyrealsense2 `software_device` fed with rendered frames (tests/capture/test_capture_record.py).
 """
 
 from __future__ import annotations

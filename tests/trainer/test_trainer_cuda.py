@@ -3,21 +3,16 @@ falling, resume on CUDA, a CUDA-written checkpoint read on CPU with the same pre
 CUDA in reduced precision. Skipped without CUDA (`make test` is CPU-only); docs/TRAINER.md, "On a GPU",
 gives the commands."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
 from dotsim.dataset import read_frame
+from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate, load_model, predict_disparity
 from trainer.train import batch_loss, build_model, train
-
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(),
                                 reason="needs a CUDA device (torch.cuda.is_available() is False)")

@@ -5,7 +5,6 @@ distinct poses; predictions are files in `dotsim infer`'s format (trainer.infer.
 """
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,10 +13,8 @@ from dotsim import cli
 from dotsim import dataset as ds
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
+from tests.trainer_fixtures import random_depth, synthetic_frame
 from trainer.infer import write_exr
-
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import random_depth, synthetic_frame  # noqa: E402
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
 

@@ -15,13 +15,13 @@ from pathlib import Path
 import pytest
 import ray
 from ray.cluster_utils import Cluster
-from test_generate import TINY, run_cli
 
 from bench.one_node_slurm import free_port
 from dotsim import dataset
 from generator.config import ConfigError, load_config
 from generator.pipeline import generate
 from generator.ray_cluster import RayBackend
+from tests.generator.test_generate import TINY, run_cli
 
 SEED = 5
 SCENES = 6

@@ -18,7 +18,7 @@ from dotsim.config_schema import FloatRange, setting
 from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, load_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml"]
 TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml"]
 # (config module, its reference page)

@@ -138,6 +138,6 @@ def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():
             "generator.blender.pattern_filter, generator.blender.exr; "
             "print(sorted({m.split('.')[0] for m in sys.modules} - set(sys.stdlib_module_names)))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                          cwd=Path(__file__).resolve().parents[1])
+                          cwd=Path(__file__).resolve().parents[2])
     third_party = {name for name in ast.literal_eval(proc.stdout) if not name.startswith("_")}
     assert third_party <= {"numpy", "dotsim", "generator", "cython_runtime"}, third_party

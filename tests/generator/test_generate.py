@@ -22,7 +22,7 @@ from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import RAW_PASSES, make_frame
 from generator.sample_scene import SceneResources, sample_scene_spec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
 
 

@@ -25,12 +25,10 @@ from generator.config import load_config
 from generator.pipeline import generate
 
 rs = pytest.importorskip("pyrealsense2")
-sys.path.insert(0, str(Path(__file__).parent))
-from realsense_software import DEPTH_UNITS, SERIAL, SoftwareStereoModule, depth_z16  # noqa: E402
-
 from capture.devices.realsense import RealSenseDevice, open_realsense  # noqa: E402
+from tests.capture.realsense_software import DEPTH_UNITS, SERIAL, SoftwareStereoModule, depth_z16  # noqa: E402
 
-TINY = Path(__file__).parent.parent / "dotsim" / "configs" / "tiny.toml"
+TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 RIG = get_preset("structure_core").scaled(0.1)  # what dotsim/configs/tiny.toml renders: 122 x 90
 
 

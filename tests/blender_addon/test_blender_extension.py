@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT, generate_scene
 
 from blender_addon.build_extension import (
     PREVIEW_DISTRIBUTIONS,
@@ -35,10 +34,12 @@ from blender_addon.build_extension import (
     project_version,
     this_platform,
 )
+from tests.blender_addon.generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT
 
 pytest.importorskip("bpy")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
+SESSION = Path(__file__).with_name("blender_extension_session.py")  # run in its own Python
 FRAME = 2
 KALIBR_CAMCHAIN = """cam0:
   camera_model: pinhole
@@ -66,12 +67,6 @@ def extension_zip(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("extension")
     (path,) = build_extension(folder / "dist", [this_platform()], from_venv=True, staging=folder / "staging")
     return path
-
-
-@pytest.fixture(scope="module")
-def dataset_scene(tmp_path_factory):
-    """(dataset dir, scene meta, frames) of the scene as `dotsim generate` writes it."""
-    return generate_scene(tmp_path_factory.mktemp("extension_dataset") / "dataset")
 
 
 def _distribution_key(name: str) -> str:
@@ -116,7 +111,7 @@ def session(tmp_path_factory, extension_zip, dataset_scene):
     resources = tmp / "blender_user"
     env = {key: value for key, value in os.environ.items() if not key.startswith(("PYTHON", "BLENDER_"))}
     env.update(PYTHONPATH=str(bundle), HOME=str(tmp / "home"), BLENDER_USER_RESOURCES=str(resources))
-    result = subprocess.run([sys.executable, "-S", "-P", str(REPO / "tests" / "blender_extension_session.py"),
+    result = subprocess.run([sys.executable, "-S", "-P", str(SESSION),
                              str(tmp / "params.json")], cwd=tmp, env=env, capture_output=True, text=True,
                             timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]

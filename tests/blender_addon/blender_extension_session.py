@@ -1,5 +1,5 @@
 """One Blender session with the dotsim extension installed from its zip, run by
-tests/test_blender_extension.py in a Python that sees only bpy and what Blender bundles.
+tests/blender_addon/test_blender_extension.py in a Python that sees only bpy and what Blender bundles.
 
 Usage: python -S -P blender_extension_session.py PARAMS.json. Installs the zip into the user
 extension repository (the caller points BLENDER_USER_RESOURCES at a temporary folder), drives the

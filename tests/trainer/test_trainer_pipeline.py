@@ -2,8 +2,6 @@
 
 import csv
 import dataclasses
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,21 +10,14 @@ import torch
 
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
+from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.train import batch_loss, build_model, load_checkpoint, train
 
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
-
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("ds"), scenes=3, frames_per_scene=2, test_scenes=1)
 
 
 @pytest.fixture(scope="module")

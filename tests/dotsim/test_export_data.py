@@ -6,9 +6,7 @@ by the trainer, and everything is compared with the folder read through dotsim.d
 """
 
 import hashlib
-import sys
 import tarfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,18 +16,11 @@ from dotsim import cli
 from dotsim import dataset as ds
 from dotsim.data import Frames, index_shards, read_indexed
 from dotsim.export import export_webdataset, tar_bytes_of
+from tests.trainer_fixtures import tiny_config
 from trainer.data import DataError, list_frames
 from trainer.train import train
 
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
-
 SHARD_BYTES = 600_000  # a frame's sample takes about 250 KB of tar: two per shard
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("ds"), scenes=3, frames_per_scene=2, test_scenes=1)
 
 
 @pytest.fixture(scope="module")

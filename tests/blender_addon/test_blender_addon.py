@@ -14,7 +14,8 @@ import re
 
 import numpy as np
 import pytest
-from generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT, generate_scene
+
+from tests.blender_addon.generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT
 
 bpy = pytest.importorskip("bpy")
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
@@ -24,12 +25,6 @@ import blender_addon  # noqa: E402  (needs bpy)
 # A Blender camera looks down its local -Z with +Y up; OpenCV's looks down +z with y down. The same
 # camera's Blender object matrix is therefore its OpenCV pose with the y and z columns negated.
 OPENCV_TO_BLENDER = np.diag([1.0, -1.0, -1.0, 1.0])
-
-
-@pytest.fixture(scope="module")
-def dataset_scene(tmp_path_factory):
-    """(dataset dir, scene meta, frames) of the scene as `dotsim generate` writes it."""
-    return generate_scene(tmp_path_factory.mktemp("addon") / "dataset")
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from generator.blender import demo_scenes as ds
 from generator.post_render import RAW_PASSES
 
 pytest.importorskip("bpy")
-SCRIPT = Path(__file__).resolve().parents[1] / "generator" / "blender" / "run_in_blender.py"
+SCRIPT = Path(__file__).resolve().parents[3] / "generator" / "blender" / "run_in_blender.py"
 
 
 def test_run_in_blender_writes_raw_npz_and_reports_bad_specs(tmp_path):

@@ -11,7 +11,6 @@ of the camera's size for every recorded frame.
 """
 
 import json
-import sys
 import tomllib
 from pathlib import Path
 
@@ -29,12 +28,10 @@ from generator.config import load_config
 from generator.pipeline import generate
 
 pytest.importorskip("pyrealsense2")
-sys.path.insert(0, str(Path(__file__).parent))
-from realsense_software import SoftwareStereoModule, depth_z16  # noqa: E402
-
 from capture.devices.realsense import RealSenseDevice  # noqa: E402
+from tests.capture.realsense_software import SoftwareStereoModule, depth_z16  # noqa: E402
 
-ROOT = Path(__file__).parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 TRUE_RIG = get_preset("structure_core").scaled(0.1)  # camera 122 x 90, projector 307 x 307
 WALL = 1.0  # metres
 

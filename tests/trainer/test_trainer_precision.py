@@ -1,34 +1,24 @@
 """Mixed precision and devices, run for real on CPU: the indexed layers under autocast, float16 (with a
 gradient scaler) and bfloat16 training with checkpoint and resume, reduced-precision inference against
-float32, and checkpoints read on every available device (CPU alone here; tests/test_trainer_cuda.py
+float32, and checkpoints read on every available device (CPU alone here; tests/trainer/test_trainer_cuda.py
 adds the GPU)."""
-
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from dotsim.dataset import read_frame
+from tests.trainer.test_trainer_model import _naive_linear
+from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import load_model, predict_disparity
 from trainer.model import IndexedLinear, autocast, plan_groups
 from trainer.train import batch_loss, build_model, load_checkpoint, train
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_trainer_model import _naive_linear  # noqa: E402
-from trainer_fixtures import make_dataset, tiny_config  # noqa: E402
-
 LOW = [torch.bfloat16, torch.float16]
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
-
-
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    return make_dataset(tmp_path_factory.mktemp("ds"), scenes=3, frames_per_scene=2, test_scenes=1)
 
 
 def fixed_batch(data, cfg):

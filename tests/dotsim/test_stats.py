@@ -2,8 +2,6 @@
 visible region and edge band; every figure is computed here by hand from that layout."""
 
 import json
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,9 +12,7 @@ from dotsim.dataset import seal_dataset, write_scene
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
 from dotsim.stats import dataset_stats
-
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import synthetic_frame  # noqa: E402
+from tests.trainer_fixtures import synthetic_frame
 
 NEAR, FAR = 0.5, 3.0
 
@@ -47,7 +43,8 @@ def dataset(tmp_path_factory):
     meta = {"split": "train", "seed": 0, "rig": rig.to_dict(),
             "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
                         "height": rig.projector.height, "params": dots.params},
-            "poses": [np.eye(4).tolist()] * 2, "render": {"kind": "known content (tests/test_stats.py)"}}
+            "poses": [np.eye(4).tolist()] * 2,
+            "render": {"kind": "known content (tests/dotsim/test_stats.py)"}}
     write_scene(root, 0, meta, [frame, frame], scenes_per_shard=2)
     seal_dataset(root)
     return root, rig

@@ -114,11 +114,10 @@ def test_capture_record_rectifies_ir_and_device_depth(tmp_path, distorted):
     """A software RealSense streams the distorted checkerboard; recording with the lens stores the
     pinhole camera's frames (corners where the pinhole puts them, depth kept)."""
     pytest.importorskip("pyrealsense2")
-    from realsense_software import DEPTH_UNITS, SoftwareStereoModule
-
     from capture.devices.realsense import RealSenseDevice
     from capture.record import record
     from dotsim.rig_files import device_rig
+    from tests.capture.realsense_software import DEPTH_UNITS, SoftwareStereoModule
 
     rig = device_rig("pinhole", PINHOLE, (0.05, 0.0, 0.0))
     on = np.round(distorted * 255).astype(np.uint8)

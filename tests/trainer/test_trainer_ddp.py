@@ -13,16 +13,14 @@ import torch.distributed as dist
 from torch import nn
 
 from dotsim.cli import main
+from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import EpochSampler
 from trainer.distributed import Ranks, leave_process_group, run_on_ranks
 from trainer.model import GlobalBatchNorm2d
 from trainer.train import load_checkpoint, train
 
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py

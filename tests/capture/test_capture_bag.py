@@ -1,5 +1,5 @@
 """`capture import --bag`: a RealSense recording that the test writes itself with pyrealsense2's
-recorder over a software_device (tests/realsense_software.py), imported and read back.
+recorder over a software_device (tests/capture/realsense_software.py), imported and read back.
 
 pyrealsense2 2.56 and later record ROS2 bags (.db3) only: its recorder refuses any other name
 ("Output file must have .db3 extension"), so no ROS1 .bag, the RealSense Viewer's format before
@@ -20,7 +20,7 @@ from dotsim.cli import main
 from dotsim.rig import get_preset
 
 rs = pytest.importorskip("pyrealsense2")
-from realsense_software import DEPTH_UNITS, SoftwareStereoModule  # noqa: E402
+from tests.capture.realsense_software import DEPTH_UNITS, SoftwareStereoModule  # noqa: E402
 
 RIG = get_preset("structure_core").scaled(0.1)  # 122 x 90 IR
 

@@ -29,7 +29,7 @@ from generator.pipeline import generate
 from generator.render_scenes import LOG_DIR
 from generator.resources import TEXTURE_DIR
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
 SCENES = 6  # three shards of two scenes (dotsim/configs/tiny.toml)
 
@@ -285,8 +285,7 @@ def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
 def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
-    sys.path.insert(0, str(REPO / "tests"))
-    from trainer_fixtures import make_dataset
+    from tests.trainer_fixtures import make_dataset
 
     data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
     command = ["train", "--config", str(REPO / "dotsim" / "configs" / "train_tiny.toml"), "--data", str(data),
@@ -434,12 +433,10 @@ def test_verify_checks_index_json_summary_fields_and_repair_rewrites_them(sealed
 
 @pytest.fixture(scope="module")
 def asset_cache(tmp_path_factory):
-    """A small test-split asset cache (tests/test_generate.py's, with 3 meshes) and its manifest."""
+    """A small test-split asset cache (tests/generator/test_generate.py's, with 3 meshes) and its manifest."""
     from assets_manifest.cache import build_asset_cache
     from assets_manifest.manifest import load_manifest
-
-    sys.path.insert(0, str(REPO / "tests"))
-    from test_generate import CACHE_MANIFEST
+    from tests.generator.test_generate import CACHE_MANIFEST
 
     root = tmp_path_factory.mktemp("assets")
     assert CACHE_MANIFEST.count("seeds = [0, 1]") == 2  # meshes, then textures
@@ -642,9 +639,7 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
 def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
     """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
     the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
-    sys.path.insert(0, str(REPO / "tests"))
-    from trainer_fixtures import make_dataset
-
+    from tests.trainer_fixtures import make_dataset
     from trainer.train import load_checkpoint
 
     data = make_dataset(tmp_path / "data", scenes=2)

@@ -1,6 +1,5 @@
 """Metric and resampling against hand-computed cases; SGBM on an exact wall; bad inputs give clear errors."""
 
-import sys
 from pathlib import Path
 
 import cv2
@@ -11,15 +10,13 @@ import torch
 from dotsim.cli import main as dotsim_main
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
+from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.config import config_from_dict, load_config
 from trainer.data import DataError
 from trainer.evaluate import evaluate, outlier_counts, upsample_half
 from trainer.infer import infer
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train
-
-sys.path.insert(0, str(Path(__file__).parent))
-from trainer_fixtures import make_dataset, planar_depth, synthetic_frame  # noqa: E402
 
 
 def test_outlier_counts_hand_computed():
