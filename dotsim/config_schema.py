@@ -14,11 +14,11 @@ with low <= high; `tuple[T, ...]` is a list of T; a fixed `tuple[T1, T2]` is a p
 to every string. Errors name the file, the key, the value and what is allowed, and suggest the
 closest key or choice ("did you mean").
 
-The same declarations serve records that are not read from TOML: a dataclass derived from `Checked`
-checks its settings on construction (the generator's tables, the SceneSpec's records, dotsim.rig's
-Rig), `record_from_dict` reads one from a JSON mapping in which every field is given, and `check` is
-the one check of a loose value. All of them raise ConfigError (a ValueError), one line naming the
-field and the value.
+The same declarations serve records that are not read from TOML: a dataclass derived from
+`Checked` checks its settings on construction (the generator's tables, the SceneSpec's records,
+dotsim.rig's Rig), `record_from_dict` (`Checked.from_dict`) reads one from a JSON mapping in which
+every field is given, and `check` is the one check of a loose value. All of them raise ConfigError
+(a ValueError), one line naming the field and the value.
 """
 
 from __future__ import annotations
@@ -312,6 +312,15 @@ class Checked:
         for name, hint, rule in _settings(cls):
             value = _checked(hint, getattr(self, name), rule, f"{cls.__name__}.{name}")
             object.__setattr__(self, name, value)
+
+    def to_dict(self) -> dict:
+        """JSON-safe dict of the fields (lists for tuples), in declaration order."""
+        return {f.name: _json(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str) -> Any:
+        """The record of a mapping that gives every field (`record_from_dict`)."""
+        return record_from_dict(cls, data, where)
 
 
 def record_from_dict(cls: type, data: Any, where: str, optional: tuple[str, ...] = (),

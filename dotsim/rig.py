@@ -72,15 +72,6 @@ class Intrinsics(Checked):
             (self.cy + 0.5) * height / self.height - 0.5,
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
-                "cx": self.cx, "cy": self.cy}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], where: str = "intrinsics") -> Intrinsics:
-        """Inverse of to_dict; ConfigError (a ValueError) naming `where`.key and the value."""
-        return record_from_dict(cls, d, where)
-
 
 def check_square_pixels(fx: float, fy: float) -> None:
     """ValueError unless fx and fy agree (to 1e-6 relative): Blender renders square pixels, so a
@@ -164,10 +155,10 @@ class Rig(Checked):
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Rig:
+    def from_dict(cls, d: dict[str, Any], where: str = "rig") -> Rig:
         """Inverse of to_dict; a missing or unknown key or a bad value raises ConfigError (a
         ValueError) naming it and the value."""
-        return record_from_dict(cls, d, "rig", optional=("projector_rotation", "second_camera_translation",
+        return record_from_dict(cls, d, where, optional=("projector_rotation", "second_camera_translation",
                                                           "max_depth"),
                                 camera=Intrinsics.from_dict, projector=Intrinsics.from_dict)
 

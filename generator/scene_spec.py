@@ -23,7 +23,7 @@ Blender XYZ Euler angles in radians (R = Rz @ Ry @ Rx). Powers are Blender light
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -75,7 +75,7 @@ class RenderSettings(RenderConfig):
                 "device": self.device, "threads": self.threads, "direct_light": self.direct_light}
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = f"{WHERE}: render") -> RenderSettings:
+    def from_dict(cls, d: Any, where: str) -> RenderSettings:
         return record_from_dict(cls, d, where, optional=("direct_light",))
 
 
@@ -110,13 +110,6 @@ class SensorModel(SensorConfig):
                                  "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.0,
                                  low_open=True)
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = f"{WHERE}: sensor") -> SensorModel:
-        return record_from_dict(cls, d, where)
-
 
 @dataclass(frozen=True)
 class MaskParams(Checked):
@@ -132,26 +125,12 @@ class MaskParams(Checked):
                                     high=1000.0, low_open=True)
     edge_dilation: int = setting(2, "edge mask dilation, render px", low=0, high=50)
 
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = f"{WHERE}: masks") -> MaskParams:
-        return record_from_dict(cls, d, where)
-
 
 @dataclass(frozen=True)
 class PatternRef(Checked):
     """The projector pattern image (PNG, the projector's resolution) and its sha256."""
     path: str = setting(REQUIRED, "the pattern PNG", min_items=1)
     sha256: str = setting(REQUIRED, "sha256 of the pattern image", min_items=1)
-
-    def to_dict(self) -> dict:
-        return {"path": self.path, "sha256": self.sha256}
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = f"{WHERE}: pattern") -> PatternRef:
-        return record_from_dict(cls, d, where)
 
 
 @dataclass(frozen=True)
@@ -160,13 +139,6 @@ class Texture(Checked):
     path: str = setting(REQUIRED, "the texture PNG", min_items=1)
     scale: float = setting(REQUIRED, "tiles across the object's UV range")
     contrast: float = setting(REQUIRED, "0: flat albedo, 1: the texture's full range", low=0.0)
-
-    def to_dict(self) -> dict:
-        return {"path": self.path, "scale": self.scale, "contrast": self.contrast}
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str) -> Texture:
-        return record_from_dict(cls, d, where)
 
 
 def _texture_from_dict(d: Any, where: str) -> Texture | None:
@@ -369,15 +341,15 @@ class SceneSpec(Checked):
             scene_index=check_field(cls, "scene_index", d["scene_index"], f"{WHERE}: scene_index"),
             split=check_field(cls, "split", d["split"], f"{WHERE}: split"),
             seed=check_field(cls, "seed", d["seed"], f"{WHERE}: seed"),
-            render=RenderSettings.from_dict(d["render"]),
+            render=RenderSettings.from_dict(d["render"], f"{WHERE}: render"),
             rig=rig,
-            pattern=PatternRef.from_dict(d["pattern"]),
+            pattern=PatternRef.from_dict(d["pattern"], f"{WHERE}: pattern"),
             lights=tuple(light_from_dict(light, f"{WHERE}: lights[{k}]")
                          for k, light in enumerate(_items(d["lights"], f"{WHERE}: lights"))),
             poses=_poses(d["poses"], f"{WHERE}: poses"),
             objects=tuple(SceneObject.from_dict(obj, f"{WHERE}: objects[{k}]")
                           for k, obj in enumerate(_items(d["objects"], f"{WHERE}: objects"))),
-            sensor=SensorModel.from_dict(d["sensor"]),
-            masks=MaskParams.from_dict(d["masks"]),
+            sensor=SensorModel.from_dict(d["sensor"], f"{WHERE}: sensor"),
+            masks=MaskParams.from_dict(d["masks"], f"{WHERE}: masks"),
             **one_key,
         )
