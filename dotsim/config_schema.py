@@ -13,6 +13,12 @@ with low <= high; `tuple[T, ...]` is a list of T; a fixed `tuple[T1, T2]` is a p
 (offset, width) or (cx, cy); lists and pairs may nest. Bounds apply to every number in a value, choices
 to every string. Errors name the file, the key, the value and what is allowed, and suggest the
 closest key or choice ("did you mean").
+
+The same declarations serve records that are not read from TOML: a dataclass derived from
+`Checked` checks its settings on construction (the generator's tables, the SceneSpec's records,
+dotsim.rig's Rig), `record_from_dict` (`Checked.from_dict`) reads one from a JSON mapping in which
+every field is given, and `check` is the one check of a loose value. All of them raise ConfigError
+(a ValueError), one line naming the field and the value.
 """
 
 from __future__ import annotations
@@ -21,8 +27,10 @@ import dataclasses
 import difflib
 import functools
 import math
+import numbers
 import os
 import tomllib
+import types
 import typing
 from dataclasses import field
 from pathlib import Path
@@ -31,6 +39,8 @@ from typing import Annotated, Any
 _RANGE = "range"
 IntRange = Annotated[tuple[int, int], _RANGE]  # [low, high] with low <= high
 FloatRange = Annotated[tuple[float, float], _RANGE]
+# setting(REQUIRED, ...): a field with no default (a record that is always given whole, such as a spec's).
+REQUIRED: Any = dataclasses.MISSING
 
 
 class ConfigError(ValueError):
@@ -49,11 +59,17 @@ def setting(default: Any, help: str, *, low: float | None = None, high: float | 
     low, high : bounds of every number in the value; `low_open` / `high_open` exclude the bound.
     choices : the strings allowed (for a string or every entry of a list of strings).
     path : a path, resolved against the config file's directory.
-    min_items : fewest entries of a list.
+    min_items : fewest entries of a list (1 for a string: not empty).
     """
-    rule = {"help": help, "low": low, "high": high, "low_open": low_open, "high_open": high_open,
+    return field(default=_tuples(default), metadata=_rule(help, low, high, low_open, high_open, choices,
+                                                          path, min_items))
+
+
+def _rule(help: str = "", low: float | None = None, high: float | None = None, low_open: bool = False,
+          high_open: bool = False, choices: tuple | None = None, path: bool = False,
+          min_items: int = 0) -> dict:
+    return {"help": help, "low": low, "high": high, "low_open": low_open, "high_open": high_open,
             "choices": choices, "path": path, "min_items": min_items}
-    return field(default=_tuples(default), metadata=rule)
 
 
 def _tuples(value: Any) -> Any:
@@ -97,13 +113,21 @@ def _is_list(hint: Any) -> bool:
     return len(args) == 2 and args[1] is Ellipsis
 
 
+def _optional_of(hint: Any) -> Any:
+    """T of a hint `T | None`, else None."""
+    if typing.get_origin(hint) not in (typing.Union, types.UnionType):
+        return None
+    others = [a for a in typing.get_args(hint) if a is not type(None)]
+    return others[0] if len(others) == 1 else None
+
+
 class _Invalid(Exception):
     """Why a value is not allowed (turned into a ConfigError naming file, key and value)."""
 
 
 def _is_number(value: Any) -> bool:
-    # TOML booleans are Python bools, which are ints: never accept them as numbers.
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    # Booleans are ints: never accept them as numbers. numbers.Real also takes numpy's scalars.
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def _in_bounds(x: float, rule: dict) -> bool:
@@ -120,7 +144,8 @@ def _did_you_mean(value: str, valid: typing.Iterable[str], cutoff: float = 0.6) 
     return f' (did you mean "{close[0]}"?)' if close else ""
 
 
-_SCALARS = {bool: lambda v: isinstance(v, bool), int: lambda v: _is_number(v) and isinstance(v, int),
+_SCALARS = {bool: lambda v: isinstance(v, bool),
+            int: lambda v: _is_number(v) and isinstance(v, numbers.Integral),
             float: _is_number, str: lambda v: isinstance(v, str)}
 
 
@@ -130,10 +155,14 @@ def _convert(hint: Any, value: Any, rule: dict, top: bool = True) -> Any:
         if not _SCALARS[hint](value):
             raise _Invalid(f"wrong type ({type(value).__name__})")
         if hint in (int, float) and not _in_bounds(value, rule):
-            raise _Invalid("out of range")
+            raise _Invalid("out of range" if math.isfinite(value) else "not finite")
         if hint is str and rule["choices"] and value not in rule["choices"]:
             raise _Invalid("not a valid choice" + _did_you_mean(value, rule["choices"]))
+        if hint is str and top and len(value) < rule["min_items"]:
+            raise _Invalid("empty")
         return hint(value)
+    if (inner := _optional_of(hint)) is not None:
+        return None if value is None else _convert(inner, value, rule, top)
     if _is_range(hint):
         low, high = _convert(hint.__origin__, value, rule, top=False)
         if low > high:
@@ -187,13 +216,16 @@ def _bounds(rule: dict) -> str:
 
 
 def _noun(hint: Any, plural: bool, float_word: str = "number") -> str:
-    """What a value of type `hint` is called: "integer", "lists of numbers", "[integer, integer] pairs"."""
+    """What a value of type `hint` is called: "integer", "lists of numbers", "[integer, integer] pairs",
+    "list of 3 numbers" (a vector), "list of 3 lists of 3 numbers" (a matrix)."""
     s = "s" if plural else ""
     if hint in _SCALARS:
         return {bool: "boolean", int: "integer", float: float_word, str: "string"}[hint] + s
     if _is_list(hint):
         return f"list{s} of {_noun(typing.get_args(hint)[0], True, float_word)}"
     args = typing.get_args(hint)
+    if len(args) > 2 and len(set(args)) == 1:
+        return f"list{s} of {len(args)} {_noun(args[0], True, float_word)}"
     inner = ", ".join(_noun(a, False, float_word) for a in args)
     return f"[{inner}] {'pair' if len(args) == 2 else 'array'}{s}"
 
@@ -203,12 +235,14 @@ def _allowed(hint: Any, rule: dict) -> str:
     choices = ", ".join(f'"{c}"' for c in rule["choices"] or ())
     bounds = _bounds(rule)
     each = f", each {bounds}" if bounds else ""
+    if (inner := _optional_of(hint)) is not None:
+        return f"{_allowed(inner, rule)}, or null"
     if hint is bool:
         return "true or false"
     if hint is str:
         if rule["path"]:
             return "a path (string; relative to the config file)"
-        return f"one of {choices}" if choices else "a string"
+        return f"one of {choices}" if choices else "a non-empty string" if rule["min_items"] else "a string"
     if hint in (int, float):
         text = "an integer" if hint is int else "a number"
         return f"{text}, {bounds}" if bounds else text
@@ -241,12 +275,74 @@ def _unknown_key_error(where: str, key: str, valid: list[str]) -> ConfigError:
                        f"valid keys: {', '.join(valid)}")
 
 
-def _setting(owner: type, f: dataclasses.Field, value: Any, where: str, base_dir: Path) -> Any:
-    hint = _hints(owner)[f.name]
+def _checked(hint: Any, value: Any, rule: dict, where: str) -> Any:
+    """The one check of a value: `value` as type `hint` if `rule` allows it, else ConfigError."""
     try:
-        value = _convert(hint, value, f.metadata)
+        return _convert(hint, value, rule)
     except _Invalid as exc:
-        raise value_error(where, value, str(exc), _allowed(hint, f.metadata)) from None
+        raise value_error(where, value, str(exc), _allowed(hint, rule)) from None
+
+
+def check(value: Any, hint: Any, where: str, **rule: Any) -> Any:
+    """`value` as type `hint` (lists as tuples, integers as floats where a float is asked for) if the
+    rule allows it (`setting`'s keywords: low, high, low_open, high_open, choices, min_items); else
+    ConfigError `where = value: problem; allowed: ...`. For a value that is no field of a record."""
+    return _checked(hint, value, _rule(**rule), where)
+
+
+def check_field(owner: type, name: str, value: Any, where: str) -> Any:
+    """`value` checked as the setting `name` of dataclass `owner` declares it (see `check`)."""
+    return _checked(_hints(owner)[name], value, owner.__dataclass_fields__[name].metadata, where)
+
+
+@functools.cache
+def _settings(cls: type) -> tuple[tuple[str, Any, Any], ...]:
+    """(name, type hint, rule) of each field of `cls` made with `setting`."""
+    return tuple((f.name, _hints(cls)[f.name], f.metadata) for f in dataclasses.fields(cls)
+                 if "help" in f.metadata)
+
+
+class Checked:
+    """Base of a frozen dataclass whose `setting` fields are checked on construction (and normalised:
+    lists become tuples, integers floats where a float is declared), so a record made in code is held
+    to the bounds a file is. ConfigError names Class.field and the value."""
+
+    def __post_init__(self) -> None:
+        cls = type(self)
+        for name, hint, rule in _settings(cls):
+            value = _checked(hint, getattr(self, name), rule, f"{cls.__name__}.{name}")
+            object.__setattr__(self, name, value)
+
+    def to_dict(self) -> dict:
+        """JSON-safe dict of the fields (lists for tuples), in declaration order."""
+        return {f.name: _json(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str) -> Any:
+        """The record of a mapping that gives every field (`record_from_dict`)."""
+        return record_from_dict(cls, data, where)
+
+
+def record_from_dict(cls: type, data: Any, where: str, optional: tuple[str, ...] = (),
+                     **readers: typing.Callable[[Any, str], Any]) -> Any:
+    """A `Checked` record from a mapping (JSON) that gives every field but `optional` and no other
+    key. Settings are checked with errors naming `where.key`; `readers` make the fields that are
+    records themselves: reader(value, where) (nested mappings, with their own errors).
+    """
+    names = [f.name for f in dataclasses.fields(cls)]
+    if not isinstance(data, dict):
+        raise value_error(where, data, "not a mapping", f"a mapping with the keys {', '.join(names)}")
+    if missing := [name for name in names if name not in data and name not in optional]:
+        raise ConfigError(f"{where}.{missing[0]} is missing")
+    if unknown := [key for key in data if key not in names]:
+        raise _unknown_key_error(f"{where}: ", str(unknown[0]), names)
+    values = {key: readers[key](value, f"{where}.{key}") if key in readers
+              else check_field(cls, key, value, f"{where}.{key}") for key, value in data.items()}
+    return cls(**values)
+
+
+def _setting(owner: type, f: dataclasses.Field, value: Any, where: str, base_dir: Path) -> Any:
+    value = check_field(owner, f.name, value, where)
     if f.metadata["path"] and value:
         value = str((base_dir / value).resolve())
     return value

@@ -17,11 +17,13 @@ from __future__ import annotations
 import functools
 import json
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from dotsim.config_schema import REQUIRED, Checked, check, record_from_dict, setting
 
 Vector3 = tuple[float, float, float]
 Matrix3 = tuple[Vector3, Vector3, Vector3]
@@ -29,46 +31,17 @@ Matrix3 = tuple[Vector3, Vector3, Vector3]
 IDENTITY: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-def _positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _finite_float(name: str, value: Any, positive: bool = False) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not math.isfinite(number) or (positive and number <= 0):
-        raise ValueError(f"{name} must be a finite{' positive' if positive else ''} number, got {value!r}")
-    return number
-
-
-def _vector3(name: str, value: Any) -> Vector3:
-    if value is None or len(value) != 3:
-        raise ValueError(f"{name} must be 3 numbers, got {value!r}")
-    return tuple(_finite_float(f"{name}[{k}]", v) for k, v in enumerate(value))  # type: ignore[return-value]
-
-
 @dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole intrinsics of a camera or projector: image size (px) and focal/principal point (px)."""
+class Intrinsics(Checked):
+    """Pinhole intrinsics of a camera or projector: image size (px) and focal/principal point (px),
+    checked on construction (dotsim.config_schema)."""
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "width", _positive_int("width", self.width))
-        object.__setattr__(self, "height", _positive_int("height", self.height))
-        for name in ("fx", "fy"):
-            object.__setattr__(self, name, _finite_float(name, getattr(self, name), positive=True))
-        for name in ("cx", "cy"):
-            object.__setattr__(self, name, _finite_float(name, getattr(self, name)))
+    width: int = setting(REQUIRED, "image width, px", low=1)
+    height: int = setting(REQUIRED, "image height, px", low=1)
+    fx: float = setting(REQUIRED, "focal length along x, px", low=0.0, low_open=True)
+    fy: float = setting(REQUIRED, "focal length along y, px", low=0.0, low_open=True)
+    cx: float = setting(REQUIRED, "principal point column, px")
+    cy: float = setting(REQUIRED, "principal point row, px")
 
     @classmethod
     def centred(cls, width: int, height: int, focal: float) -> Intrinsics:
@@ -87,7 +60,7 @@ class Intrinsics:
         cx' = (cx + 0.5) * W'/W - 0.5, so a centred principal point stays exactly centred. When
         W * factor is a whole number this is cx' = (cx + 0.5) * factor - 0.5.
         """
-        factor = _finite_float("factor", factor, positive=True)
+        factor = check(factor, float, "factor", low=0.0, low_open=True)
         width = max(1, round(self.width * factor))
         height = max(1, round(self.height * factor))
         return Intrinsics(
@@ -98,20 +71,6 @@ class Intrinsics:
             (self.cx + 0.5) * width / self.width - 0.5,
             (self.cy + 0.5) * height / self.height - 0.5,
         )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
-                "cx": self.cx, "cy": self.cy}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any], where: str = "intrinsics") -> Intrinsics:
-        keys = ("width", "height", "fx", "fy", "cx", "cy")
-        if not isinstance(d, dict) or set(d) != set(keys):
-            raise ValueError(f"{where} must be a dict with exactly the keys {list(keys)}, got {d!r}")
-        try:
-            return cls(**d)
-        except ValueError as error:
-            raise ValueError(f"{where}: {error}") from None
 
 
 def check_square_pixels(fx: float, fy: float) -> None:
@@ -134,44 +93,30 @@ def rotation_matrix(rx: float, ry: float, rz: float) -> Matrix3:
 
 
 @dataclass(frozen=True)
-class Rig:
-    """An IR camera with a dot projector (and optionally a second IR camera) rigidly beside it.
+class Rig(Checked):
+    """An IR camera with a dot projector (and optionally a second IR camera) rigidly beside it,
+    checked on construction (dotsim.config_schema; the rotation must be proper)."""
 
-    projector_translation: projector centre in the camera frame, metres.
-    projector_rotation: R with X_proj = R @ (X_cam - t); identity for a rectified rig.
-    second_camera_translation: second IR camera centre in the camera frame (same orientation), or None.
-    max_depth: farthest depth used for training/ground truth, metres.
-    """
-
-    name: str
+    name: str = setting(REQUIRED, "the rig's name", min_items=1)
     camera: Intrinsics
     projector: Intrinsics
-    projector_translation: Vector3
-    projector_rotation: Matrix3 = IDENTITY
-    second_camera_translation: Vector3 | None = None
-    max_depth: float = field(default=20.0)
+    projector_translation: Vector3 = setting(REQUIRED, "projector centre in the camera frame, m")
+    projector_rotation: Matrix3 = setting(IDENTITY, "R with X_proj = R @ (X_cam - t), rows; identity for "
+                                          "a rectified rig")
+    second_camera_translation: Vector3 | None = setting(None, "second IR camera centre in the camera "
+                                                        "frame, m (same orientation), or None")
+    max_depth: float = setting(20.0, "farthest depth used for training and ground truth, m", low=0.0,
+                               low_open=True)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"rig name must be a non-empty string, got {self.name!r}")
+        super().__post_init__()
         for name in ("camera", "projector"):
             if not isinstance(getattr(self, name), Intrinsics):
                 raise ValueError(f"rig {name} must be Intrinsics, got {type(getattr(self, name)).__name__}")
-        object.__setattr__(self, "projector_translation",
-                           _vector3("projector_translation", self.projector_translation))
-        rows = self.projector_rotation
-        if rows is None or len(rows) != 3:
-            raise ValueError(f"projector_rotation must be 3x3, got {rows!r}")
-        rotation = tuple(_vector3(f"projector_rotation[{k}]", row) for k, row in enumerate(rows))
-        matrix = np.array(rotation)
+        matrix = np.array(self.projector_rotation)
         if not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) or np.linalg.det(matrix) <= 0:
             raise ValueError(f"projector_rotation must be a proper rotation (orthonormal, det +1), "
-                             f"got {rows!r}")
-        object.__setattr__(self, "projector_rotation", rotation)
-        if self.second_camera_translation is not None:
-            object.__setattr__(self, "second_camera_translation",
-                               _vector3("second_camera_translation", self.second_camera_translation))
-        object.__setattr__(self, "max_depth", _finite_float("max_depth", self.max_depth, positive=True))
+                             f"got {[list(row) for row in self.projector_rotation]!r}")
 
     @property
     def baseline(self) -> float:
@@ -210,21 +155,12 @@ class Rig:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Rig:
-        """Inverse of to_dict; a missing or unknown key or a bad value raises ValueError naming it."""
-        required = {"name", "camera", "projector", "projector_translation"}
-        optional = {"projector_rotation", "second_camera_translation", "max_depth"}
-        if not isinstance(d, dict):
-            raise ValueError(f"rig must be a dict, got {type(d).__name__}")
-        if missing := required - set(d):
-            raise ValueError(f"rig is missing keys {sorted(missing)}")
-        if unknown := set(d) - required - optional:
-            raise ValueError(f"rig has unknown keys {sorted(unknown)}; "
-                             f"allowed: {sorted(required | optional)}")
-        values = dict(d)
-        values["camera"] = Intrinsics.from_dict(d["camera"], "rig.camera")
-        values["projector"] = Intrinsics.from_dict(d["projector"], "rig.projector")
-        return cls(**values)
+    def from_dict(cls, d: dict[str, Any], where: str = "rig") -> Rig:
+        """Inverse of to_dict; a missing or unknown key or a bad value raises ConfigError (a
+        ValueError) naming it and the value."""
+        return record_from_dict(cls, d, where, optional=("projector_rotation", "second_camera_translation",
+                                                          "max_depth"),
+                                camera=Intrinsics.from_dict, projector=Intrinsics.from_dict)
 
 
 # Presets are rig files (dotsim/rigs/NAME.json, the format dotsim.rig_files reads; each file's
@@ -277,7 +213,7 @@ def pixel_grid(intrinsics: Intrinsics, supersample: int = 1) -> tuple[np.ndarray
     Sample (i*s + a, j*s + b) sits at u = j + (b + 0.5)/s - 0.5, v = i + (a + 0.5)/s - 0.5: an s x s
     grid of sub-pixel centres inside pixel (i, j); average with .reshape(H, s, W, s).mean((1, 3)).
     """
-    s = _positive_int("supersample", supersample)
+    s = check(supersample, int, "supersample", low=1)
     u = (np.arange(intrinsics.width * s) + 0.5) / s - 0.5
     v = (np.arange(intrinsics.height * s) + 0.5) / s - 0.5
     return np.meshgrid(u, v)

@@ -2,7 +2,8 @@
 
 Modules (one idea each; only generator/blender/ imports bpy):
   config         TOML config -> validated Config (schema, defaults, errors; docs/CONFIG.md)
-  scene_spec     the typed SceneSpec, validated once (docs/SCENE_SPEC.md); numpy + dotsim.rig only
+  scene_spec     the typed SceneSpec, checked on construction (docs/SCENE_SPEC.md); its [render],
+                 [sensor], [masks] records are the config's tables; numpy + stdlib + dotsim only
   sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
   resources      the files scenes refer to: pattern, built-in textures, asset cache
   blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth and the

@@ -3,7 +3,8 @@
 The schema is the set of dataclasses below; every field carries its help text and the values it
 allows (dotsim.config_schema), so validation, defaults, `Config.to_dict()` (recorded in every scene's
 metadata) and docs/CONFIG.md (`config_reference_markdown()`) all come from one place. A new key is
-one `setting(...)` line in its section.
+one `setting(...)` line in its section. The [render], [sensor] and [masks] tables are the scene
+spec's own records (generator/scene_spec.py), so a sampled spec has the config's bounds.
 
 Conventions: distances in metres, angles in degrees, powers in watts (Blender light power),
 pixel sizes in full-resolution sensor pixels (scaled by `[rig] scale` at render time).
@@ -20,15 +21,15 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dotsim import config_schema
-from dotsim.config_schema import ConfigError, FloatRange, IntRange, setting
+from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, setting
 from dotsim.configs import config_path, relative_base
 from dotsim.rig import PRESETS
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
-from generator.scene_spec import DEVICES, DIRECT_LIGHT, PRIMITIVE_SHAPES
+from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
 
 
 @dataclass(frozen=True)
-class RigConfig:
+class RigConfig(Checked):
     preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
                           "dotsim/rigs/); ignored when `file` is set", choices=tuple(PRESETS))
     file: str = setting("", "rig file instead of the preset (camera, projector and pose): dotsim rig JSON "
@@ -84,22 +85,7 @@ class RigConfig:
 
 
 @dataclass(frozen=True)
-class RenderConfig:
-    samples: int = setting(1, "Cycles samples per pixel (1 is enough for the projector pass: quality "
-                           "0.98, docs/RENDERING.md)", low=1, high=4096)
-    max_bounces: int = setting(4, "Cycles maximum light bounces", low=0, high=64)
-    device: str = setting("CPU", "Cycles device", choices=DEVICES)
-    threads: int = setting(0, "render threads per worker (0 = all cores)", low=0, high=1024)
-    direct_light: str = setting(
-        "separate", "the projector's direct light in scenes with extra lights: \"separate\" = a render of "
-        "its own (no missing dots; 1.6-1.8x the render time per frame), \"shared\" = from the one "
-        "path-traced render (0.98-1.09x the time of one render without it, but dots missing where Cycles "
-        "sampled an extra light instead: 13% of lit pixels, left out of the mask); docs/RENDERING.md",
-        choices=DIRECT_LIGHT)
-
-
-@dataclass(frozen=True)
-class PatternConfig:
+class PatternConfig(Checked):
     source: str = setting("procedural", "where the projector pattern comes from",
                           choices=("procedural", "file"))
     path: str = setting("", "pattern image (PNG 8/16-bit or EXR) when source = \"file\"; resampled to "
@@ -113,7 +99,7 @@ class PatternConfig:
 
 
 @dataclass(frozen=True)
-class SceneConfig:
+class SceneConfig(Checked):
     object_count: IntRange = setting((100, 500), "objects per scene (before the split's "
                                      "density factor)", low=0, high=10000)
     distance: FloatRange = setting((0.3, 10.0), "depth of object centres in front of the camera "
@@ -160,7 +146,7 @@ class SceneConfig:
 
 
 @dataclass(frozen=True)
-class LightingConfig:
+class LightingConfig(Checked):
     world_strength: FloatRange = setting((0.001, 0.3), "constant ambient (world) strength, "
                                          "log-uniform: dark rooms to bright ambient light",
                                          low=0.0, high=100.0)
@@ -176,7 +162,7 @@ class LightingConfig:
 
 
 @dataclass(frozen=True)
-class MotionConfig:
+class MotionConfig(Checked):
     translation: float = setting(0.02, "largest rig offset per axis of frames 1-3 from frame 0, m",
                                  low=0.0, high=1.0)
     rotation: float = setting(1.0, "largest rig rotation of frames 1-3 from frame 0, degrees", low=0.0,
@@ -184,50 +170,12 @@ class MotionConfig:
 
 
 @dataclass(frozen=True)
-class SensorConfig:
-    exposure: str = setting("auto", "fixed: ir = gain * signal; auto: scale so the auto_percentile of the"
-                            " signal maps to auto_target (as GigaDepth's renders)",
-                            choices=("fixed", "auto"))
-    gain: float = setting(1.0, "signal multiplier in fixed exposure", low=0.0, high=1e6, low_open=True)
-    auto_percentile: float = setting(99.0, "percentile of the signal used by auto exposure", low=50.0,
-                                     high=100.0)
-    auto_target: float = setting(0.8, "level (fraction of full scale) the percentile maps to", low=0.0,
-                                 high=1.0, low_open=True)
-    bloom_threshold: float = setting(0.9, "level above which light blooms (fraction of full scale)",
-                                     low=0.0, high=10.0)
-    bloom_strength: float = setting(0.2, "share of the over-threshold light spread into the bloom",
-                                    low=0.0, high=10.0)
-    bloom_sigma: float = setting(4.0, "bloom spread, full-resolution px", low=0.0, high=100.0)
-    blur_sigma: float = setting(0.5, "optical blur, full-resolution px (0 = none)", low=0.0, high=20.0)
-    shot_noise: float = setting(0.01, "shot-noise standard deviation at full-scale signal; variance "
-                                "grows linearly with the signal", low=0.0, high=1.0)
-    read_noise: float = setting(0.003, "signal-independent read-noise standard deviation (full scale = 1)",
-                                low=0.0, high=1.0)
-    bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
-                             high=16)
-
-
-@dataclass(frozen=True)
-class MasksConfig:
-    visibility_margin: float = setting(3.0, "noise sigmas (read and shot noise at the pixel, after the "
-                                        "frame's exposure) by which a dot of the projector's direct "
-                                        "light within 5 x 5 px must stand out for the pixel to count as "
-                                        "visible; cast shadows are never visible "
-                                        "(dotsim.masks.direct_visibility_mask)",
-                                        low=0.0, high=100.0)
-    edge_threshold: float = setting(0.1, "relative depth change per pixel (Sobel magnitude / depth) above "
-                                    "which a pixel is an edge (dotsim.masks.edge_mask)", low=0.0,
-                                    high=1000.0, low_open=True)
-    edge_dilation: int = setting(2, "edge mask dilation, render px", low=0, high=50)
-
-
-@dataclass(frozen=True)
-class OutputConfig:
+class OutputConfig(Checked):
     scenes_per_shard: int = setting(100, "scenes per shard directory", low=1, high=100000)
 
 
 @dataclass(frozen=True)
-class AssetsConfig:
+class AssetsConfig(Checked):
     source: str = setting("primitives", "primitives: built-in shapes with procedural textures; cache: "
                           "meshes and textures of the split from the asset cache (`dotsim assets build`)",
                           choices=("primitives", "cache"))
@@ -252,7 +200,7 @@ class Config:
     lighting: LightingConfig = field(default_factory=LightingConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
-    masks: MasksConfig = field(default_factory=MasksConfig)
+    masks: MaskParams = field(default_factory=MaskParams)
     output: OutputConfig = field(default_factory=OutputConfig)
     assets: AssetsConfig = field(default_factory=AssetsConfig)
     source: str = "<defaults>"

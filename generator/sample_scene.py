@@ -24,7 +24,6 @@ from generator.scene_spec import (
     FRAMES_PER_SCENE,
     SPLITS,
     AssetMesh,
-    MaskParams,
     Material,
     PatternRef,
     PointLight,
@@ -323,9 +322,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     seed = scene_seed(base_seed, scene_index)
     return SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
-        render=RenderSettings(samples=config.render.samples, seed=seed, max_bounces=config.render.max_bounces,
-                              device=config.render.device, threads=config.render.threads,
-                              direct_light=config.render.direct_light),
+        render=RenderSettings(**asdict(config.render), seed=seed),
         rig=rig,
         pattern=PatternRef(path=resources.pattern_path, sha256=resources.pattern_sha256),
         projector_power=projector_power,
@@ -335,7 +332,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         poses=_poses(rng, config, base_pose),
         objects=tuple(objects),
         sensor=sensor_model(config),
-        masks=MaskParams(**asdict(config.masks)),
+        masks=config.masks,
     )
 
 

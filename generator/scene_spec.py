@@ -4,11 +4,17 @@ The sampler (generator/sample_scene.py) makes one from a config; the Blender sta
 (generator/blender/render.py) builds and renders it; the post-render stage (generator/post_render.py)
 turns its raw passes into stored frames with its sensor-model and mask parameters; the Blender
 add-on previews it. `SceneSpec.to_dict()` is its JSON form (what `run_in_blender.py` reads) and
-`SceneSpec.from_dict()` the one way in from outside: it checks every field and raises ValueError
-naming the field and the value, e.g. "scene spec: objects[3].material.albedo must be a number >= 0,
-got -1". Code holding a SceneSpec never looks a field up by string key again.
+`SceneSpec.from_dict()` reads it back. Every record checks its fields on construction
+(dotsim.config_schema, the validator of the config too), so a spec the sampler builds is held to
+the same bounds as one read from a file; errors are one line naming the field and the value, e.g.
+"scene spec: objects[3].material.albedo = -1: out of range; allowed: a number, 0 <= x". Code
+holding a SceneSpec never looks a field up by string key again.
 
-Needs only numpy, the standard library and dotsim.rig, so Blender's own Python can import it.
+The spec's Cycles, sensor-model and mask records are the config's [render], [sensor] and [masks]
+tables (declared here, read by generator/config.py), so the two cannot disagree on a bound.
+
+Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig, so Blender's own
+Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
 axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
@@ -17,12 +23,12 @@ Blender XYZ Euler angles in radians (R = Rz @ Ry @ Rx). Powers are Blender light
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
 from dotsim.rig import Rig
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
@@ -35,140 +41,116 @@ EXPOSURES = ("fixed", "auto")
 FRAMES_PER_SCENE = 4
 
 Vector3 = tuple[float, float, float]
+Vector4 = tuple[float, float, float, float]
+Matrix4 = tuple[Vector4, Vector4, Vector4, Vector4]
 
 
-class _Fields:
-    """One mapping of a spec dict, read with every error naming `where` and the value."""
-
-    def __init__(self, d: Any, where: str, required: tuple[str, ...], optional: tuple[str, ...] = ()):
-        self.where = where
-        if not isinstance(d, dict):
-            raise ValueError(f"scene spec: {where or 'spec'} must be a mapping, got {d!r}")
-        if missing := [key for key in required if key not in d]:
-            raise ValueError(f"scene spec: {self.name(missing[0])} is missing")
-        if unknown := sorted(set(d) - set(required) - set(optional)):
-            raise ValueError(f"scene spec: {self.name(unknown[0])} is not a field; allowed: "
-                             f"{list(required + optional)}")
-        self.d = d
-
-    def name(self, key: str) -> str:
-        return f"{self.where}.{key}" if self.where else key
-
-    def raw(self, key: str, default: Any = None) -> Any:
-        return self.d.get(key, default)
-
-    def number(self, key: str, low: float | None = None, low_open: bool = False,
-               high: float | None = None) -> float:
-        return _number(self.d[key], self.name(key), low, low_open, high)
-
-    def integer(self, key: str, low: int, high: int | None = None) -> int:
-        value = self.d[key]
-        bounds = f">= {low}" + (f" and <= {high}" if high is not None else "")
-        if (isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low
-                or (high is not None and value > high)):
-            raise ValueError(f"scene spec: {self.name(key)} must be an integer {bounds}, got {value!r}")
-        return int(value)
-
-    def text(self, key: str, choices: tuple[str, ...] | None = None) -> str:
-        value = self.d[key]
-        if choices is not None and value not in choices:
-            raise ValueError(f"scene spec: {self.name(key)} must be one of {list(choices)}, got {value!r}")
-        if not isinstance(value, str) or not value:
-            raise ValueError(f"scene spec: {self.name(key)} must be a non-empty string, got {value!r}")
-        return value
-
-    def vector(self, key: str) -> Vector3:
-        value = self.d[key]
-        if not isinstance(value, list | tuple) or len(value) != 3:
-            raise ValueError(f"scene spec: {self.name(key)} must be 3 numbers, got {value!r}")
-        return tuple(_number(v, f"{self.name(key)}[{k}]") for k, v in enumerate(value))  # type: ignore[return-value]
-
-    def items(self, key: str) -> list:
-        value = self.d[key]
-        if not isinstance(value, list | tuple):
-            raise ValueError(f"scene spec: {self.name(key)} must be a list, got {value!r}")
-        return list(value)
-
-
-def _number(value: Any, name: str, low: float | None = None, low_open: bool = False,
-            high: float | None = None) -> float:
-    """`value` as a float; ValueError naming `name` unless it is a finite number within bounds."""
-    bounds = ""
-    if low is not None:
-        bounds = f" {'>' if low_open else '>='} {low:g}"
-    if high is not None:
-        bounds += f"{' and' if bounds else ''} <= {high:g}"
-    ok = (not isinstance(value, bool) and isinstance(value, int | float | np.integer | np.floating)
-          and math.isfinite(value) and (low is None or value > low or (value == low and not low_open))
-          and (high is None or value <= high))
-    if not ok:
-        raise ValueError(f"scene spec: {name} must be a number{bounds}, got {value!r}")
-    return float(value)
+WHERE = "scene spec"
 
 
 @dataclass(frozen=True)
-class RenderSettings:
-    """Cycles settings: samples per pixel, Cycles seed, maximum bounces, device, threads (0: all),
-    and how the spot's direct light is rendered in a scene with extra lights: "separate" (a render
-    of its own) or "shared" (the path-traced render's passes; specs from before it are "separate")."""
-    samples: int
-    seed: int
-    max_bounces: int
-    device: str
-    threads: int
-    direct_light: str = "separate"
+class RenderConfig(Checked):
+    """Cycles settings of every scene: the config's [render] table (docs/CONFIG.md)."""
+    samples: int = setting(1, "Cycles samples per pixel (1 is enough for the projector pass: quality "
+                           "0.98, docs/RENDERING.md)", low=1, high=4096)
+    max_bounces: int = setting(4, "Cycles maximum light bounces", low=0, high=64)
+    device: str = setting("CPU", "Cycles device", choices=DEVICES)
+    threads: int = setting(0, "render threads per worker (0 = all cores)", low=0, high=1024)
+    direct_light: str = setting(
+        "separate", "the projector's direct light in scenes with extra lights: \"separate\" = a render of "
+        "its own (no missing dots; 1.6-1.8x the render time per frame), \"shared\" = from the one "
+        "path-traced render (0.98-1.09x the time of one render without it, but dots missing where Cycles "
+        "sampled an extra light instead: 13% of lit pixels, left out of the mask); docs/RENDERING.md",
+        choices=DIRECT_LIGHT)
+
+
+@dataclass(frozen=True)
+class RenderSettings(RenderConfig):
+    """One scene's Cycles settings: the config's [render] and the scene's seed (specs from before
+    `direct_light` read as "separate")."""
+    seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
     def to_dict(self) -> dict:
         return {"samples": self.samples, "seed": self.seed, "max_bounces": self.max_bounces,
                 "device": self.device, "threads": self.threads, "direct_light": self.direct_light}
 
     @classmethod
-    def from_dict(cls, d: Any, where: str = "render") -> RenderSettings:
-        f = _Fields(d, where, ("samples", "seed", "max_bounces", "device", "threads"), ("direct_light",))
-        optional = {"direct_light": f.text("direct_light", DIRECT_LIGHT)} if "direct_light" in d else {}
-        return cls(samples=f.integer("samples", 1), seed=f.integer("seed", 0),
-                   max_bounces=f.integer("max_bounces", 0), device=f.text("device", DEVICES),
-                   threads=f.integer("threads", 0), **optional)
+    def from_dict(cls, d: Any, where: str) -> RenderSettings:
+        return record_from_dict(cls, d, where, optional=("direct_light",))
 
 
 @dataclass(frozen=True)
-class PatternRef:
+class SensorConfig(Checked):
+    """The IR sensor model (generator/sensor_model.py): the config's [sensor] table."""
+    exposure: str = setting("auto", "fixed: ir = gain * signal; auto: scale so the auto_percentile of the"
+                            " signal maps to auto_target (as GigaDepth's renders)", choices=EXPOSURES)
+    gain: float = setting(1.0, "signal multiplier in fixed exposure", low=0.0, high=1e6, low_open=True)
+    auto_percentile: float = setting(99.0, "percentile of the signal used by auto exposure", low=50.0,
+                                     high=100.0)
+    auto_target: float = setting(0.8, "level (fraction of full scale) the percentile maps to", low=0.0,
+                                 high=1.0, low_open=True)
+    bloom_threshold: float = setting(0.9, "level above which light blooms (fraction of full scale)",
+                                     low=0.0, high=10.0)
+    bloom_strength: float = setting(0.2, "share of the over-threshold light spread into the bloom",
+                                    low=0.0, high=10.0)
+    bloom_sigma: float = setting(4.0, "bloom spread, full-resolution px", low=0.0, high=100.0)
+    blur_sigma: float = setting(0.5, "optical blur, full-resolution px (0 = none)", low=0.0, high=20.0)
+    shot_noise: float = setting(0.01, "shot-noise standard deviation at full-scale signal; variance "
+                                "grows linearly with the signal", low=0.0, high=1.0)
+    read_noise: float = setting(0.003, "signal-independent read-noise standard deviation (full scale = 1)",
+                                low=0.0, high=1.0)
+    bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
+                             high=16)
+
+
+@dataclass(frozen=True)
+class SensorModel(SensorConfig):
+    """One scene's sensor model: the config's [sensor] at the render scale."""
+    pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
+                                 "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.0,
+                                 low_open=True)
+
+
+@dataclass(frozen=True)
+class MaskParams(Checked):
+    """Thresholds of the stored masks (dotsim.masks): the config's [masks] table."""
+    visibility_margin: float = setting(3.0, "noise sigmas (read and shot noise at the pixel, after the "
+                                        "frame's exposure) by which a dot of the projector's direct "
+                                        "light within 5 x 5 px must stand out for the pixel to count as "
+                                        "visible; cast shadows are never visible "
+                                        "(dotsim.masks.direct_visibility_mask)",
+                                        low=0.0, high=100.0)
+    edge_threshold: float = setting(0.1, "relative depth change per pixel (Sobel magnitude / depth) above "
+                                    "which a pixel is an edge (dotsim.masks.edge_mask)", low=0.0,
+                                    high=1000.0, low_open=True)
+    edge_dilation: int = setting(2, "edge mask dilation, render px", low=0, high=50)
+
+
+@dataclass(frozen=True)
+class PatternRef(Checked):
     """The projector pattern image (PNG, the projector's resolution) and its sha256."""
-    path: str
-    sha256: str
-
-    def to_dict(self) -> dict:
-        return {"path": self.path, "sha256": self.sha256}
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = "pattern") -> PatternRef:
-        f = _Fields(d, where, ("path", "sha256"))
-        return cls(path=f.text("path"), sha256=f.text("sha256"))
+    path: str = setting(REQUIRED, "the pattern PNG", min_items=1)
+    sha256: str = setting(REQUIRED, "sha256 of the pattern image", min_items=1)
 
 
 @dataclass(frozen=True)
-class Texture:
-    """A reflectance texture on a surface: PNG path, UV scale (tiles across the object's UV range)
-    and contrast (0: flat albedo, 1: the texture's full range)."""
-    path: str
-    scale: float
-    contrast: float
+class Texture(Checked):
+    """A reflectance texture on a surface."""
+    path: str = setting(REQUIRED, "the texture PNG", min_items=1)
+    scale: float = setting(REQUIRED, "tiles across the object's UV range")
+    contrast: float = setting(REQUIRED, "0: flat albedo, 1: the texture's full range", low=0.0)
 
-    def to_dict(self) -> dict:
-        return {"path": self.path, "scale": self.scale, "contrast": self.contrast}
 
-    @classmethod
-    def from_dict(cls, d: Any, where: str) -> Texture:
-        f = _Fields(d, where, ("path", "scale", "contrast"))
-        return cls(path=f.text("path"), scale=f.number("scale"), contrast=f.number("contrast", low=0.0))
+def _texture_from_dict(d: Any, where: str) -> Texture | None:
+    return None if d is None else Texture.from_dict(d, where)
 
 
 @dataclass(frozen=True)
-class Material:
-    """A grey surface: infrared albedo, roughness, specular level and an optional texture."""
-    albedo: float
-    roughness: float
-    specular: float
+class Material(Checked):
+    """A grey surface, optionally textured."""
+    albedo: float = setting(REQUIRED, "infrared reflectance", low=0.0)
+    roughness: float = setting(REQUIRED, "roughness", low=0.0)
+    specular: float = setting(REQUIRED, "specular level", low=0.0)
     texture: Texture | None = None
 
     def to_dict(self) -> dict:
@@ -177,56 +159,57 @@ class Material:
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> Material:
-        f = _Fields(d, where, ("albedo", "texture", "roughness", "specular"))
-        texture = f.raw("texture")
-        return cls(albedo=f.number("albedo", low=0.0), roughness=f.number("roughness", low=0.0),
-                   specular=f.number("specular", low=0.0),
-                   texture=None if texture is None else Texture.from_dict(texture, f"{where}.texture"))
+        return record_from_dict(cls, d, where, texture=_texture_from_dict)
 
 
 @dataclass(frozen=True)
-class PrimitiveMesh:
-    """A built-in shape (PRIMITIVE_SHAPES) with full extents `size` along its local x, y, z (m); a
-    plane lies in its local xy plane facing +z (its z size is 1: a plane has no thickness)."""
-    shape: str
-    size: Vector3
+class PrimitiveMesh(Checked):
+    """A built-in shape; a plane lies in its local xy plane facing +z (its z size is 1: a plane has
+    no thickness)."""
+    shape: str = setting(REQUIRED, "the shape", choices=PRIMITIVE_SHAPES)
+    size: Vector3 = setting(REQUIRED, "full extents along local x, y, z, m")
 
     def to_dict(self) -> dict:
         return {"kind": "primitive", "shape": self.shape, "size": list(self.size)}
 
 
 @dataclass(frozen=True)
-class AssetMesh:
-    """A mesh of the asset cache: its .npz path and its id (metres as stored)."""
-    path: str
-    id: str
+class AssetMesh(Checked):
+    """A mesh of the asset cache (metres as stored)."""
+    path: str = setting(REQUIRED, "the mesh's .npz", min_items=1)
+    id: str = setting(REQUIRED, "the mesh's id in the cache", min_items=1)
 
     def to_dict(self) -> dict:
         return {"kind": "asset", "path": self.path, "id": self.id}
 
 
 Mesh = PrimitiveMesh | AssetMesh
+MESH_KINDS = {"primitive": PrimitiveMesh, "asset": AssetMesh}
+
+
+def _record_of_kind(d: Any, key: str, kinds: dict[str, type], where: str) -> Any:
+    """The record of the class that a mapping's `key` ("kind", "type") names, from the other keys."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{where} = {d!r}: not a mapping; allowed: a mapping with the key {key}")
+    if key not in d:
+        raise ConfigError(f"{where}.{key} is missing")
+    kind = check(d[key], str, f"{where}.{key}", choices=tuple(kinds))
+    return record_from_dict(kinds[kind], {k: v for k, v in d.items() if k != key}, where)
 
 
 def mesh_from_dict(d: Any, where: str) -> Mesh:
-    """A PrimitiveMesh or AssetMesh from its dict, chosen by "kind"."""
-    kind = _Fields(d, where, ("kind",), ("shape", "size", "path", "id")).text("kind", ("primitive", "asset"))
-    if kind == "primitive":
-        f = _Fields(d, where, ("kind", "shape", "size"))
-        return PrimitiveMesh(shape=f.text("shape", PRIMITIVE_SHAPES), size=f.vector("size"))
-    f = _Fields(d, where, ("kind", "path", "id"))
-    return AssetMesh(path=f.text("path"), id=f.text("id"))
+    """A PrimitiveMesh or AssetMesh from its dict, chosen by "kind" (MESH_KINDS)."""
+    return _record_of_kind(d, "kind", MESH_KINDS, where)
 
 
 @dataclass(frozen=True)
-class SceneObject:
-    """A mesh placed in the world: location (m), rotation_euler (rad), scale (applied after a
-    primitive's size, along the object's axes) and material."""
-    name: str
+class SceneObject(Checked):
+    """A mesh placed in the world (scale applies after a primitive's size, along the object's axes)."""
+    name: str = setting(REQUIRED, "unique in the scene", min_items=1)
     mesh: Mesh
-    location: Vector3
-    rotation_euler: Vector3
-    scale: Vector3
+    location: Vector3 = setting(REQUIRED, "object origin in the world, m")
+    rotation_euler: Vector3 = setting(REQUIRED, "Blender XYZ Euler angles, rad")
+    scale: Vector3 = setting(REQUIRED, "scale along the object's axes")
     material: Material
 
     def to_dict(self) -> dict:
@@ -236,20 +219,15 @@ class SceneObject:
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SceneObject:
-        f = _Fields(d, where, ("name", "mesh", "location", "rotation_euler", "scale", "material"))
-        return cls(name=f.text("name"), mesh=mesh_from_dict(f.raw("mesh"), f"{where}.mesh"),
-                   location=f.vector("location"), rotation_euler=f.vector("rotation_euler"),
-                   scale=f.vector("scale"),
-                   material=Material.from_dict(f.raw("material"), f"{where}.material"))
+        return record_from_dict(cls, d, where, mesh=mesh_from_dict, material=Material.from_dict)
 
 
 @dataclass(frozen=True)
-class PointLight:
-    """An extra point light (ambient light, rendered in the ambient pass): location (m), power (W),
-    radius (m, soft shadows)."""
-    location: Vector3
-    power: float
-    radius: float
+class PointLight(Checked):
+    """An extra point light (ambient light, rendered in the ambient pass)."""
+    location: Vector3 = setting(REQUIRED, "position, m")
+    power: float = setting(REQUIRED, "power, W", low=0.0)
+    radius: float = setting(REQUIRED, "radius, m (soft shadows)", low=0.0)
 
     def to_dict(self) -> dict:
         return {"type": "POINT", "location": list(self.location), "power": self.power,
@@ -257,104 +235,64 @@ class PointLight:
 
 
 Light = PointLight
-LIGHT_TYPES = ("POINT",)
+LIGHT_TYPES = {"POINT": PointLight}
 
 
 def light_from_dict(d: Any, where: str) -> Light:
     """A light from its dict, chosen by "type" (LIGHT_TYPES)."""
-    f = _Fields(d, where, ("type", "location", "power", "radius"))
-    f.text("type", LIGHT_TYPES)
-    return PointLight(location=f.vector("location"), power=f.number("power", low=0.0),
-                      radius=f.number("radius", low=0.0))
+    return _record_of_kind(d, "type", LIGHT_TYPES, where)
 
 
-@dataclass(frozen=True)
-class SensorModel:
-    """The IR sensor model's parameters (generator/sensor_model.py; meanings in docs/CONFIG.md
-    [sensor]); pixel_scale is the render resolution over the full sensor resolution (bloom and blur
-    sizes are full-resolution pixels)."""
-    exposure: str
-    gain: float
-    auto_percentile: float
-    auto_target: float
-    bloom_threshold: float
-    bloom_strength: float
-    bloom_sigma: float
-    blur_sigma: float
-    shot_noise: float
-    read_noise: float
-    bit_depth: int
-    pixel_scale: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = "sensor") -> SensorModel:
-        f = _Fields(d, where, tuple(field.name for field in fields(cls)))
-        numbers = {name: f.number(name, low=0.0) for name in ("bloom_threshold", "bloom_strength",
-                                                              "bloom_sigma", "blur_sigma", "shot_noise",
-                                                              "read_noise")}
-        return cls(exposure=f.text("exposure", EXPOSURES), gain=f.number("gain", low=0.0, low_open=True),
-                   auto_percentile=f.number("auto_percentile", low=0.0, high=100.0),
-                   auto_target=f.number("auto_target", low=0.0, low_open=True),
-                   bit_depth=f.integer("bit_depth", 1, 16),
-                   pixel_scale=f.number("pixel_scale", low=0.0, low_open=True), **numbers)
+def _pose(value: Any, where: str) -> np.ndarray:
+    rows = value.tolist() if isinstance(value, np.ndarray) else value
+    return np.array(check(rows, Matrix4, where), np.float64)
 
 
-@dataclass(frozen=True)
-class MaskParams:
-    """Thresholds of the stored masks (dotsim.masks; meanings in docs/CONFIG.md [masks])."""
-    visibility_margin: float
-    edge_threshold: float
-    edge_dilation: int
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str = "masks") -> MaskParams:
-        f = _Fields(d, where, ("visibility_margin", "edge_threshold", "edge_dilation"))
-        return cls(visibility_margin=f.number("visibility_margin", low=0.0),
-                   edge_threshold=f.number("edge_threshold", low=0.0, low_open=True),
-                   edge_dilation=f.integer("edge_dilation", 0))
+def _poses(value: Any, where: str) -> tuple[np.ndarray, ...]:
+    if not isinstance(value, list | tuple) or not value:
+        raise ConfigError(f"{where} = {value!r}: not a non-empty list; allowed: 4x4 matrices, at least one")
+    return tuple(_pose(pose, f"{where}[{k}]") for k, pose in enumerate(value))
 
 
-def _pose(value: Any, name: str) -> np.ndarray:
-    try:
-        matrix = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
-        matrix = np.empty(0)
-    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
-        raise ValueError(f"scene spec: {name} must be a finite 4x4 matrix, got {value!r}")
-    return matrix
+def _items(value: Any, where: str) -> list:
+    if not isinstance(value, list | tuple):
+        raise ConfigError(f"{where} = {value!r}: not a list")
+    return list(value)
 
 
+# The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
+# flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
               "lights", "poses", "objects", "sensor", "masks")
+_ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
+            "world": ("strength", "world_strength")}
 
 
 @dataclass(frozen=True, eq=False)
-class SceneSpec:
+class SceneSpec(Checked):
     """Everything one scene's frames need: what to render (rig, pattern, objects, lights, poses,
     Cycles settings) and how to turn the renders into stored frames (sensor model, masks).
 
     Two specs are equal when their dicts are (poses are arrays, which dataclass equality cannot
     compare)."""
-    scene_index: int
-    split: str
-    seed: int
+    scene_index: int = setting(REQUIRED, "the scene's index", low=0)
+    split: str = setting(REQUIRED, "the split its assets and density come from", choices=SPLITS)
+    seed: int = setting(REQUIRED, "the scene's seed", low=0)
     render: RenderSettings
     rig: Rig
     pattern: PatternRef
-    projector_power: float
-    flood_power: float
-    world_strength: float
+    projector_power: float = setting(REQUIRED, "projector power, W for a fully white pattern pixel", low=0.0)
+    flood_power: float = setting(REQUIRED, "flood rectangle power, W", low=0.0)
+    world_strength: float = setting(REQUIRED, "constant ambient light", low=0.0)
     lights: tuple[Light, ...]
     poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera per frame
     objects: tuple[SceneObject, ...]
     sensor: SensorModel
     masks: MaskParams
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "poses", _poses(self.poses, "SceneSpec.poses"))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
@@ -380,31 +318,38 @@ class SceneSpec:
 
     @classmethod
     def from_dict(cls, d: Any) -> SceneSpec:
-        """The spec of a dict made by to_dict() (e.g. read from JSON); ValueError naming the first
-        field that is missing, unknown or out of range, and its value."""
-        f = _Fields(d, "", _TOP_LEVEL)
-        poses = f.items("poses")
-        if not poses:
-            raise ValueError("scene spec: poses must be a non-empty list of 4x4 matrices, got []")
+        """The spec of a dict made by to_dict() (e.g. read from JSON); ConfigError (a ValueError)
+        naming the first field that is missing, unknown or not allowed, and its value."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"{WHERE} = {d!r}: not a mapping; allowed: a mapping with the keys "
+                              f"{', '.join(_TOP_LEVEL)}")
+        if missing := [key for key in _TOP_LEVEL if key not in d]:
+            raise ConfigError(f"{WHERE}: {missing[0]} is missing")
+        if unknown := [key for key in d if key not in _TOP_LEVEL]:
+            raise ConfigError(f"{WHERE}: {unknown[0]} is not a field; allowed: {', '.join(_TOP_LEVEL)}")
         try:
-            rig = Rig.from_dict(f.raw("rig"))
+            rig = Rig.from_dict(d["rig"])
         except ValueError as error:
-            raise ValueError(f"scene spec: {error}") from None
+            raise ConfigError(f"{WHERE}: {error}") from None
+        one_key = {}
+        for key, (inner, name) in _ONE_KEY.items():
+            if not isinstance(d[key], dict) or set(d[key]) != {inner}:
+                raise ConfigError(f"{WHERE}: {key} = {d[key]!r}: not allowed; allowed: a mapping with the "
+                                  f"one key {inner}")
+            one_key[name] = check_field(cls, name, d[key][inner], f"{WHERE}: {key}.{inner}")
         return cls(
-            scene_index=f.integer("scene_index", 0),
-            split=f.text("split", SPLITS),
-            seed=f.integer("seed", 0),
-            render=RenderSettings.from_dict(f.raw("render")),
+            scene_index=check_field(cls, "scene_index", d["scene_index"], f"{WHERE}: scene_index"),
+            split=check_field(cls, "split", d["split"], f"{WHERE}: split"),
+            seed=check_field(cls, "seed", d["seed"], f"{WHERE}: seed"),
+            render=RenderSettings.from_dict(d["render"], f"{WHERE}: render"),
             rig=rig,
-            pattern=PatternRef.from_dict(f.raw("pattern")),
-            projector_power=_Fields(f.raw("projector"), "projector", ("power",)).number("power", low=0.0),
-            flood_power=_Fields(f.raw("flood"), "flood", ("power",)).number("power", low=0.0),
-            world_strength=_Fields(f.raw("world"), "world", ("strength",)).number("strength", low=0.0),
-            lights=tuple(light_from_dict(light, f"lights[{k}]") for k, light in enumerate(f.items("lights"))),
-            poses=tuple(_pose(pose, f"poses[{k}]") for k, pose in enumerate(poses)),
-            objects=tuple(SceneObject.from_dict(obj, f"objects[{k}]")
-                          for k, obj in enumerate(f.items("objects"))),
-            sensor=SensorModel.from_dict(f.raw("sensor")),
-            masks=MaskParams.from_dict(f.raw("masks")),
+            pattern=PatternRef.from_dict(d["pattern"], f"{WHERE}: pattern"),
+            lights=tuple(light_from_dict(light, f"{WHERE}: lights[{k}]")
+                         for k, light in enumerate(_items(d["lights"], f"{WHERE}: lights"))),
+            poses=_poses(d["poses"], f"{WHERE}: poses"),
+            objects=tuple(SceneObject.from_dict(obj, f"{WHERE}: objects[{k}]")
+                          for k, obj in enumerate(_items(d["objects"], f"{WHERE}: objects"))),
+            sensor=SensorModel.from_dict(d["sensor"], f"{WHERE}: sensor"),
+            masks=MaskParams.from_dict(d["masks"], f"{WHERE}: masks"),
+            **one_key,
         )
-

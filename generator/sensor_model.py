@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from generator.scene_spec import SensorModel
+from generator.scene_spec import SensorConfig
 
 
-def exposure_gain(signal: np.ndarray, params: SensorModel) -> float:
+def exposure_gain(signal: np.ndarray, params: SensorConfig) -> float:
     """Level (full scale 1) per unit radiance for this frame. fixed: params.gain. auto: the
     auto_percentile of the signal maps to auto_target (a black image keeps gain 1)."""
     if params.exposure == "fixed":
@@ -23,7 +23,7 @@ def exposure_gain(signal: np.ndarray, params: SensorModel) -> float:
     return params.auto_target / reference if reference > 0 else 1.0
 
 
-def expose(signal: np.ndarray, params: SensorModel, gain: float | None = None) -> np.ndarray:
+def expose(signal: np.ndarray, params: SensorConfig, gain: float | None = None) -> np.ndarray:
     """Radiance -> level (full scale 1): signal times the gain (default: exposure_gain's)."""
     return np.asarray(signal, np.float64) * (exposure_gain(signal, params) if gain is None else gain)
 
@@ -50,7 +50,7 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
     return np.round(np.clip(level, 0.0, 1.0) * steps) / steps
 
 
-def apply_sensor_model(signal: np.ndarray, params: SensorModel, rng: np.random.Generator,
+def apply_sensor_model(signal: np.ndarray, params: SensorConfig, rng: np.random.Generator,
                        pixel_scale: float = 1.0, gain: float | None = None) -> np.ndarray:
     """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).
 

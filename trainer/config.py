@@ -16,12 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from dotsim import config_schema
-from dotsim.config_schema import ConfigError, FloatRange, setting
+from dotsim.config_schema import Checked, ConfigError, FloatRange, setting
 from dotsim.configs import config_path
 
 
 @dataclass(frozen=True)
-class ModelConfig:
+class ModelConfig(Checked):
     backbone: str = setting("conv", "network body: conv (the published plain stack) or unet (the UNet "
                             "ablation of GigaDepth's original code)", choices=("conv", "unet"))
     backbone_channels: tuple[int, ...] = setting((16, 24, 32, 40, 64, 64, 96, 160), "output channels of "
@@ -57,7 +57,7 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
-class DataConfig:
+class DataConfig(Checked):
     crop_width: int = setting(0, "training crop width (even; 0 = full width)", low=0)
     crop_height: int = setting(0, "training crop height (even; 0 = full height); crops start on even rows "
                                "to keep half-resolution line identity", low=0)
@@ -73,7 +73,7 @@ AMP_CHOICES = ("off", "float16", "bfloat16")
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(Checked):
     # The published setup is SGD with lr 4 and step decay, 10 epochs, batch 4.
     epochs: int = setting(10, "passes over the training frames", low=1)
     max_steps: int = setting(0, "> 0 stops after this many optimiser steps (tests, benchmarks)", low=0)
@@ -100,7 +100,7 @@ class TrainConfig:
 
 
 @dataclass(frozen=True)
-class Config:
+class Config(Checked):
     """A validated training configuration."""
     seed: int = setting(0, "seed of the initial weights, the frame order and the augmentations", low=0,
                         high=2**32 - 1)

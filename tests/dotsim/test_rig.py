@@ -69,13 +69,17 @@ def test_rig_dict_round_trip_through_json_is_exact():
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda d: d.pop("camera"), "missing keys \\['camera'\\]"),
-        (lambda d: d.update(colour=1), "unknown keys \\['colour'\\]"),
-        (lambda d: d["camera"].update(fx=-1.0), "rig.camera: fx must be a finite positive"),
-        (lambda d: d["projector"].update(width=10.5), "rig.projector: width must be a positive integer"),
-        (lambda d: d.update(projector_translation=[0.1, 0.0]), "projector_translation must be 3 numbers"),
+        (lambda d: d.pop("camera"), "rig.camera is missing"),
+        (lambda d: d.update(colour=1), 'rig: unknown key "colour"'),
+        (lambda d: d["camera"].update(fx=-1.0), "rig.camera.fx = -1.0: out of range; allowed: a number, "
+         "0 < x"),
+        (lambda d: d["projector"].update(width=10.5), r"rig.projector.width = 10.5: wrong type \(float\); "
+         "allowed: an integer, 1 <= x"),
+        (lambda d: d.update(projector_translation=[0.1, 0.0]),
+         r"rig.projector_translation = \[0.1, 0.0\]: wrong type \(expected a three-element array\)"),
         (lambda d: d.update(projector_rotation=[[2, 0, 0], [0, 1, 0], [0, 0, 1]]), "proper rotation"),
-        (lambda d: d.update(max_depth=float("nan")), "max_depth must be a finite positive"),
+        (lambda d: d.update(max_depth=float("nan")), "rig.max_depth = nan: not finite; allowed: a number, "
+         "0 < x"),
     ],
 )
 def test_rig_from_dict_rejects_bad_fields(mutate, message):

@@ -276,3 +276,44 @@ def test_a_new_key_is_one_declaration(tmp_path):
     assert "| `span` | range of floats | [low, high], two numbers with low <= high, each 0 <= x |" in doc
     assert config_schema.to_dict(config) == {"point": {"centre": [3.0, 2.5], "span": [0.0, 1.0],
                                                        "file": str(tmp_path / "a.png")}}
+
+
+@dataclass(frozen=True)
+class Pose(config_schema.Checked):
+    name: str = setting(config_schema.REQUIRED, "a name", min_items=1)
+    offset: tuple[float, float, float] | None = setting(None, "three numbers or none")
+    depth: float = setting(1.0, "a depth", low=0.0, low_open=True)
+
+
+def test_records_are_checked_on_construction_and_read_whole_from_json():
+    # Construction in code is held to the declared rule, with the file's wording and normalisation.
+    assert Pose("a", [1, 2, 3]) == Pose("a", (1.0, 2.0, 3.0)) and type(Pose("a", depth=2).depth) is float
+    assert Pose("a", offset=None).offset is None
+    with pytest.raises(ConfigError, match=r"^Pose.depth = 0: out of range; allowed: a number, 0 < x$"):
+        Pose("a", depth=0)
+    with pytest.raises(ConfigError, match=r"^Pose.offset = \[1, 2\]: wrong type .*; allowed: a list of 3 "
+                                          r"numbers, or null$"):
+        Pose("a", offset=(1, 2))
+    with pytest.raises(ConfigError, match=r"^Pose.name = '': empty; allowed: a non-empty string$"):
+        Pose("")
+    with pytest.raises(ConfigError, match=r"^Pose.depth = True: wrong type \(bool\)"):
+        Pose("a", depth=True)
+    np = pytest.importorskip("numpy")
+    assert Pose("a", depth=np.float32(0.5)).depth == 0.5  # numpy scalars are numbers
+    # the generator's and trainer's tables too
+    with pytest.raises(ConfigError, match=r"^RigConfig.scale = 2.0: out of range; allowed: a number, "
+                                          r"0.02 <= x <= 1$"):
+        generator_config.RigConfig(scale=2.0)
+    with pytest.raises(ConfigError, match=r"^DataConfig.workers = -1: out of range"):
+        trainer_config.DataConfig(workers=-1)
+    # From JSON every field must be given, except those named optional; errors name where.key.
+    read = config_schema.record_from_dict
+    assert read(Pose, {"name": "a", "offset": [0, 0, 1]}, "pose", optional=("depth",)) == Pose("a", (0, 0, 1))
+    with pytest.raises(ConfigError, match=r"^pose.offset is missing$"):
+        read(Pose, {"name": "a", "depth": 1.0}, "pose")
+    with pytest.raises(ConfigError, match=r'^pose: unknown key "dpeth" \(did you mean "depth"\?\)'):
+        read(Pose, {"name": "a", "offset": None, "depth": 1.0, "dpeth": 2}, "pose")
+    with pytest.raises(ConfigError, match=r"^pose.depth = -1: out of range"):
+        read(Pose, {"name": "a", "offset": None, "depth": -1}, "pose")
+    with pytest.raises(ConfigError, match=r"^pose = 3: not a mapping"):
+        read(Pose, 3, "pose")

@@ -4,16 +4,28 @@ reading the spec's own sensor-model and mask parameters."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from generator.config import config_from_dict
+from dotsim import config_schema
+from dotsim.config_schema import ConfigError
+from generator.config import Config, config_from_dict
 from generator.post_render import make_frame
 from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
-from generator.scene_spec import FRAMES_PER_SCENE, PointLight, PrimitiveMesh, SceneSpec, Texture
+from generator.scene_spec import (
+    FRAMES_PER_SCENE,
+    MaskParams,
+    PointLight,
+    PrimitiveMesh,
+    RenderSettings,
+    SceneSpec,
+    SensorModel,
+    Texture,
+)
 
 RESOURCES = SceneResources("/data/pattern.png", "ab" * 32, (TextureAsset("/data/t0.png"),))
 
@@ -33,6 +45,45 @@ def test_json_round_trip_gives_the_same_typed_spec():
     assert all(isinstance(light, PointLight) for light in again.lights)
     assert again.rig == spec.rig and again.sensor == spec.sensor and again.masks == spec.masks
     assert replace(again, world_strength=again.world_strength + 1) != spec
+
+
+@pytest.mark.parametrize("table, record, added", [
+    ("render", RenderSettings, {"seed"}), ("sensor", SensorModel, {"pixel_scale"}),
+    ("masks", MaskParams, set())])
+def test_the_spec_carries_the_configs_own_settings(table, record, added):
+    """Bounds agree by construction: the spec's Cycles, sensor and mask records are the config's
+    [render], [sensor] and [masks] tables (or derive from them, adding only what the sampler adds),
+    so every setting they share is one field object, with one rule."""
+    declared = config_schema.tables(Config)[table]
+    assert issubclass(record, declared)
+    config_fields = {f.name: f for f in dataclasses.fields(declared)}
+    spec_fields = {f.name: f for f in dataclasses.fields(record)}
+    assert set(spec_fields) == set(config_fields) | added
+    for name, field in config_fields.items():
+        assert spec_fields[name] is field and spec_fields[name].metadata is field.metadata
+    # and a sampled spec records the config's table, plus the sampler's additions
+    recorded = sampled().to_dict()[table]
+    assert {key: recorded[key] for key in config_fields} == Config().to_dict()[table]
+    assert set(recorded) == set(config_fields) | added
+
+
+def test_a_spec_built_in_code_is_checked_like_one_read_from_json():
+    spec = sampled()
+    with pytest.raises(ConfigError, match=r"^SensorModel.auto_percentile = 20: out of range; allowed: a "
+                       r"number, 50 <= x <= 100$"):
+        replace(spec, sensor=replace(spec.sensor, auto_percentile=20))
+    with pytest.raises(ConfigError, match=r"^SceneSpec.world_strength = -1.0: out of range"):
+        replace(spec, world_strength=-1.0)
+    with pytest.raises(ConfigError, match=r"^Material.albedo = -0.5: out of range"):
+        replace(spec.objects[0].material, albedo=-0.5)
+    with pytest.raises(ConfigError, match=r"^RenderSettings.samples = 5000: out of range"):
+        replace(spec.render, samples=5000)
+    with pytest.raises(ConfigError, match=r"^SceneSpec.poses = \(\): not a non-empty list"):
+        replace(spec, poses=())
+    with pytest.raises(ConfigError, match=r"^PrimitiveMesh.size = \[1.0, 2.0\]: wrong type"):
+        PrimitiveMesh(shape="box", size=(1.0, 2.0))
+    # numbers are normalised as from_dict does: an int where a float is declared becomes a float
+    assert type(replace(spec, world_strength=1).world_strength) is float
 
 
 def _set(path: list, value):
@@ -60,30 +111,43 @@ def test_direct_light_comes_from_the_config_and_older_specs_read_as_separate():
 
 @pytest.mark.parametrize("change, message", [
     (_set(["objects", 3, "material", "albedo"], -1),
-     "objects[3].material.albedo must be a number >= 0, got -1"),
+     "objects[3].material.albedo = -1: out of range; allowed: a number, 0 <= x"),
     (_set(["masks"], _DELETE), "scene spec: masks is missing"),
     (_set(["colour"], 1), "scene spec: colour is not a field"),
-    (_set(["render", "samples"], 0), "render.samples must be an integer >= 1, got 0"),
-    (_set(["render", "device"], "TPU"), "render.device must be one of ['CPU', 'GPU'], got 'TPU'"),
+    (_set(["render", "samples"], 0), "render.samples = 0: out of range; allowed: an integer, 1 <= x <= 4096"),
+    (_set(["render", "samples"], 5000), "render.samples = 5000: out of range"),  # the config's bound
+    (_set(["render", "device"], "TPU"), 'render.device = \'TPU\': not a valid choice (did you mean "GPU"?)'),
     (_set(["render", "direct_light"], "both"),
-     "render.direct_light must be one of ['separate', 'shared'], got 'both'"),
-    (_set(["poses", 1], [[1, 0], [0, 1]]), "poses[1] must be a finite 4x4 matrix"),
-    (_set(["poses"], []), "poses must be a non-empty list"),
+     'render.direct_light = \'both\': not a valid choice; allowed: one of "separate", "shared"'),
+    (_set(["render", "colour"], 1), 'render: unknown key "colour"'),
+    (_set(["poses", 1], [[1, 0], [0, 1]]), "poses[1] = [[1, 0], [0, 1]]: wrong type (expected a four-element "
+     "array); allowed: a list of 4 lists of 4 numbers"),
+    (_set(["poses", 0, 2, 3], float("inf")), "inf], [0.0, 0.0, 0.0, 1.0]]: not finite"),
+    (_set(["poses"], []), "poses = []: not a non-empty list"),
     (_set(["lights"], [{"type": "SUN", "location": [0, 0, 0], "power": 1, "radius": 0}]),
-     "lights[0].type must be one of ['POINT'], got 'SUN'"),
-    (_set(["objects", 0, "mesh", "shape"], "pyramid"), "objects[0].mesh.shape must be one of"),
+     "lights[0].type = 'SUN': not a valid choice; allowed: one of \"POINT\""),
+    (_set(["objects", 0, "mesh", "shape"], "pyramid"),
+     "objects[0].mesh.shape = 'pyramid': not a valid choice"),
     (_set(["objects", 0, "mesh", "kind"], "cloud"),
-     "objects[0].mesh.kind must be one of ['primitive', 'asset']"),
-    (_set(["objects", 1, "location"], [1.0, 2.0]), "objects[1].location must be 3 numbers, got [1.0, 2.0]"),
+     "objects[0].mesh.kind = 'cloud': not a valid choice; allowed: one of \"primitive\", \"asset\""),
+    (_set(["objects", 1, "location"], [1.0, 2.0]),
+     "objects[1].location = [1.0, 2.0]: wrong type (expected a three-element array)"),
     (_set(["objects", 2, "rotation_euler", 1], float("nan")),
-     "objects[2].rotation_euler[1] must be a number"),
-    (_set(["sensor", "bit_depth"], 17), "sensor.bit_depth must be an integer >= 1 and <= 16, got 17"),
-    (_set(["sensor", "exposure"], "manual"), "sensor.exposure must be one of ['fixed', 'auto']"),
-    (_set(["masks", "edge_threshold"], 0.0), "masks.edge_threshold must be a number > 0, got 0.0"),
-    (_set(["projector", "power"], "bright"), "projector.power must be a number >= 0, got 'bright'"),
-    (_set(["split"], "val"), "split must be one of ['train', 'test'], got 'val'"),
-    (_set(["rig", "camera", "fx"], -3.0), "rig.camera: fx must be a finite positive number"),
+     "objects[2].rotation_euler = [1.5707963267948966, nan, 0.0]: not finite"),
+    (_set(["sensor", "bit_depth"], 17),
+     "sensor.bit_depth = 17: out of range; allowed: an integer, 1 <= x <= 16"),
+    (_set(["sensor", "auto_percentile"], 20), "sensor.auto_percentile = 20: out of range; allowed: a number, "
+     "50 <= x <= 100"),  # the config's bound
+    (_set(["sensor", "exposure"], "manual"), "sensor.exposure = 'manual': not a valid choice"),
+    (_set(["masks", "edge_threshold"], 0.0),
+     "masks.edge_threshold = 0.0: out of range; allowed: a number, 0 < x"),
+    (_set(["masks", "edge_dilation"], 51), "masks.edge_dilation = 51: out of range"),  # the config's bound
+    (_set(["projector", "power"], "bright"),
+     "projector.power = 'bright': wrong type (str); allowed: a number, 0 <= x"),
+    (_set(["split"], "val"), "split = 'val': not a valid choice; allowed: one of \"train\", \"test\""),
+    (_set(["rig", "camera", "fx"], -3.0), "rig.camera.fx = -3.0: out of range; allowed: a number, 0 < x"),
     (_set(["pattern", "sha256"], _DELETE), "pattern.sha256 is missing"),
+    (_set(["pattern", "sha256"], ""), "pattern.sha256 = '': empty; allowed: a non-empty string"),
 ])
 def test_bad_fields_are_named_with_their_value(change, message):
     d = copy.deepcopy(sampled(rig={"scale": 0.1}).to_dict())
@@ -98,7 +162,7 @@ def test_bad_fields_are_named_with_their_value(change, message):
 def test_texture_fields_are_checked_where_they_are():
     d = sampled(rig={"scale": 0.1}).to_dict()
     d["objects"][4]["material"]["texture"] = {"path": "/t.png", "scale": 2.0, "contrast": -0.5}
-    with pytest.raises(ValueError, match=r"objects\[4\]\.material\.texture\.contrast must be a number >= 0"):
+    with pytest.raises(ValueError, match=r"objects\[4\]\.material\.texture\.contrast = -0.5: out of range"):
         SceneSpec.from_dict(d)
 
 
@@ -121,8 +185,9 @@ def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
     wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
     assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
     # the visibility margin (noise sigmas a dot must stand out by) is the spec's too
-    strict = replace(spec, masks=replace(spec.masks, visibility_margin=1e4))
-    assert make_frame(raw, spec, np.random.default_rng(0))["visibility"].all()
+    noisy = replace(spec, sensor=replace(spec.sensor, read_noise=0.05))
+    strict = replace(noisy, masks=replace(noisy.masks, visibility_margin=100.0))  # the largest allowed
+    assert make_frame(raw, noisy, np.random.default_rng(0))["visibility"].all()
     assert not make_frame(raw, strict, np.random.default_rng(0))["visibility"].any()
 
 
