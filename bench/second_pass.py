@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from bench.render_speed import bench_rig, bench_spec, write_inputs
-from generator.blender.frame_recipe import ALL_LIGHT_RENDER, DIRECT_LIGHT_RENDER
+from generator.blender.frame_recipe import ALL_LIGHT_RENDER, DIRECT_LIGHT_RENDER, INDIRECT_LIGHT_RENDER
 from generator.scene_spec import SceneSpec
 
 
@@ -42,9 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     from generator.blender.render import SceneRenderer
 
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
-        # The scene has extra lights: its recipe's first render is the path-traced one.
         kinds = {
-            "path-traced": lambda: renderer._set_for(renderer.recipe.renders[0]),
+            "path-traced": lambda: renderer._set_for(INDIRECT_LIGHT_RENDER),
             "path-traced with direct passes": lambda: renderer._set_for(ALL_LIGHT_RENDER),
             "direct": lambda: renderer._set_for(DIRECT_LIGHT_RENDER),
             "bare": lambda: bare_pass(renderer, 100),

@@ -331,7 +331,8 @@ class SceneRenderer:
             raise RuntimeError(f"Cycles wrote no image to {output}")
         return read_exr(output)
 
-    def _render_through(self, render: Render, poses, frames: list[dict[str, np.ndarray]]) -> None:
+    def _render_through(self, render: Render, poses: list[np.ndarray] | tuple[np.ndarray, ...],
+                        frames: list[dict[str, np.ndarray]]) -> None:
         """Render every pose through `render` and add the raw passes it gives to its frame."""
         with self._set_for(render):
             for frame, pose in zip(frames, poses, strict=True):
