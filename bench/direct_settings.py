@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim.configs import builtin_path
+from generator.blender.frame_recipe import DIRECT_LIGHT_RENDER, LIGHT_PASSES
 from generator.blender.render import SceneRenderer
 from generator.config import config_from_dict
 from generator.pipeline import prepare_run
@@ -51,7 +52,7 @@ def variants(renderer: SceneRenderer) -> dict:
 
     @contextlib.contextmanager
     def light_passes_on():
-        renderer._set_light_passes(indirect=True, direct=True)
+        renderer._set_light_passes(frozenset(LIGHT_PASSES))
         yield  # the renderer sets its passes again after the direct renders
 
     return {"as the renderer does": contextlib.nullcontext, "light passes on": light_passes_on,
@@ -62,7 +63,7 @@ def variants(renderer: SceneRenderer) -> dict:
 def direct_renders(renderer: SceneRenderer, poses, variant) -> tuple[list[np.ndarray], float, float]:
     """R and G of the direct render of every pose, and the wall and CPU seconds per frame."""
     images = []
-    with renderer._projector_direct_only(), variant():
+    with renderer._set_for(DIRECT_LIGHT_RENDER), variant():
         wall, cpu = time.perf_counter(), time.process_time()
         for pose in poses:
             renderer.place_rig(pose)
@@ -88,8 +89,8 @@ def main(argv: list[str] | None = None) -> int:
         job = prepare_run(config, Path(tmp) / "d", "train", 0)
         spec = sample_scene_spec(config, args.scene, 0, "train", job.resources)
         poses = renderer.setup(spec)
-        for pose in poses:  # the path-traced renders come first, as in render_poses
-            renderer._path_traced(pose)
+        # The path-traced renders come first, as in render_poses.
+        renderer._render_through(renderer.recipe.renders[0], poses, [{} for _ in poses])
         ways = variants(renderer)
         reference = direct_renders(renderer, poses, ways["as the renderer does"])[0]
         times: dict[str, list[tuple[float, float]]] = {name: [] for name in ways}

@@ -1,8 +1,8 @@
 """Visibility-mask leak, missing dots ("pepper") and render time: the one-render way ("old",
-SceneRenderer(direct_render=False), mask from flood - ambient) against the direct light's two ways
-("separate": rendered apart, the default; "shared": from the path-traced render, [render]
-direct_light), both with the mask dotsim.masks.direct_visibility_mask, side by side on the same
-scenes in one run.
+generator.blender.frame_recipe.WITHOUT_DIRECT_LIGHT, mask from flood - ambient) against the direct
+light's two ways ("separate": rendered apart, the default; "shared": from the path-traced render,
+[render] direct_light), both with the mask dotsim.masks.direct_visibility_mask, side by side on
+the same scenes in one run.
 
     python -m bench.mask_fidelity [--scenes 20] [--width 320] [--objects 150] [--reference-scenes 3]
         [--timing-sizes 640,1216] [--timing-objects 300] [--repeats 3] [--no-timing] [--no-fidelity]
@@ -41,18 +41,19 @@ import numpy as np
 from bench.render_speed import bench_rig, bench_spec, correlation, scene_poses, write_inputs
 from dotsim.masks import edge_mask, noise_sigma, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
+from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
 from generator.config import config_from_dict
 from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import exposure_gain
 
-# name: (SceneRenderer.direct_render, render.direct_light)
-WAYS = {"old": (False, "separate"), "separate": (True, "separate"), "shared": (True, "shared")}
+# name: (render.direct_light, the frame recipe: None for the spec's own)
+WAYS = {"old": ("separate", WITHOUT_DIRECT_LIGHT), "separate": ("separate", None), "shared": ("shared", None)}
 
 
 def way_spec(spec: dict, name: str) -> SceneSpec:
-    """`spec` as the way `name` renders it (set renderer.direct_render as WAYS says, too)."""
-    return SceneSpec.from_dict(dict(spec, render=dict(spec["render"], direct_light=WAYS[name][1])))
+    """`spec` as the way `name` renders it (render it with the recipe WAYS gives, too)."""
+    return SceneSpec.from_dict(dict(spec, render=dict(spec["render"], direct_light=WAYS[name][0])))
 
 
 def random_lights(seed: int) -> list[dict]:
@@ -117,9 +118,8 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         spec = bench_spec(rig, inputs, args.objects, seed=seed)
         spec["lights"] = random_lights(seed)
         raws = {}
-        for name, (direct, _) in WAYS.items():
-            renderer.direct_render = direct
-            raws[name] = renderer.render(way_spec(spec, name))[0]
+        for name, (_, recipe) in WAYS.items():
+            raws[name] = renderer.render(way_spec(spec, name), recipe)[0]
         depth = raws["separate"]["depth"]
         lit, shadow = judged_regions(depth, rig)
         ones = np.ones((rig.projector.height, rig.projector.width))
@@ -131,9 +131,8 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         masks["old"] = visibility_mask(old["ambient"], old["ambient"] + old["flood"], 0.05, depth=depth)
         reference = None
         if seed < args.reference_scenes:
-            renderer.direct_render = False
             many = dict(spec, render=dict(spec["render"], samples=args.reference_samples))
-            reference = renderer.render(SceneSpec.from_dict(many))[0]
+            reference = renderer.render(SceneSpec.from_dict(many), WITHOUT_DIRECT_LIGHT)[0]
         for name in WAYS:
             row = fidelity(raws[name], masks[name], lit, shadow, oracle_flood, config)
             if reference is not None:
@@ -160,9 +159,8 @@ def run_timing(renderer, args, folder: Path) -> dict[tuple[int, bool], dict[str,
         for repeat in range(args.repeats):
             order = list(WAYS) if repeat % 2 == 0 else list(WAYS)[::-1]
             for name in order:
-                renderer.direct_render = WAYS[name][0]
                 wall, cpu = time.perf_counter(), time.process_time()
-                renderer.render(specs[name])
+                renderer.render(specs[name], WAYS[name][1])
                 runs[name, "wall"].append((time.perf_counter() - wall) / len(specs[name].poses))
                 runs[name, "cpu"].append((time.process_time() - cpu) / len(specs[name].poses))
         out[width, lights] = {f"{name}_{clock}": statistics.median(values)

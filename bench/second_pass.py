@@ -21,26 +21,14 @@ Cycles, then once timed (wall seconds; median over rounds):
 from __future__ import annotations
 
 import argparse
-import contextlib
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
 from bench.render_speed import bench_rig, bench_spec, write_inputs
+from generator.blender.frame_recipe import ALL_LIGHT_RENDER, DIRECT_LIGHT_RENDER, INDIRECT_LIGHT_RENDER
 from generator.scene_spec import SceneSpec
-
-
-@contextlib.contextmanager
-def direct_passes(renderer):
-    """The compositor of a scene without extra lights: all light in R and G, the direct passes on
-    and written to a file."""
-    indirect, direct = renderer._compositor[0]
-    renderer._use_compositor(indirect=False, direct=True)
-    try:
-        yield
-    finally:
-        renderer._use_compositor(indirect=indirect, direct=direct)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,9 +43,9 @@ def main(argv: list[str] | None = None) -> int:
 
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
         kinds = {
-            "path-traced": contextlib.nullcontext,
-            "path-traced with direct passes": lambda: direct_passes(renderer),
-            "direct": renderer._projector_direct_only,
+            "path-traced": lambda: renderer._set_for(INDIRECT_LIGHT_RENDER),
+            "path-traced with direct passes": lambda: renderer._set_for(ALL_LIGHT_RENDER),
+            "direct": lambda: renderer._set_for(DIRECT_LIGHT_RENDER),
             "bare": lambda: bare_pass(renderer, 100),
             "bare, half size": lambda: bare_pass(renderer, 50),
         }

@@ -5,7 +5,9 @@ numpy, the standard library and generator.scene_spec (with dotsim.rig), so it al
 Blender's own Python (demo_scenes, for tests and benchmarks, also uses the generator config).
 
 Modules (bpy only in render, scene_builder, projector, materials, bare_pass):
-  render          SceneRenderer: builds a SceneSpec, renders one frame per pose (docs/RENDERING.md)
+  render          SceneRenderer: builds a SceneSpec, renders one frame per pose as its recipe says
+  frame_recipe    pure: which renders, passes and compositor outputs a spec's frames take
+                  (docs/RENDERING.md)
   scene_builder   camera, world, extra lights and objects in bpy; dispatches on mesh and light types
   projector       the dot projector and the flood rectangle as one Cycles spot light
   materials       grey infrared materials (albedo, roughness, specular, texture)

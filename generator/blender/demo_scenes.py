@@ -3,7 +3,8 @@
 They are the spec's JSON form (docs/SCENE_SPEC.md): edit them as dicts, then make the typed spec
 with `SceneSpec.from_dict`, which checks them. The camera sits at the world origin looking along +z
 (OpenCV axes), so world coordinates equal camera coordinates for pose 0. Sensor-model and mask
-parameters are the config's defaults. The real sampler lives in generator/sample_scene.py.
+parameters and render.direct_light are the config's defaults. The real sampler lives in
+generator/sample_scene.py.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ def base_spec(
     poses: list | None = None,
     threads: int = 0,
     pixel_scale: float = 1.0,
-    direct_light: str = "separate",
 ) -> dict:
     """A SceneSpec with no objects; add them to spec["objects"]. pixel_scale: the rig's resolution
     over its sensor's full resolution (the sensor model's blur and bloom and the mask's dot blur
@@ -43,7 +43,7 @@ def base_spec(
         "split": "test",
         "seed": seed,
         "render": {"samples": samples, "seed": seed, "max_bounces": 4, "device": "CPU", "threads": threads,
-                   "direct_light": direct_light},
+                   "direct_light": Config().render.direct_light},
         "rig": rig,
         "pattern": {"path": pattern_path, "sha256": pattern_sha256},
         "projector": {"power": projector_power},

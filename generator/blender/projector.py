@@ -20,16 +20,6 @@ from mathutils import Matrix
 from .geometry import projector_uv_coefficients, spot_cone_angle
 from .pattern_filter import box_prefilter, png16_bytes
 
-# Cycles samples one light per shading point, chosen by each light's energy; it cannot see that the
-# spot's node tree carries the projector, the pass that must be clean at one sample. Where an extra
-# point light is picked instead, that pixel gets no projector and no flood light at all ("pepper").
-# Declaring the spot brighter (and dividing its node gains alike: same output, unbiased) gives it
-# more samples, at the ambient pass's expense (docs/RENDERING.md has the measurements). The
-# renderer's default way takes the spot's direct light from a separate render and uses boost 1;
-# SAMPLING_BOOST serves the ways that take it from the one render with extra lights present
-# ([render] direct_light = "shared", and SceneRenderer(direct_render=False) for comparison).
-SAMPLING_BOOST = 3.0
-
 
 def _load_data_image(path: str, what: str) -> bpy.types.Image:
     """Load an image file as raw data (Non-Color); ValueError naming the file when Blender cannot."""
@@ -56,7 +46,8 @@ class ProjectorLight:
     """A spot light projecting a pattern image (red channel) and its bounding rectangle (green)."""
 
     def __init__(self, collection: bpy.types.Collection):
-        self.sampling_boost = SAMPLING_BOOST  # read by set_powers; the renderer sets it per way
+        # Read by set_powers; the renderer sets it from the scene's frame recipe (frame_recipe.py).
+        self.sampling_boost = 1.0
         self.light = bpy.data.lights.new("dotsim_projector", "SPOT")
         self.light.shadow_soft_size = 0.0  # a pinhole: sharp dots and sharp shadows
         self.light.spot_blend = 0.0
@@ -144,7 +135,8 @@ class ProjectorLight:
     def set_powers(self, projector_power: float, flood_power: float) -> None:
         """Spot power (W) for a fully white pattern pixel in red, and for the flood rectangle in green.
         The node gains scale each channel, so either power can be zero without touching the other
-        channel; the light's energy is sampling_boost times the larger power (see SAMPLING_BOOST)."""
+        channel; the light's energy is sampling_boost times the larger power (frame_recipe.py
+        SAMPLING_BOOST: more light samples for the spot, the same image)."""
         for name, value in (("projector.power", projector_power), ("flood.power", flood_power)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")

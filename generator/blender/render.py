@@ -1,6 +1,7 @@
 """SceneRenderer: SceneSpec (generator/scene_spec.py) -> one frame of raw passes per pose, with
-Cycles: one path-tracing render per frame for all light and, in scenes with extra lights, one
-direct-light render of the projector alone (docs/RENDERING.md).
+Cycles, as the spec's frame recipe (frame_recipe.py) says: one path-tracing render per frame for
+all light and, in scenes with extra lights, one direct-light render of the projector alone
+(docs/RENDERING.md).
 
 How the passes are separated (several lights in one render are noisy, docs/RENDERING.md): materials
 are grey, so colour channels never mix. One spot light emits the pattern in red and the flood
@@ -10,19 +11,9 @@ packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, read back w
 reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off, because each
 of them would mix channels or change values.
 
-Direct light: Cycles samples one light per shading point, so where an extra light was picked at the
-surface the camera sees, the projector's direct light is missing ("pepper"). The path-tracing
-render therefore keeps only the projector's and flood's indirect light (the diffuse and glossy
-indirect passes times their colour passes, composited), and a second render with no bounces and
-the extra lights hidden gives their direct light at every pixel (the world stays: it is blue and
-not light-sampled): the dots the sensor sees are direct + indirect, and the visibility mask uses
-the direct light alone. All path-traced frames of a scene render first, then all direct ones,
-because each switch between the two makes Cycles sync the scene again. A scene without extra
-lights needs no second render: the spot is then the only light Cycles samples, so it is picked at
-every point: the path-traced render then keeps all light in R and G, and its own direct passes
-(diffuse and glossy direct times their colour passes, written by a File Output node) are the
-direct render's image (equal to 5e-7, measured). With render.direct_light "shared" a scene with
-extra lights is rendered that way too, and keeps the pepper: one render, faster.
+Direct light: which renders a frame takes, which passes they switch on and what the compositor
+writes is the frame recipe's to say (frame_recipe.py, pure); the renderer sets the bpy scene up for
+each render of it in turn, renders every frame through it and adds up the raw passes it names.
 
 Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
@@ -46,9 +37,10 @@ import numpy as np
 from generator.scene_spec import RenderSettings, SceneSpec
 
 from .exr import read_exr
+from .frame_recipe import LIGHT_PASSES, FrameRecipe, Render, frame_recipe
 from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, projector_pose
 from .pattern_filter import footprint_width
-from .projector import SAMPLING_BOOST, ProjectorLight
+from .projector import ProjectorLight
 from .scene_builder import SceneContent
 
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
@@ -199,10 +191,7 @@ class SceneRenderer:
     render(spec) for each scene; close() removes the temp folder. Use one per process.
     """
 
-    def __init__(self, reset: bool = True, direct_render: bool = True):
-        """direct_render=False renders each frame in one path-tracing render, the projector's direct
-        light included (the way before the direct render existed, kept to compare against: its
-        frames lack projector_direct and flood_direct, and have pepper with extra lights)."""
+    def __init__(self, reset: bool = True):
         if reset:
             bpy.ops.wm.read_factory_settings(use_empty=True)
         self.scene = bpy.context.scene
@@ -211,36 +200,64 @@ class SceneRenderer:
         self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
         self.scene.render.filepath = str(self._tmp / "frame.exr")
         self._direct_file = self._tmp / "direct.exr"
-        self._compositor: tuple[tuple[bool, bool], bpy.types.NodeTree] | None = None  # (key, tree)
-        self._separate_direct = False  # set by setup()
+        self._tree: bpy.types.NodeTree | None = None  # the compositor
+        # The render whose passes and compositor the bpy scene holds; None after passes were off.
+        self._composited: Render | None = None
+        self.recipe: FrameRecipe | None = None  # the built spec's, set by setup()
         self.content = SceneContent(self.scene)
         self.projector = ProjectorLight(self.scene.collection)
-        self.direct_render = direct_render  # applied by setup(); may change between scenes
         self.device = "CPU"
 
-    def _use_compositor(self, indirect: bool, direct: bool, rebuild: bool = False) -> None:
-        """Passes and compositor (_build_compositor): R and G as indirect light only (`indirect`), the
-        direct light written apart (`direct`). Passes are on only where used: each costs render
-        time. Built anew when these change, or with `rebuild` after the passes were switched off
-        and on (the direct render does): Blender leaves links from passes switched off invalid
-        after they come back, and an invalid link reads as 0 (the indirect light was lost that way)."""
-        key = (indirect, direct)
-        if self._compositor is not None and self._compositor[0] == key and not rebuild:
+    def _use_compositor(self, render: Render) -> None:
+        """Passes and compositor (_build_compositor) for `render`. Passes are on only where used: each
+        costs render time. Built anew unless the scene holds them for `render` already, also after
+        the passes were switched off (the direct render does): Blender leaves links from passes
+        switched off invalid after they come back, and an invalid link reads as 0 (the indirect
+        light was lost that way)."""
+        if self._composited == render:
             return
-        self._set_light_passes(indirect, direct)
-        tree = _build_compositor(indirect, self._direct_file if direct else None)
+        self._set_light_passes(render.light_passes)
+        tree = _build_compositor(render.red_green == "indirect",
+                                 self._direct_file if render.direct_file else None)
         self.scene.compositing_node_group = tree
-        if self._compositor is not None:
-            bpy.data.node_groups.remove(self._compositor[1])
-        self._compositor = (key, tree)
+        if self._tree is not None:
+            bpy.data.node_groups.remove(self._tree)
+        self._tree, self._composited = tree, render
 
-    def _set_light_passes(self, indirect: bool, direct: bool) -> None:
-        """The diffuse and glossy light passes: indirect and colour for `indirect`, direct and colour
-        for `direct` (none when both are False, as in the direct render, whose image is all it needs)."""
+    def _set_light_passes(self, passes: frozenset[str]) -> None:
+        """Switch the LIGHT_PASSES in `passes` on and the others off."""
         layer = self.scene.view_layers[0]
-        for light in ("diffuse", "glossy"):
-            for part, on in (("indirect", indirect), ("color", indirect or direct), ("direct", direct)):
-                setattr(layer, f"use_pass_{light}_{part}", on)
+        for name in LIGHT_PASSES:
+            setattr(layer, f"use_pass_{name}", name in passes)
+
+    @contextlib.contextmanager
+    def _set_for(self, render: Render):
+        """The bpy scene as `render` needs it while inside: bounces, extra lights, passes and
+        compositor; as before after."""
+        before = self._composited
+        hidden = [] if render.extra_lights else [
+            obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
+        if not render.bounces:
+            self.scene.cycles.max_bounces = 0
+        for obj in hidden:
+            obj.hide_render = True
+        if render.red_green is None:
+            self.scene.render.use_compositing = False
+            self._set_light_passes(render.light_passes)
+            self._composited = None
+        else:
+            self._use_compositor(render)
+        try:
+            yield
+        finally:
+            if not render.bounces:
+                self.scene.cycles.max_bounces = self._bounces
+            for obj in hidden:
+                obj.hide_render = False
+            if render.red_green is None:
+                self.scene.render.use_compositing = True
+            if before is not None:
+                self._use_compositor(before)
 
     def close(self) -> None:
         self.content.release()
@@ -267,23 +284,16 @@ class SceneRenderer:
             self.scene.render.threads = render.threads
         self.device = select_device(self.scene, render.device)
 
-    def setup(self, spec: SceneSpec) -> tuple[np.ndarray, ...]:
-        """Build `spec` in the bpy scene (everything except the frame poses); returns the 4x4
-        world_from_camera poses to render."""
+    def setup(self, spec: SceneSpec, recipe: FrameRecipe | None = None) -> tuple[np.ndarray, ...]:
+        """Build `spec` in the bpy scene (everything except the frame poses), to be rendered as
+        `recipe` says (frame_recipe(spec) unless given); returns the 4x4 world_from_camera poses to
+        render."""
         # Checked first: a bad spec should fail before anything is built.
         if not Path(spec.pattern.path).is_file():
             raise ValueError(f"scene spec: pattern.path {spec.pattern.path} does not exist")
+        recipe = frame_recipe(spec) if recipe is None else recipe
         self._apply_render_settings(spec.render)
-        # The spot's direct light: from a render of its own where extra lights compete with it for
-        # Cycles' one light sample per point ("separate"), else from the path-traced render's own
-        # passes: exact without extra lights (the spot is then picked at every point), missing
-        # where an extra light was picked with "shared" (docs/RENDERING.md).
-        shared, extra_lights = spec.render.direct_light == "shared", bool(spec.lights)
-        self._separate_direct = self.direct_render and extra_lights and not shared
-        # Only where the path-traced render's direct light is used with extra lights does the spot
-        # need extra samples (projector.py SAMPLING_BOOST); otherwise the ambient light gets them.
-        boosted = not self.direct_render or (shared and extra_lights)
-        self.projector.sampling_boost = SAMPLING_BOOST if boosted else 1.0
+        self.projector.sampling_boost = recipe.sampling_boost
         rig = spec.rig
         self.content.set_camera(rig.camera)
         self.projector.set_intrinsics(astuple(rig.projector))
@@ -293,10 +303,8 @@ class SceneRenderer:
         self.projector.set_pattern(pattern.path, pattern.sha256 or pattern.path, width, self._tmp)
         self.projector.set_powers(spec.projector_power, spec.flood_power)
         self.content.build(spec)
-        # R and G are indirect light only where the direct render adds the rest; otherwise all
-        # light, with the direct light written apart (the combined image needs no compositing).
-        self._use_compositor(indirect=self._separate_direct,
-                             direct=self.direct_render and not self._separate_direct)
+        self._use_compositor(recipe.renders[0])
+        self.recipe = recipe
         self.refresh()
         return spec.poses
 
@@ -323,74 +331,49 @@ class SceneRenderer:
             raise RuntimeError(f"Cycles wrote no image to {output}")
         return read_exr(output)
 
-    def _path_traced(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
-        """One path-traced frame (projector and flood: all their light, or their indirect light where
-        a direct render follows), and the direct light where the compositor writes it."""
-        self.place_rig(world_from_camera)
-        self._direct_file.unlink(missing_ok=True)
-        channels = self._render_channels()
-        depth = channels["A"].copy()
-        depth[depth >= NO_HIT_DEPTH] = np.inf
-        frame = {
-            "projector": channels["R"].copy(),
-            "flood": channels["G"].copy(),
-            "ambient": channels["B"].copy(),
-            "depth": depth,
-        }
-        _, direct_written = self._compositor[0]  # (indirect, direct) of _use_compositor
-        if direct_written:
-            if not self._direct_file.is_file():
-                raise RuntimeError(f"Cycles' compositor wrote no direct light to {self._direct_file}")
-            direct = read_exr(self._direct_file)
-            frame["projector_direct"] = direct["R"].copy()
-            frame["flood_direct"] = direct["G"].copy()
-        return frame
-
-    @contextlib.contextmanager
-    def _projector_direct_only(self):
-        """The scene lit by the spot alone, without bounces: a render gives the spot's direct light
-        in R and G (the world is blue, so it may stay); no compositing, the image is the result, so
-        the light passes are off too (measured: 9-18% less CPU per direct render at 608 x 448, the
-        same pixels; docs/RENDERING.md "Direct render settings")."""
-        lights = [obj for obj in self.content.collection.objects if obj.type == "LIGHT"]
-        self.scene.cycles.max_bounces = 0
-        for obj in lights:
-            obj.hide_render = True
-        self.scene.render.use_compositing = False
-        self._set_light_passes(indirect=False, direct=False)
-        try:
-            yield
-        finally:
-            self.scene.cycles.max_bounces = self._bounces
-            for obj in lights:
-                obj.hide_render = False
-            self.scene.render.use_compositing = True
-            self._use_compositor(*self._compositor[0], rebuild=True)
+    def _render_through(self, render: Render, poses: list[np.ndarray] | tuple[np.ndarray, ...],
+                        frames: list[dict[str, np.ndarray]]) -> None:
+        """Render every pose through `render` and add the raw passes it gives to its frame."""
+        with self._set_for(render):
+            for frame, pose in zip(frames, poses, strict=True):
+                self.place_rig(pose)
+                if render.direct_file:
+                    self._direct_file.unlink(missing_ok=True)
+                _add_passes(frame, self._render_channels(), render.image)
+                if render.direct_file:
+                    if not self._direct_file.is_file():
+                        raise RuntimeError(f"Cycles' compositor wrote no direct light to {self._direct_file}")
+                    _add_passes(frame, read_exr(self._direct_file), render.direct_file)
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth,
         projector_direct, flood_direct} float32 (H, W); depth is planar (metres), inf where nothing
         is hit; projector and flood hold direct + indirect light, the *_direct passes the spot's
-        direct light alone (absent with direct_render=False)."""
+        direct light alone (the recipe's raw_passes: frame_recipe.WITHOUT_DIRECT_LIGHT has none)."""
         return self.render_poses([world_from_camera])[0]
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
-        """render_frame for each pose: the path-traced renders first, then the direct ones (each
-        switch between the two makes Cycles sync the scene again, so it happens once); none
-        without extra lights or with render.direct_light "shared" (setup)."""
-        frames = [self._path_traced(pose) for pose in poses]
-        if not self._separate_direct:
-            return frames
-        with self._projector_direct_only():
-            for frame, pose in zip(frames, poses, strict=True):
-                self.place_rig(pose)
-                direct = self._render_channels()
-                frame["projector_direct"] = direct["R"].copy()
-                frame["flood_direct"] = direct["G"].copy()
-                frame["projector"] += frame["projector_direct"]  # the path-traced R, G: indirect only
-                frame["flood"] += frame["flood_direct"]
+        """render_frame for each pose: every pose through the recipe's first render, then through
+        the next (each switch between two makes Cycles sync the scene again, so it happens once)."""
+        frames: list[dict[str, np.ndarray]] = [{} for _ in poses]
+        for render in self.recipe.renders:
+            self._render_through(render, poses, frames)
+        for frame in frames:
+            frame["depth"][frame["depth"] >= NO_HIT_DEPTH] = np.inf
         return frames
 
-    def render(self, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
-        """All frames of `spec`: a list (one per pose) of render_frame's passes."""
-        return self.render_poses(self.setup(spec))
+    def render(self, spec: SceneSpec, recipe: FrameRecipe | None = None) -> list[dict[str, np.ndarray]]:
+        """All frames of `spec`, rendered as `recipe` says (frame_recipe(spec) unless given): a list
+        (one per pose) of render_frame's passes."""
+        return self.render_poses(self.setup(spec, recipe))
+
+
+def _add_passes(frame: dict[str, np.ndarray], channels: dict[str, np.ndarray],
+                passes: tuple[tuple[str, str], ...]) -> None:
+    """Add each (channel, raw pass) of `passes` to the frame: a copy of the channel, or its sum with
+    what an earlier render gave."""
+    for channel, name in passes:
+        if name in frame:
+            frame[name] += channels[channel]
+        else:
+            frame[name] = channels[channel].copy()

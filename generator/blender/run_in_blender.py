@@ -5,7 +5,8 @@
     python generator/blender/run_in_blender.py SPEC.json [...] --out DIR      (bpy from pip)
 
 For each SPEC.json it writes DIR/<SPEC stem>_raw.npz (atomically, dotsim.file_io) holding
-float32 arrays PASS_K for PASS in projector, flood, ambient, depth and frame K = 0.. (one per pose).
+float32 arrays PASS_K for PASS in the raw passes of the spec's frame recipe (frame_recipe.py:
+projector, flood, ambient, depth, projector_direct, flood_direct) and frame K = 0.. (one per pose).
 Blender's own Python has only bpy, numpy and the standard library, so this script and everything
 it imports (generator/blender/, dotsim.file_io) use nothing else; it puts the repository root on
 sys.path itself.

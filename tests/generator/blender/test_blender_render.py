@@ -18,7 +18,8 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
 from generator.blender import demo_scenes as ds
-from generator.post_render import make_frame
+from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
+from generator.post_render import RAW_PASSES, make_frame
 from generator.scene_spec import SceneSpec
 
 bpy = pytest.importorskip("bpy")
@@ -137,7 +138,8 @@ def _box_shadow_scene(renderer, pattern, n_lights: int, direct_light: str = "sep
     lights = [{"type": "POINT", "location": [x, -0.4, 0.8], "power": 10.0, "radius": 0.05}
               for x in (-0.6, 0.6)][:n_lights]
     spec = _spec(pattern, samples=1, projector_power=100.0, flood_power=100.0, world_strength=0.05,
-                 lights=lights, direct_light=direct_light)
+                 lights=lights)
+    spec["render"]["direct_light"] = direct_light
     spec["objects"] = [ds.wall(wall_z), ds.primitive("box", "box", (0.2, 0.2, 0.2), (0.0, 0.0, 0.6))]
     spec = SceneSpec.from_dict(spec)
     raw = renderer.render(spec)[0]
@@ -225,22 +227,18 @@ def test_clutter_projector_pass_matches_oracle(renderer, pattern):
 
 
 def test_switching_to_the_one_render_way_and_back_renders_the_same(renderer, pattern):
-    """bench.mask_fidelity switches one renderer between the one-render way and the direct render.
-    A frame is the same before and after a switch there and back (Blender once left the compositor's
-    links from passes switched off dead after they came back: the indirect light read as 0). With no
-    extra light the spot is the only light picked in both ways, so the one render's projector and
-    flood (all their light at once) equal direct + indirect of the other way."""
+    """bench.mask_fidelity switches one renderer between the one-render way without direct passes
+    (WITHOUT_DIRECT_LIGHT) and the spec's own recipe. A frame is the same before and after a switch
+    there and back (Blender once left the compositor's links from passes switched off dead after
+    they came back: the indirect light read as 0). With no extra light the spot is the only light
+    picked in both ways, so the one render's projector and flood equal the spec's recipe's."""
     spec = SceneSpec.from_dict(_clutter_spec(pattern, samples=1))
     first = renderer.render(spec)[0]
-    renderer.direct_render = False
-    try:
-        one = renderer.render(spec)[0]
-    finally:
-        renderer.direct_render = True
+    one = renderer.render(spec, WITHOUT_DIRECT_LIGHT)[0]
     again = renderer.render(spec)[0]
     for name in first:
         np.testing.assert_array_equal(first[name], again[name], err_msg=name)
-    assert "projector_direct" not in one
+    assert tuple(one) == WITHOUT_DIRECT_LIGHT.raw_passes and tuple(first) == RAW_PASSES  # as the recipes say
     for name in ("projector", "flood", "ambient", "depth"):
         np.testing.assert_allclose(one[name], first[name], rtol=1e-5, atol=1e-6, err_msg=name)
     assert np.mean(first["flood"] > first["flood_direct"]) > 0.01  # indirect light is there
