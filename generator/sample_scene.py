@@ -18,7 +18,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dotsim.rig import Rig
-from dotsim.rig_files import configured_rig
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
@@ -66,8 +65,9 @@ def scene_seed(base_seed: int, scene_index: int) -> int:
 
 
 def build_rig(config: Config) -> Rig:
-    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution."""
-    return configured_rig(config.rig, f"{config.source}: [rig]").rig
+    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution
+    (resolved once per Config: Config.calibrated_rig)."""
+    return config.calibrated_rig.rig
 
 
 @dataclass(frozen=True)
