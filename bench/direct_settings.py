@@ -28,6 +28,7 @@ from dotsim.configs import builtin_path
 from generator.blender.render import SceneRenderer
 from generator.config import config_from_dict
 from generator.pipeline import prepare_run
+from generator.run_request import RunRequest
 from generator.sample_scene import sample_scene_spec
 
 FULL_WIDTH = 1216
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     data["assets"] = {"source": "primitives"}
     config = config_from_dict(data, source=str(config_path), base_dir=config_path.parent)
     with tempfile.TemporaryDirectory(prefix="dotsim-direct-") as tmp, SceneRenderer() as renderer:
-        job = prepare_run(config, Path(tmp) / "d", "train", 0)
+        job = prepare_run(RunRequest(config, Path(tmp) / "d", "train", 1))
         spec = sample_scene_spec(config, args.scene, 0, "train", job.resources)
         poses = renderer.setup(spec)
         for pose in poses:  # the path-traced renders come first, as in render_poses

@@ -21,7 +21,6 @@ from dotsim.rig import Rig
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
-    SPLITS,
     AssetMesh,
     MaskParams,
     Material,
@@ -261,9 +260,8 @@ def _poses(rng: np.random.Generator, config: Config, base: np.ndarray) -> tuple[
 def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: str,
                       resources: SceneResources) -> SceneSpec:
     """Sample scene `scene_index` of `split`: room, objects, materials, lights, projector, poses, and
-    the config's sensor-model and mask parameters."""
-    if split not in SPLITS:
-        raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+    the config's sensor-model and mask parameters. `split` is one of scene_spec.SPLITS (a run's
+    RunRequest checked it)."""
     rng = scene_rng(base_seed, scene_index, STREAM_SCENE)
     sc, li = config.scene, config.lighting
     rig = build_rig(config)
