@@ -30,8 +30,9 @@ from pathlib import Path
 from bench.scene_cost import config_at
 from dotsim import dataset
 from generator.config import load_config
-from generator.pipeline import generate
-from generator.ray_cluster import RayBackend
+from generator.pipeline import generate, run
+from generator.ray_cluster import RayExecutor
+from generator.run_request import RunRequest
 
 SLURM_CONFIG = Path("dotsim/configs/tiny.toml")
 
@@ -51,11 +52,11 @@ def first_scene_clock(out: Path, began: float) -> dict:
     return seen
 
 
-def timed_run(config, out: Path, scenes: int, workers: int, backend=None) -> tuple[float, float]:
+def timed_run(config, out: Path, scenes: int, workers: int, executor=None) -> tuple[float, float]:
     """(wall seconds to a sealed dataset, seconds to the first complete scene)."""
     began = time.perf_counter()
     clock = first_scene_clock(out, began)
-    summary = generate(config, out, "train", scenes, workers=workers, progress=False, backend=backend)
+    summary = generate(config, out, "train", scenes, workers=workers, progress=False, executor=executor)
     seconds = time.perf_counter() - began
     clock["stop"] = True
     clock["thread"].join()
@@ -66,14 +67,14 @@ def timed_run(config, out: Path, scenes: int, workers: int, backend=None) -> tup
 def slurm_first_scene(config_path: Path, scenes: int, tmp: Path) -> tuple[float, float]:
     """(submit to first scene, submit to sealed) on a one-node Slurm started here."""
     from bench.one_node_slurm import one_node_slurm, wait_for_jobs
-    from generator.slurm import SlurmOptions, generate_on_slurm
+    from generator.slurm import SlurmExecutor, SlurmOptions
 
     with one_node_slurm(tmp / "slurm") as env:
-        os.environ["SLURM_CONF"] = env["SLURM_CONF"]  # for the sbatch that generate_on_slurm runs
+        os.environ["SLURM_CONF"] = env["SLURM_CONF"]  # for the sbatch that SlurmExecutor runs
         out = tmp / "slurm-out"
         began = time.perf_counter()
-        said = generate_on_slurm(load_config(config_path), str(config_path), str(out), "train", scenes,
-                                 0, 0, SlurmOptions(scenes_per_task=max(1, -(-scenes // 2))))
+        executor = SlurmExecutor(SlurmOptions(scenes_per_task=max(1, -(-scenes // 2))))
+        said = run(RunRequest(load_config(config_path), out, "train", scenes, executor=executor)).line()
         clock = first_scene_clock(out, began)
         wait_for_jobs(said.split("squeue -j ")[1].split("`")[0], env, timeout_s=3600)
         sealed = time.perf_counter() - began
@@ -99,9 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     threads = 1
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-cluster-") as tmp:
         tmp = Path(tmp)
-        backend = RayBackend("local", cpus=args.workers * threads)
+        ray_executor = RayExecutor("local", local_workers=args.workers)
         began = time.perf_counter()
-        backend.connect()
+        ray_executor.connect(threads)
         print(f"ray local cluster of {args.workers * threads} CPUs started in "
               f"{time.perf_counter() - began:.1f} s")
         rates: dict[str, list[float]] = {"local": [], "ray": []}
@@ -111,13 +112,13 @@ def main(argv: list[str] | None = None) -> int:
                 order = ("local", "ray") if repeat % 2 == 0 else ("ray", "local")
                 for name in order:
                     seconds, first = timed_run(config, tmp / f"{name}{repeat}", args.scenes, args.workers,
-                                               backend if name == "ray" else None)
+                                               ray_executor if name == "ray" else None)
                     rates[name].append(3600 * args.scenes / seconds)
                     firsts[name].append(first)
                     print(f"repeat {repeat} {name:5s}: {args.scenes} scenes in {seconds:.1f} s "
                           f"({rates[name][-1]:.0f} scenes/h), first scene after {first:.1f} s", flush=True)
         finally:
-            backend.close()
+            ray_executor.close()
         overheads = [lo / ra - 1 for lo, ra in zip(rates["local"], rates["ray"], strict=True)]
         overhead = 100 * statistics.median(overheads)
         print(f"local {statistics.median(rates['local']):.0f} scenes/h, "

@@ -29,6 +29,7 @@ from generator.blender.frame_recipe import DIRECT_LIGHT_RENDER, LIGHT_PASSES
 from generator.blender.render import SceneRenderer
 from generator.config import config_from_dict
 from generator.pipeline import prepare_run
+from generator.run_request import RunRequest
 from generator.sample_scene import sample_scene_spec
 
 FULL_WIDTH = 1216
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     data["assets"] = {"source": "primitives"}
     config = config_from_dict(data, source=str(config_path), base_dir=config_path.parent)
     with tempfile.TemporaryDirectory(prefix="dotsim-direct-") as tmp, SceneRenderer() as renderer:
-        job = prepare_run(config, Path(tmp) / "d", "train", 0)
+        job = prepare_run(RunRequest(config, Path(tmp) / "d", "train", 1))
         spec = sample_scene_spec(config, args.scene, 0, "train", job.resources)
         poses = renderer.setup(spec)
         # The path-traced renders come first, as in render_poses.

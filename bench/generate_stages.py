@@ -122,12 +122,22 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
     return out
 
 
+def prepared(config, folder: Path):
+    """The RenderJob of a train-split dataset in `folder` (seed 0), with either side's code."""
+    from generator.pipeline import prepare_run
+
+    try:
+        from generator.run_request import RunRequest
+    except ImportError:  # before issue 28, prepare_run took the run's values themselves
+        return prepare_run(config, folder, "train", 0)
+    return prepare_run(RunRequest(config, folder, "train", 1))
+
+
 def measure(config_path: Path, width: int, scene: int, repeats: int, compressions: bool = False) -> dict:
     """The child's work: one side's code (on sys.path) at one width; a dict of seconds per frame."""
     from dotsim import dataset
     from generator.blender.render import SceneRenderer
     from generator.config import config_from_dict
-    from generator.pipeline import prepare_run
     from generator.post_render import make_frame
     from generator.render_scenes import _finish_scene
     from generator.sample_scene import frame_sensor_rng, sample_scene_spec
@@ -137,7 +147,7 @@ def measure(config_path: Path, width: int, scene: int, repeats: int, compression
     data["assets"] = {"source": "primitives"}
     config = config_from_dict(data, source=f"{config_path} at {width} px", base_dir=config_path.parent)
     with tempfile.TemporaryDirectory(prefix="dotsim-stages-") as tmp:
-        job = prepare_run(config, Path(tmp) / "d", "train", 0)
+        job = prepared(config, Path(tmp) / "d")
         spec = sample_scene_spec(config, scene, 0, "train", job.resources)
         frames = len(spec.poses)
         out = {"objects": len(spec.objects), "lights": len(spec.lights), "frames": frames,

@@ -17,8 +17,9 @@ import numpy as np
 from generator.config import ConfigError, load_config, with_rig
 from generator.post_render import make_frame
 from generator.resources import resources_in_folder
+from generator.run_request import RunRequest
 from generator.sample_scene import frame_sensor_rng, sample_scene_spec
-from generator.scene_spec import SPLITS, SceneSpec
+from generator.scene_spec import SceneSpec
 
 
 def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base_seed: int,
@@ -29,24 +30,20 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
     are written under `work_dir` once.
 
     Raises ConfigError naming the file when the config is missing or invalid, or an argument is
-    out of range.
+    out of range (checked by the RunRequest of that one scene, as `dotsim generate` checks its
+    options: the split as --split, the scene index as --start, the base seed as --seed).
     """
     if not str(config_path).strip():
         raise ConfigError("no config chosen; allowed: a built-in config (tiny, default, ...) or a generator "
                           "TOML file")
-    if split not in SPLITS:
-        raise ConfigError(f"split {split!r}: allowed: train or test")
-    for name, value in (("scene index", scene_index), ("base seed", base_seed)):
-        if value < 0:
-            raise ConfigError(f"{name} {value}: allowed: an integer >= 0")
     config = load_config(config_path)
     if rig is not None:
         if not rig.strip():
             raise ConfigError("no rig file chosen; allowed: a rig file (dotsim rig JSON, OpenCV, ROS "
                               "camera_info or Kalibr calibration), or the config's rig or a preset")
         config = with_rig(config, rig)
-    resources = resources_in_folder(config, split, work_dir)
-    return sample_scene_spec(config, scene_index, base_seed, split, resources)
+    request = RunRequest(config, work_dir, split, scenes=1, start=scene_index, seed=base_seed)
+    return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(request))
 
 
 def check_frame(frame: int, spec: SceneSpec) -> int:

@@ -10,9 +10,14 @@ Modules (one idea each; only generator/blender/ imports bpy):
                  projector's and flood's direct light)
   sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
   post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
-  render_scenes  render_scenes(job, indices): sample, render, post-render, write; the worker pool
-  pipeline       generate(): checks, prepare_run, resume, progress, sealing; seal_run for clusters
-  ray_cluster    RayBackend: generate()'s scenes as Ray tasks (`--ray`; docs/SCALE.md)
-  slurm          sbatch scripts for a job array and its sealing job (`--slurm`; docs/SCALE.md)
+  render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
+  run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
+                 carrying the rig and the pattern
+  executor       the Executor protocol (prepare, render, seal) and the engine modules that implement it
+  pipeline       run(request): prepare_run, resume, progress, sealing; generate() for python callers;
+                 seal_run for clusters
+  local_pool     LocalExecutor: spawned render processes on this machine (`--workers`, the default)
+  ray_cluster    RayExecutor: the scenes as Ray tasks (`--ray`; docs/SCALE.md)
+  slurm          SlurmExecutor: a job array and its sealing job (`--slurm`; docs/SCALE.md)
   cli            `dotsim generate`
 """

@@ -8,6 +8,8 @@ import sys
 
 from dotsim.dataset import FormatError
 from generator.config import ConfigError
+from generator.executor import engine_modules, executor_from_args
+from generator.scene_spec import SPLITS
 
 DESCRIPTION = """\
 Render scenes START .. START+N-1 of a split into DIR with headless Blender (Cycles): each scene is
@@ -50,7 +52,7 @@ Config keys: docs/CONFIG.md.
 """
 
 
-def _integer_at_least(low: int):
+def integer_at_least(low: int):
     """An argparse type: an integer >= low; anything else is refused naming the value and the range."""
     def parse(text: str) -> int:
         try:
@@ -78,19 +80,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"); the "
                              "config's other [rig] keys (scale, camera_file, ...) still apply")
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
-    parser.add_argument("--split", required=True, choices=("train", "test"),
+    parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
-    parser.add_argument("--scenes", required=True, type=_integer_at_least(1), metavar="N",
+    parser.add_argument("--scenes", required=True, type=integer_at_least(1), metavar="N",
                         help="number of scenes")
-    parser.add_argument("--start", type=_integer_at_least(0), default=0, metavar="K",
+    parser.add_argument("--start", type=integer_at_least(0), default=0, metavar="K",
                         help="index of the first scene (default 0); scene indices are global, so "
                              "ranges rendered on several machines merge into one dataset")
-    parser.add_argument("--workers", type=_integer_at_least(1), default=None, metavar="W",
+    parser.add_argument("--workers", type=integer_at_least(1), default=None, metavar="W",
                         help="render processes on this machine (default 1); each holds one Blender "
                              "scene for all its scenes. Set [render] threads so W x threads fits the cores. "
                              "With --ray: at most W tasks at once (--ray local: a cluster of W x threads "
                              "CPUs; default: the whole cluster)")
-    parser.add_argument("--seed", type=_integer_at_least(0), default=0, metavar="S",
+    parser.add_argument("--seed", type=integer_at_least(0), default=0, metavar="S",
                         help="base seed (default 0): scene k uses SeedSequence((S, k))")
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
@@ -106,74 +108,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                       help="render nothing: remove half-written scenes (no writer may be running), list the "
                            "scenes of the range still missing, and seal DIR (the Slurm sealing job)")
     cluster = parser.add_argument_group("clusters (docs/SCALE.md)")
-    cluster.add_argument("--ray", metavar="ADDRESS", default=None,
-                         help='render as Ray tasks: "auto" (the running cluster this machine is part of), '
-                              '"local" (start one here) or HOST:PORT of a head; needs '
-                              'pip install "dotsim[ray]"')
-    cluster.add_argument("--slurm", action="store_true",
-                         help="submit a Slurm job array (one task per range of scenes) and a sealing job "
-                              "that runs when the array has ended; needs sbatch on PATH")
-    cluster.add_argument("--slurm-dry-run", action="store_true",
-                         help="print the sbatch scripts --slurm would submit and write nothing")
-    cluster.add_argument("--slurm-scenes-per-task", type=_integer_at_least(1), default=0, metavar="R",
-                         help="scenes per array task (default: [output] scenes_per_shard); with R and "
-                              "--start multiples of scenes_per_shard each task seals its own shards")
-    cluster.add_argument("--slurm-cpus", type=_integer_at_least(0), default=0, metavar="C",
-                         help="CPUs per array task (default: [render] threads); the task runs "
-                              "C / threads render workers")
-    cluster.add_argument("--slurm-gpus", type=_integer_at_least(0), default=0, metavar="G",
-                         help="GPUs per array task (--gres=gpu:G; set [render] device = \"GPU\")")
-    cluster.add_argument("--slurm-partition", default="", metavar="P", help="Slurm partition")
-    cluster.add_argument("--slurm-time", default="04:00:00", metavar="T",
-                         help="time limit per array task (default 04:00:00)")
-    cluster.add_argument("--slurm-throttle", type=_integer_at_least(0), default=0, metavar="N",
-                         help="at most N array tasks running at once (default: no limit)")
-    cluster.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
-                         help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "
-                              "(repeatable)")
+    for engine in engine_modules():  # each engine module adds its own options (generator/executor.py)
+        engine.add_options(cluster)
     # A bad config or argument exits 2; a dataset on disk that does not fit (e.g. a damaged scene
     # outside this run's range) exits 1.
     parser.set_defaults(func=run, errors={ConfigError: 2, FormatError: 1})
     return parser
 
 
-def _slurm_options(args: argparse.Namespace):
-    from generator.slurm import SlurmOptions
-
-    return SlurmOptions(scenes_per_task=args.slurm_scenes_per_task, cpus=args.slurm_cpus,
-                        gpus=args.slurm_gpus,
-                        partition=args.slurm_partition, time=args.slurm_time, throttle=args.slurm_throttle,
-                        sbatch_args=tuple(args.slurm_sbatch))
-
-
 def _run(args: argparse.Namespace) -> int:
-    from dotsim.rig_files import configured_rig
-    from generator.config import ConfigError, load_config, with_rig
-    from generator.pipeline import generate, main_summary, seal_run
+    from generator import pipeline
+    from generator.config import load_config, with_rig
+    from generator.run_request import RunRequest
 
-    slurm = args.slurm or args.slurm_dry_run
-    if args.ray and slurm:
-        raise ConfigError("--ray and --slurm: choose one")
-    if slurm and (args.no_seal or args.seal_only or args.workers):
-        raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
-                          "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
+    executor = executor_from_args(args)
     config = load_config(args.config)
     if args.rig:
-        if slurm:
-            raise ConfigError("--rig with --slurm: each array task reads the config file alone; put the rig "
-                              "into it ([rig] preset or file) and leave --rig out")
         config = with_rig(config, args.rig)
-    note = configured_rig(config.rig, f"{config.source}: [rig]").rectification_note(f"{config.source}: [rig]")
+    request = RunRequest(config, args.out, args.split, args.scenes, args.start, args.seed, args.blender,
+                         executor, progress=not args.no_progress, seal=not args.no_seal)
+    note = request.rig.rectification_note(f"{config.source}: [rig]")
     if note:
         print(note, file=sys.stderr)
-    if slurm:
-        from generator.slurm import generate_on_slurm
-
-        print(generate_on_slurm(config, config.source, args.out, args.split, args.scenes, args.start,
-                                args.seed, _slurm_options(args), args.blender, dry_run=args.slurm_dry_run))
-        return 0
     if args.seal_only:
-        summary = seal_run(config, args.out, args.split, args.scenes, args.start, args.seed)
+        summary = pipeline.seal_run(request)
         missing = summary.failed
         text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
                 f"{args.scenes} scenes complete")
@@ -184,21 +142,10 @@ def _run(args: argparse.Namespace) -> int:
             text += f"; {summary.unsealed}"
         print(text, file=sys.stderr if missing or summary.unsealed else sys.stdout)
         return 1 if missing or summary.unsealed else 0
-    backend = None
-    if args.ray:
-        from generator.ray_cluster import RayBackend
-
-        local_cpus = args.workers * max(1, config.render.threads) if args.workers else None
-        backend = RayBackend(args.ray, cpus=local_cpus if args.ray == "local" else None,
-                             max_in_flight=args.workers if args.ray != "local" else None)
     try:
-        summary = generate(config, args.out, args.split, args.scenes, start=args.start,
-                           workers=args.workers or 1, seed=args.seed, blender=args.blender,
-                           progress=not args.no_progress, backend=backend, seal=not args.no_seal)
+        return pipeline.main_summary(pipeline.run(request))
     finally:
-        if backend is not None:
-            backend.close()
-    return main_summary(summary)
+        executor.close()
 
 
 def run(args: argparse.Namespace) -> int:

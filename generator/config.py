@@ -18,7 +18,9 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, setting
@@ -26,6 +28,9 @@ from dotsim.configs import config_path, relative_base
 from dotsim.rig import PRESETS
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
+
+if TYPE_CHECKING:
+    from dotsim.rig_files import CalibratedRig
 
 
 @dataclass(frozen=True)
@@ -213,6 +218,13 @@ class Config:
         """Object-count factor of a split."""
         return self.assets.train_density if split == "train" else self.assets.test_density
 
+    @cached_property
+    def calibrated_rig(self) -> CalibratedRig:
+        """The [rig] settings resolved (dotsim.rig_files.configured_rig; RigFileError naming the
+        config's [rig]), built once per Config, when it is validated: a run reads its rig file once
+        and the rig travels with the config (pickled along) into every worker and scene."""
+        return configured_rig(self.rig, f"{self.source}: [rig]")
+
 
 def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = None) -> Config:
     """Validate a nested dict (as read from TOML) into a Config; missing keys take their defaults.
@@ -237,10 +249,7 @@ def _check_cross_fields(config: Config) -> None:
             problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
-    try:
-        configured_rig(config.rig, f"{src}: [rig]")
-    except RigFileError as error:
-        raise ConfigError(str(error)) from None
+    _resolve_rig(config)
     if config.assets.source == "cache":
         path = config.assets.cache_dir
         if not path or not Path(path).is_dir():
@@ -266,11 +275,17 @@ def with_rig(config: Config, spec: str) -> Config:
         raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a rig file "
                           f"({', '.join(RIG_FILE_SUFFIXES)})")
     config = replace(config, rig=rig)
-    try:
-        configured_rig(config.rig, f"--rig {spec}: with {config.source}: [rig]")
-    except RigFileError as error:
-        raise ConfigError(str(error)) from None
+    _resolve_rig(config, f"--rig {spec}: with ")
     return config
+
+
+def _resolve_rig(config: Config, prefix: str = "") -> None:
+    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one is a ConfigError,
+    `prefix` before the message that names the config's [rig]."""
+    try:
+        config.calibrated_rig  # noqa: B018 (the property resolves and keeps the rig)
+    except RigFileError as error:
+        raise ConfigError(f"{prefix}{error}") from None
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:

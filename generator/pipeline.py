@@ -1,22 +1,25 @@
-"""The generator run: config -> pattern and textures -> W render workers -> post-render -> shards.
+"""The generator run: RunRequest -> pattern and textures -> the executor's renders -> shards.
 
-`generate()` validates everything before it writes anything (config values, output directory,
-Blender executable, an existing dataset's config), then:
-  1. gets the dataset folder ready (`prepare_run`): takes its writer lock (dotsim.dataset.lock; a
-     second local writer is refused naming the holder), removes partial scenes left by a crashed
-     run, writes the projector pattern once (DATASET/pattern.png), the run record and the built-in
-     textures it needs (generator/resources.py), and notes the sha256 of every input file a render
-     reads, which each worker checks before it renders a scene;
-  2. skips complete scenes (resume), removes damaged ones (a frame deleted after the fact) and
-     renders them with the others in W spawned worker processes
-     (generator/render_scenes.py: sample, render, post-render, write each scene atomically; a
-     failing scene is logged and the run goes on);
-  3. seals the dataset (dotsim.dataset.seal_dataset: incremental, so every run seals, and a run
-     killed before its seal leaves nothing a rerun does not mend) and returns a RunSummary.
-Past one machine: with a backend (generator/ray_cluster.py) step 2 runs as Ray tasks, each
-`render_scenes(job, indices)` on a share; a Slurm array task (generator/slurm.py) is this same run
-on its range with seal=False, and a final job seals what the tasks wrote (`seal_run`).
-Scene k is sampled from (config, k, base seed) alone, so the output does not depend on W.
+`run(request)` (generator/run_request.py: a request checked when it was made) drives every engine
+(generator/executor.py) the same way:
+  1. `executor.prepare`: `prepare_run` gets the dataset folder ready: checks the output
+     directory's existing dataset, the pattern, the asset cache and what the engine needs (a
+     cluster that answers, nodes that see the folder), then takes the writer lock
+     (dotsim.dataset.lock; a second local writer is refused naming the holder), removes partial
+     scenes left by a crashed run, writes the projector pattern once (DATASET/pattern.png), the run
+     record and the built-in textures it needs (generator/resources.py), and notes the sha256 of
+     every input file a render reads, which each worker checks before it renders a scene;
+  2. `executor.render`: skips complete scenes (resume), removes damaged ones (a frame deleted after
+     the fact) and renders them with the others (`render_missing`; each scene through
+     generator/render_scenes.py: sample, render, post-render, write atomically; a failing scene is
+     logged and the run goes on): in W spawned processes (generator/local_pool.py), as Ray tasks
+     (generator/ray_cluster.py), or as a Slurm job array whose tasks are this same run on their
+     range with seal=False (generator/slurm.py);
+  3. `executor.seal`: seals the dataset (dotsim.dataset.seal_dataset: incremental, so every run
+     seals, and a run killed before its seal leaves nothing a rerun does not mend), or on Slurm
+     submits the job that does (`seal_run`).
+`generate(config, out, split, scenes, ...)` is run() for python callers. Scene k is sampled from
+(config, k, base seed) alone, so the output does not depend on the engine or the number of workers.
 """
 
 from __future__ import annotations
@@ -26,10 +29,10 @@ import importlib.metadata
 import json
 import os
 import platform
-import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,15 +45,13 @@ from dotsim.dataset.lock import writer_lock
 from dotsim.dataset.seal import seal_shard, vouched_shards
 from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
-from generator.config import Config, ConfigError, check_output_dir
-from generator.render_scenes import LOG_DIR, RUN_IN_BLENDER, RenderJob, SceneResult, render_pool
-from generator.resources import config_pattern, input_checksums, split_assets
-from generator.scene_spec import SPLITS
+from generator.config import Config, ConfigError
+from generator.executor import Executor
+from generator.render_scenes import LOG_DIR, RenderJob, SceneResult
+from generator.resources import input_checksums, split_assets
+from generator.run_request import RunRequest, local_pool
 
 RUN_FILE = "generate.json"
-# Scenes per `blender` call: large enough to amortise Blender's start-up (seconds), small enough
-# that the progress bar moves and a crash loses little.
-BLENDER_BATCH = 8
 
 
 @dataclass
@@ -65,8 +66,11 @@ class RunSummary:
     failed: list[int] = field(default_factory=list)
     redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
     unsealed: str = ""  # why the run could not seal (other writers kept changing the dataset)
+    submitted: str = ""  # what was handed to a batch system instead (Slurm): the whole line then
 
     def line(self) -> str:
+        if self.submitted:
+            return self.submitted
         per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
                      "one worker's time each" if self.done else "no scene rendered")
         scenes = "scene" if self.done == 1 else "scenes"
@@ -121,29 +125,15 @@ def versions(blender: str | None) -> dict:
 # ----------------------------------------------------------------------------- the run
 
 
-def check_blender(blender: str | None) -> str | None:
-    """Absolute path of the Blender executable, or ConfigError naming it."""
-    if blender is None:
-        return None
-    found = shutil.which(blender)
-    if found is None:
-        raise ConfigError(f"--blender {blender}: not an executable file; allowed: the path of a Blender "
-                          "5.0 executable, or leave --blender out to use the bpy module")
-    if not RUN_IN_BLENDER.is_file():
-        raise ConfigError(f"--blender: the entry script {RUN_IN_BLENDER} is missing from this install")
-    return str(Path(found).resolve())
+def prepare_run(request: RunRequest, hold: contextlib.ExitStack | None = None, own: range | None = None,
+                engine_check: Callable[[], None] | None = None) -> RenderJob:
+    """Get the dataset folder `request.out` ready; the RenderJob that renders its scenes.
 
-
-def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 0,
-                blender: str | None = None, backend=None, own: range | None = None,
-                hold: contextlib.ExitStack | None = None) -> RenderJob:
-    """Check a run and get its dataset folder `out` ready; the RenderJob that renders its scenes.
-
-    Raises ConfigError before anything is written when an argument, the output directory, the
-    Blender executable, the pattern, the asset cache or an existing dataset in `out` does not fit,
-    or when `backend.start(out, config)` does (a cluster that cannot be reached or whose nodes do
-    not see `out`). Then removes scenes a crashed run left half-written, stores the pattern and the
-    run record (DATASET/generate.json) and writes the built-in textures of `split`.
+    Raises ConfigError before anything is written when an existing dataset in `out`, the pattern or
+    the asset cache does not fit the request, or when `engine_check()` raises (an engine's own
+    check, run after every other: a cluster that cannot be reached or whose nodes do not see
+    `out`). Then removes scenes a crashed run left half-written, stores the pattern and the run
+    record (DATASET/generate.json) and writes the built-in textures of the split.
 
     own: the scenes this run writes while other runs write other ranges into `out` at the same time
     (a Slurm array task; the Slurm driver passes an empty range): only their half-written scenes are
@@ -151,25 +141,20 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
     hold: where the dataset's writer lock (dotsim.dataset.lock) is entered, before anything is
     written, for as long as the caller keeps it; DatasetBusyError when another writer holds it.
     """
-    if split not in SPLITS:
-        raise ConfigError(f"--split {split!r}: allowed: train or test")
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-        raise ConfigError(f"--seed {seed!r}: allowed: an integer >= 0")
-    out = check_output_dir(out)
-    blender = check_blender(blender)
-    record = _run_record(config, split, seed)
+    config, out = request.config, request.out
+    record = _run_record(config, request.split, request.seed)
     _check_existing_run(out, record)
     has_scenes = (out / dataset.LAYOUT_FILE).exists()
     if has_scenes and dataset.read_layout(out) != config.output.scenes_per_shard:
         raise ConfigError(f"{out}: dataset has scenes_per_shard = {dataset.read_layout(out)}, the config "
                           f"says {config.output.scenes_per_shard}; use the same value or a new --out")
-    pattern = config_pattern(config)
+    pattern = request.pattern
     # An unusable asset cache stops the run before anything is written; built-in textures are
     # written below, once the folder is ready.
-    cached = split_assets(config, split, out) if config.assets.source == "cache" else None
-    software = versions(blender)
-    if backend is not None:
-        backend.start(out, config)
+    cached = split_assets(config, request.split, out) if config.assets.source == "cache" else None
+    software = versions(request.blender)
+    if engine_check is not None:
+        engine_check()
 
     out.mkdir(parents=True, exist_ok=True)
     if hold is not None:
@@ -184,56 +169,41 @@ def prepare_run(config: Config, out: str | os.PathLike, split: str, seed: int = 
         raise ConfigError(f"{exc}; use a new --out directory for a different pattern") from None
     if not (out / RUN_FILE).exists():
         dataset.write_dataset_file(out, RUN_FILE, json_bytes(record))
-    assets = cached or split_assets(config, split, out)
+    assets = cached or split_assets(config, request.split, out)
     # store_pattern found the file holding this pattern: its bytes now are the ones to check against
     inputs = input_checksums(assets, pattern_file, sha256_file(pattern_file))
-    return RenderJob(config, out, split, seed, assets.with_pattern(str(pattern_file), pattern.sha256),
-                     pattern_entry(pattern), software, blender, inputs)
+    return RenderJob(config, out, request.split, request.seed,
+                     assets.with_pattern(str(pattern_file), pattern.sha256), pattern_entry(pattern), software,
+                     request.blender, inputs)
 
 
-def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
-             workers: int = 1, seed: int = 0, blender: str | None = None,
-             progress: bool = True, seal: bool = True, backend=None) -> RunSummary:
-    """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable).
-
-    Raises ConfigError before anything is written when an argument, the output directory, the
-    Blender executable or an existing dataset in `out` does not fit (see `prepare_run`). Failed
-    scenes are listed in the summary (and logged), not raised.
-
-    seal: seal the dataset at the end. False for one of several runs writing into `out` at once (a
-    Slurm array task): only this range's half-written scenes are removed, only the shards wholly
-    inside the range get their shard.json, and one final `seal_run` seals the dataset.
-    backend: renders on other machines instead of `workers` local processes (a
-    generator.ray_cluster.RayBackend): `backend.start(out, config)` runs after every check and
-    before anything is written, then `backend.render(job, todo, on_results)` renders the scene
-    indices `todo`, passing each batch's SceneResults to `on_results` as they come.
-    """
-    for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0), ("--workers", workers, 1)):
-        if not isinstance(value, int) or isinstance(value, bool) or value < low:
-            raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
-    # One writer per dataset folder, except the runs of disjoint ranges a cluster starts (seal=False).
-    with contextlib.ExitStack() as hold:
-        return _generate(config, out, split, range(start, start + scenes), workers, seed, blender, progress,
-                         seal, backend, hold if seal else None)
+def prepare_writer(request: RunRequest, hold: contextlib.ExitStack,
+                   engine_check: Callable[[], None] | None = None) -> RenderJob:
+    """prepare_run for a run that renders its range itself (local processes, Ray): the dataset's one
+    writer (the writer lock, every leftover removed) when it seals, else one of several runs
+    writing disjoint ranges at once (no lock; only its range's leftovers removed)."""
+    if request.seal:
+        return prepare_run(request, hold, None, engine_check)
+    return prepare_run(request, None, request.indices, engine_check)
 
 
-def _generate(config: Config, out: str | os.PathLike, split: str, indices: range, workers: int, seed: int,
-              blender: str | None, progress: bool, seal: bool, backend, hold) -> RunSummary:
-    began = time.perf_counter()
-    start, scenes = indices.start, len(indices)
-    job = prepare_run(config, out, split, seed, blender, backend, own=None if seal else indices, hold=hold)
-    out = job.out
+# render_todo(job, todo, on_results): an engine renders the scene indices `todo` of `job`.
+RenderTodo = Callable[[RenderJob, list[int], Callable[[list[SceneResult]], None]], None]
 
-    spp = config.output.scenes_per_shard
-    todo = [i for i in indices if not dataset.is_scene_complete(out, i, spp)]
+
+def render_missing(request: RunRequest, job: RenderJob, render_todo: RenderTodo) -> RunSummary:
+    """Render the scenes of the request's range that are not complete: `render_todo(job, todo,
+    on_results)` renders the indices `todo`, passing each batch's SceneResults to `on_results` as
+    they come (progress bar, summary). Complete scenes are skipped (resume); damaged ones are
+    removed and rendered again."""
+    out, spp = job.out, request.config.output.scenes_per_shard
+    todo = [i for i in request.indices if not dataset.is_scene_complete(out, i, spp)]
     # A final scene folder only ever appears complete, so one that is not was damaged after the
     # fact (a frame deleted, a bad copy): remove it and render it again.
     damaged = [i for i in todo if dataset.remove_scene(out, i, spp)]
     _unseal(out, todo, spp)
-    summary = RunSummary(out=out, skipped=scenes - len(todo), redone=damaged)
-    batch = 1 if job.blender is None else max(1, min(BLENDER_BATCH, -(-len(todo) // workers)))
-    batches = [todo[k:k + batch] for k in range(0, len(todo), batch)]
-    bar = tqdm(total=len(todo), unit="scene", desc=f"generate {split}", disable=not progress,
+    summary = RunSummary(out=out, skipped=request.scenes - len(todo), redone=damaged)
+    bar = tqdm(total=len(todo), unit="scene", desc=f"generate {request.split}", disable=not request.progress,
                dynamic_ncols=True)
 
     def count(results: list[SceneResult]) -> None:
@@ -247,44 +217,76 @@ def _generate(config: Config, out: str | os.PathLike, split: str, indices: range
                 bar.write(f"scene {result.index} failed: {result.error.strip().splitlines()[-1]}")
         bar.update(len(results))
 
-    if todo and backend is not None:
-        backend.render(job, todo, count)
-        # A node that died mid-scene left its temp folder there; the scene was redone elsewhere.
-        dataset.remove_partial_scenes_in_range(out, start, start + scenes, spp)
-    elif todo:
-        render_pool(job, batches, min(workers, len(batches)), count)
+    if todo:
+        render_todo(job, todo, count)
     bar.close()
     summary.failed.sort()
-    # Every run seals (a run killed after its last scene and before or during its seal left a stale
-    # seal), which is cheap because sealing is incremental; cluster array tasks (seal=False) seal
-    # only their own shards and leave index.json to one final `seal_run` (or `dotsim seal`).
-    if seal:
+    return summary
+
+
+def seal_written(request: RunRequest, job: RenderJob, summary: RunSummary) -> None:
+    """Seal after a run that rendered its range itself. Every run seals (a run killed after its last
+    scene and before or during its seal left a stale seal), which is cheap because sealing is
+    incremental; range runs (request.seal False, Slurm's array tasks) seal only their own shards
+    and leave index.json to one final `seal_run` (or `dotsim seal`)."""
+    if request.seal:
         _seal(summary)
     else:
-        _seal_own_shards(out, indices, spp)
+        _seal_own_shards(job.out, request.indices, request.config.output.scenes_per_shard)
+
+
+def run(request: RunRequest) -> RunSummary:
+    """Render the request's scenes into its dataset folder with its executor (resumable).
+
+    Raises ConfigError before anything is written when the dataset folder, the pattern, the asset
+    cache or the engine does not fit (see `prepare_run`). Failed scenes are listed in the summary
+    (and logged), not raised. The executor stays open (a Ray connection serves the next run too):
+    close it when done.
+    """
+    began = time.perf_counter()
+    executor = request.executor
+    with contextlib.ExitStack() as hold:
+        job = executor.prepare(request, hold)
+        summary = executor.render(request, job)
+        executor.seal(request, job, summary)
     summary.seconds = time.perf_counter() - began
     return summary
 
 
-def seal_run(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
-             seed: int = 0) -> RunSummary:
-    """Seal what several runs wrote into `out` (the final job of a Slurm array); renders nothing.
+def generate(config: Config, out: str | os.PathLike, split: str, scenes: int, start: int = 0,
+             workers: int = 1, seed: int = 0, blender: str | None = None,
+             progress: bool = True, seal: bool = True, executor: Executor | None = None) -> RunSummary:
+    """Render scenes start .. start+scenes-1 of `split` into the dataset `out` (resumable):
+    `run(RunRequest(...))` with `executor`, or `workers` local processes when it is None.
 
-    No writer may still be running: every half-written scene is removed. Scenes of start ..
-    start+scenes-1 still missing are listed in the summary's `failed` (a rerun of the same range
-    renders them); the dataset is sealed by dotsim.dataset.seal_dataset. Raises ConfigError when
-    `out` holds no dataset of these settings.
+    ConfigError before anything is written when an argument does not fit (RunRequest) or the run
+    cannot start (`run`). seal: False for one of several runs writing into `out` at once (a Slurm
+    array task): only this range's half-written scenes are removed, only the shards wholly inside
+    the range get their shard.json, and one final `seal_run` seals the dataset.
+    """
+    return run(RunRequest(config, out, split, scenes, start, seed, blender,
+                          executor or local_pool(workers), progress, seal))
+
+
+def seal_run(request: RunRequest) -> RunSummary:
+    """Seal what several runs wrote into `request.out` (the final job of a Slurm array); renders
+    nothing.
+
+    No writer may still be running: every half-written scene is removed. Scenes of the request's
+    range still missing are listed in the summary's `failed` (a rerun of the same range renders
+    them); the dataset is sealed by dotsim.dataset.seal_dataset. Raises ConfigError when `out`
+    holds no dataset of these settings.
     """
     began = time.perf_counter()
-    out = Path(out).absolute()
+    out = request.out
     if not (out / RUN_FILE).is_file():
         raise ConfigError(f"--out {out}: no {RUN_FILE} (no dataset was started here); check --out")
-    _check_existing_run(out, _run_record(config, split, seed))
+    _check_existing_run(out, _run_record(request.config, request.split, request.seed))
     with writer_lock(out, "dotsim generate --seal-only"):
         dataset.remove_partial_scenes(out, include_live=True)
-        spp = config.output.scenes_per_shard
+        spp = request.config.output.scenes_per_shard
         summary = RunSummary(out=out)
-        for index in range(start, start + scenes):
+        for index in request.indices:
             if dataset.is_scene_complete(out, index, spp):
                 summary.skipped += 1
             else:

@@ -1,8 +1,9 @@
-"""Render a generator run on a Ray cluster: one Ray task per small batch of scenes.
+"""The Ray engine: a generator run rendered on a Ray cluster, one Ray task per small batch of scenes
+(`dotsim generate --ray ADDRESS`; the Executor protocol: generator/executor.py).
 
-`generate(..., backend=RayBackend(address))` checks everything as for a local run, then
-`RayBackend.start` connects to the cluster and makes sure every node sees the output folder (a
-marker file written here, read by a task on each node) before anything is written. Each task
+`RayExecutor.prepare` checks everything as for a local run, then connects to the cluster and makes
+sure every node sees the output folder (a marker file written here, read by a task on each node)
+before anything is written. Each task
 calls `generator.render_scenes.render_scenes`, which keeps one Blender scene per Ray worker
 process for all the batches it gets, as a local pool worker does, and skips scenes a dead attempt
 already wrote; scene k depends only on (config, k, seed), so the bytes equal a local run's. A task
@@ -16,6 +17,8 @@ itself ends the tasks of a job whose driver is gone.
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import logging
 import os
 import socket
@@ -23,12 +26,16 @@ import traceback
 import uuid
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dotsim.file_io import DiskFullError
 from dotsim.process_lifetime import kill_tree_when_gone
 from generator.config import ConfigError
-from generator.pipeline import RUN_FILE
-from generator.render_scenes import RenderJob, SceneResult, failed_batch, render_scenes
+
+if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
+    from generator.pipeline import RunSummary
+    from generator.render_scenes import RenderJob, SceneResult
+    from generator.run_request import RunRequest
 
 INSTALL_HINT = 'pip install "dotsim[ray]" (or `make ray`)'
 # Scenes per task: a retry after a node failure redoes at most this many (seconds each at full
@@ -73,25 +80,49 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
+    from generator.pipeline import RUN_FILE
+    from generator.render_scenes import render_scenes
+
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
         raise RuntimeError(f"{job.out} is not visible on {socket.gethostname()}: put --out on a "
                            "filesystem every Ray node mounts")
     return render_scenes(job, indices)
 
 
-class RayBackend:
+def add_options(group: argparse._ArgumentGroup) -> None:
+    """`dotsim generate`'s --ray option."""
+    group.add_argument("--ray", metavar="ADDRESS", default=None,
+                       help='render as Ray tasks: "auto" (the running cluster this machine is part of), '
+                            '"local" (start one here) or HOST:PORT of a head; needs '
+                            'pip install "dotsim[ray]"')
+
+
+def from_args(args: argparse.Namespace) -> RayExecutor | None:
+    """The RayExecutor --ray asks for (--workers W: at most W tasks at once; with --ray local, a
+    cluster of W x [render] threads CPUs), or None."""
+    if not args.ray:
+        return None
+    if args.ray == "local":
+        return RayExecutor("local", local_workers=args.workers)
+    return RayExecutor(args.ray, max_in_flight=args.workers)
+
+
+class RayExecutor:
     """Renders a run's scenes as Ray tasks on the cluster at `address`.
 
     address: "auto" (a running cluster this machine belongs to), "local" (start a one-machine
-    cluster here, with `cpus` CPUs: the default is all), or HOST:PORT of a running head.
+    cluster here: with `local_workers` W, of W x [render] threads CPUs; by default of every CPU),
+    or HOST:PORT of a running head.
     max_in_flight: tasks submitted at once (default: twice what the cluster can run at once, so
     the driver never holds a million pending tasks and nodes never wait for work).
     """
 
-    def __init__(self, address: str, cpus: int | None = None, max_in_flight: int | None = None,
+    option = "--ray"
+
+    def __init__(self, address: str, local_workers: int | None = None, max_in_flight: int | None = None,
                  scenes_per_task: int = SCENES_PER_TASK):
         self.address = address
-        self.cpus = cpus
+        self.local_workers = local_workers
         self.max_in_flight = max_in_flight
         self.scenes_per_task = scenes_per_task
         self.ray = None
@@ -99,8 +130,9 @@ class RayBackend:
 
     # --------------------------------------------------------------------- connect and check
 
-    def connect(self):
-        """Connect (or start a local cluster); ConfigError when ray is missing or nothing answers."""
+    def connect(self, threads: int = 1):
+        """Connect (or start a local cluster, `threads` CPUs per local worker); ConfigError when ray
+        is missing or nothing answers."""
         ray = import_ray()
         if self.address not in ("auto", "local"):
             _check_reachable(self.address.removeprefix("ray://"))
@@ -111,7 +143,8 @@ class RayBackend:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
                 # Tasks pass a job description and scene numbers, never images: a small object
                 # store instead of Ray's default of 30% of the memory in /dev/shm.
-                ray.init(num_cpus=self.cpus, include_dashboard=False, object_store_memory=LOCAL_OBJECT_STORE,
+                cpus = self.local_workers * threads if self.local_workers else None
+                ray.init(num_cpus=cpus, include_dashboard=False, object_store_memory=LOCAL_OBJECT_STORE,
                          **kwargs)
                 # The cluster is this run's: killed with it, however the run ends (Ray's agents
                 # outlived a driver killed with -9).
@@ -154,15 +187,21 @@ class RayBackend:
             raise ConfigError(f"--out {out}: not visible on Ray node(s) {', '.join(blind)}; put it on a "
                               "filesystem every node mounts at the same path (NFS, Lustre, ...)")
 
-    def start(self, out: Path, config) -> None:
+    def _start(self, request: RunRequest) -> None:
         """Check the config's render settings, connect, and check that the workers see `out`
-        (generate() calls this after its own checks, before anything is written)."""
+        (prepare_run calls this after its own checks, before anything is written)."""
+        config = request.config
         if config.render.threads < 1:
             raise ConfigError(f"{config.source}: [render] threads = 0 (all cores) cannot be reserved on a "
                               "Ray node; set threads >= 1 (the CPUs each task reserves)")
         if self.ray is None:
-            self.connect()
-        self.check_visible(out)
+            self.connect(config.render.threads)
+        self.check_visible(request.out)
+
+    def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob:
+        from generator.pipeline import prepare_writer
+
+        return prepare_writer(request, hold, engine_check=lambda: self._start(request))
 
     # --------------------------------------------------------------------- render
 
@@ -170,11 +209,29 @@ class RayBackend:
         """Tasks the cluster can run at once."""
         return max(1, int(self.ray.cluster_resources().get("CPU", 1) // cpus_per_task))
 
-    def render(self, job: RenderJob, todo: list[int],
-               on_results: Callable[[list[SceneResult]], None]) -> None:
+    def render(self, request: RunRequest, job: RenderJob) -> RunSummary:
+        from dotsim import dataset
+        from generator.pipeline import render_missing
+
+        summary = render_missing(request, job, self._render_todo)
+        if summary.skipped < request.scenes:
+            # A node that died mid-scene left its temp folder there; the scene was redone elsewhere.
+            dataset.remove_partial_scenes_in_range(job.out, request.start, request.start + request.scenes,
+                                                   request.config.output.scenes_per_shard)
+        return summary
+
+    def seal(self, request: RunRequest, job: RenderJob, summary: RunSummary) -> None:
+        from generator.pipeline import seal_written
+
+        seal_written(request, job, summary)
+
+    def _render_todo(self, job: RenderJob, todo: list[int],
+                     on_results: Callable[[list[SceneResult]], None]) -> None:
         """Render scene indices `todo` of `job` as tasks; `on_results` gets each task's results as
         they come (a task whose retries ran out reports its scenes failed). A full disk on any
         node cancels the tasks not yet done and raises DiskFullError."""
+        from generator.render_scenes import failed_batch
+
         ray = self.ray
         render = job.config.render
         task = ray.remote(

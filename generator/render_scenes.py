@@ -1,30 +1,25 @@
-"""Render scenes into a dataset: `render_scenes(job, indices)` in this process, `render_pool` over
-spawned worker processes.
+"""Render scenes into a dataset: `render_scenes(job, indices)`, here in this process.
 
 A RenderJob is everything a scene needs besides its index; `generator.pipeline.prepare_run` makes
-one (and gets the dataset folder ready). Any front end can then hand out indices: `dotsim
-generate` through `render_pool`, a Ray task or a Slurm array task by calling `render_scenes` on its
-share. For each index the scene is sampled (generator/sample_scene.py), rendered (bpy as a module:
-one SceneRenderer per process, reused; or with `job.blender`: `EXE --background --python
-generator/blender/run_in_blender.py` per batch), post-rendered (generator/post_render.py) and
-written atomically (dotsim.dataset.write_scene). A failing scene is logged
-(DATASET/logs/scene_NNNNNNN.log, with its traceback) and reported in its SceneResult, never raised.
+one (and gets the dataset folder ready). Every engine (generator/executor.py) hands out indices to
+processes that call `render_scenes` on their share: a local pool worker (generator/local_pool.py),
+a Ray task, a Slurm array task. For each index the scene is sampled (generator/sample_scene.py),
+rendered (bpy as a module: one SceneRenderer per process, reused; or with `job.blender`: `EXE
+--background --python generator/blender/run_in_blender.py` per batch), post-rendered
+(generator/post_render.py) and written atomically (dotsim.dataset.write_scene). A failing scene is
+logged (DATASET/logs/scene_NNNNNNN.log, with its traceback) and reported in its SceneResult, never raised.
 Scene k depends only on (config, k, base seed), so the dataset does not depend on who renders what.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 import json
-import multiprocessing
 import os
-import signal
 import subprocess
-import sys
 import tempfile
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -32,7 +27,7 @@ import numpy as np
 
 from dotsim import dataset
 from dotsim.file_io import DiskFullError, atomic_write_bytes, map_in_threads
-from dotsim.process_lifetime import die_with_parent, exec_dies_with_parent, stop_processes
+from dotsim.process_lifetime import exec_dies_with_parent
 from generator.config import Config
 from generator.post_render import RAW_PASSES, make_frame
 from generator.resources import check_inputs
@@ -93,7 +88,7 @@ def render_scenes(job: RenderJob, indices: Iterable[int]) -> list[SceneResult]:
         return results
     if job.blender is not None:
         return results + _render_with_blender(job, todo)
-    renderer = _process_renderer()
+    renderer = process_renderer()
     if isinstance(renderer, str):
         return results + failed_batch(job, todo, f"the render worker could not start:\n{renderer}")
     return results + [_render_in_process(job, renderer, index) for index in todo]
@@ -105,37 +100,6 @@ def failed_batch(job: RenderJob, indices: list[int], text: str) -> list[SceneRes
     for index in indices:
         _log_failure(job, index, text)
     return [SceneResult(index, False, error=text) for index in indices]
-
-
-def render_pool(job: RenderJob, batches: list[list[int]], workers: int,
-                on_results: Callable[[list[SceneResult]], None]) -> None:
-    """`render_scenes` of every batch in `workers` spawned processes; `on_results` gets each batch's
-    results as they come (a worker that died reports its batch failed).
-
-    Ctrl-C, SIGTERM, SIGHUP (dotsim.process_lifetime.stop_signals), a full disk or any other error
-    that stops the run cancels the batches not yet started and terminates the workers at once (the
-    default executor shutdown would render every queued scene first); a run killed outright takes
-    its workers with it (each dies with its parent: dotsim.process_lifetime.die_with_parent). The
-    next run removes the scenes they left half-written.
-    """
-    pool = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                  initializer=_init_worker, initargs=(job, os.getpid()))
-    try:
-        futures = {pool.submit(_render_batch, b): b for b in batches}
-        for future in concurrent.futures.as_completed(futures):
-            try:
-                results = future.result()
-            except DiskFullError:
-                raise
-            except Exception as exc:  # a worker died (crash in Blender): its scenes failed
-                results = failed_batch(job, futures[future],
-                                       "worker process failed:\n" + "".join(traceback.format_exception(exc)))
-            on_results(results)
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        stop_processes(multiprocessing.active_children())
-        raise
-    pool.shutdown()
 
 
 def scene_meta(job: RenderJob, spec: SceneSpec) -> dict:
@@ -270,7 +234,7 @@ def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult
 _PROCESS: dict = {}
 
 
-def _process_renderer():
+def process_renderer():
     """This process's SceneRenderer, made on first use, or the traceback text of why it could not."""
     if not _PROCESS:
         try:
@@ -281,25 +245,3 @@ def _process_renderer():
             # Raising here would break a whole pool without a traceback; fail each scene instead.
             _PROCESS["renderer"] = traceback.format_exc()
     return _PROCESS["renderer"]
-
-
-_POOL_JOB: dict = {}
-
-
-def _init_worker(job: RenderJob, parent_pid: int) -> None:
-    # Killed with the run, however it ends: never a worker left rendering queued scenes for no one.
-    die_with_parent(parent_pid)
-    # Ctrl-C reaches the whole process group; the parent decides (it terminates the workers), so a
-    # render is never interrupted half-way inside Blender, which swallows the exception and goes on.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _POOL_JOB["job"] = job
-    if job.blender is None:
-        # spawn copies the parent's sys.path; a parent that already imported bpy (a test session, the
-        # Blender addon) has Blender's script folders on it, where `import bpy` would find Blender's
-        # inner bpy package instead of the module and fail with "No module named '_bpy'".
-        sys.path[:] = [p for p in sys.path if f"{os.sep}bpy{os.sep}" not in p]
-        _process_renderer()
-
-
-def _render_batch(indices: list[int]) -> list[SceneResult]:
-    return render_scenes(_POOL_JOB["job"], indices)

@@ -18,29 +18,21 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes, atomic_write_json, sha256_bytes, sha256_file
-from dotsim.pattern_store import make_pattern
-from dotsim.patterns import DotPattern, PatternError
 from generator.config import Config, ConfigError
-from generator.sample_scene import MeshAsset, SceneResources, TextureAsset, build_rig
+from generator.sample_scene import MeshAsset, SceneResources, TextureAsset
 from generator.scene_spec import SPLITS
+
+if TYPE_CHECKING:
+    from generator.run_request import RunRequest
 
 TEXTURE_DIR = "textures"
 TEXTURE_CHECKSUMS = "checksums.json"
 BUILTIN_TEXTURES_PER_FAMILY = 4
-
-
-def config_pattern(config: Config) -> DotPattern:
-    """The projector pattern of a config at its rig's projector resolution; ConfigError naming the
-    config's [pattern] section when it cannot be made (a missing or unreadable file)."""
-    rig = build_rig(config)
-    try:
-        return make_pattern(config.pattern, rig.projector.width, rig.projector.height)
-    except PatternError as exc:
-        raise ConfigError(f"{config.source}: [pattern]: {exc}") from None
 
 
 class InputChangedError(ConfigError):
@@ -159,13 +151,13 @@ def split_assets(config: Config, split: str, folder: str | os.PathLike) -> Scene
     return SceneResources("", "", textures=builtin_textures(Path(folder), split))
 
 
-def resources_in_folder(config: Config, split: str, folder: str | os.PathLike) -> SceneResources:
-    """Pattern and assets of `split` with the pattern and built-in textures written under `folder`
-    once: the pattern as folder/pattern_<sha256 prefix>.png, so configs with different patterns
-    never share one. ConfigError naming the config when its pattern or asset cache cannot be used."""
-    folder = Path(folder)
-    pattern = config_pattern(config)
-    assets = split_assets(config, split, folder)
+def resources_in_folder(request: RunRequest) -> SceneResources:
+    """Pattern and assets of the request's split with its pattern and the built-in textures written
+    under request.out (a work folder, not a dataset) once: the pattern as
+    out/pattern_<sha256 prefix>.png, so configs with different patterns never share one.
+    ConfigError naming the config when its pattern or asset cache cannot be used."""
+    folder, pattern = request.out, request.pattern
+    assets = split_assets(request.config, request.split, folder)
     pattern_path = folder / f"pattern_{pattern.sha256[:16]}.png"
     if not pattern_path.exists():
         pattern.save_png(pattern_path)

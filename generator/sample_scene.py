@@ -18,11 +18,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dotsim.rig import Rig
-from dotsim.rig_files import configured_rig
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
-    SPLITS,
     AssetMesh,
     Material,
     PatternRef,
@@ -65,8 +63,9 @@ def scene_seed(base_seed: int, scene_index: int) -> int:
 
 
 def build_rig(config: Config) -> Rig:
-    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution."""
-    return configured_rig(config.rig, f"{config.source}: [rig]").rig
+    """The rig of a config ([rig]: preset or file, overrides), scaled to the render resolution
+    (resolved once per Config: Config.calibrated_rig)."""
+    return config.calibrated_rig.rig
 
 
 @dataclass(frozen=True)
@@ -260,9 +259,8 @@ def _poses(rng: np.random.Generator, config: Config, base: np.ndarray) -> tuple[
 def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: str,
                       resources: SceneResources) -> SceneSpec:
     """Sample scene `scene_index` of `split`: room, objects, materials, lights, projector, poses, and
-    the config's sensor-model and mask parameters."""
-    if split not in SPLITS:
-        raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+    the config's sensor-model and mask parameters. `split` is one of scene_spec.SPLITS (a run's
+    RunRequest checked it)."""
     rng = scene_rng(base_seed, scene_index, STREAM_SCENE)
     sc, li = config.scene, config.lighting
     rig = build_rig(config)

@@ -1,11 +1,12 @@
-"""Generate on a Slurm cluster: a job array (one array task = one range of scenes) and a job that
-seals the dataset when every task has ended.
+"""The Slurm engine: a job array (one array task = one range of scenes) and a job that seals the
+dataset when every task has ended (`dotsim generate --slurm`; the Executor protocol:
+generator/executor.py).
 
-The driver (`dotsim generate --slurm`) checks everything and writes what all scenes share (as a
-local run does), then writes two sbatch scripts under DATASET/slurm/TAG/ and submits them: the
-array, and the sealing job with `--dependency=afterany:ARRAY_JOB`. Array task i runs the ordinary
-idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a requeued or failed
-task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
+The driver (SlurmExecutor) checks everything and writes what all scenes share (as a local run
+does), then writes two sbatch scripts under DATASET/slurm/TAG/ and submits them: the array (its
+`render`), and the sealing job with `--dependency=afterany:ARRAY_JOB` (its `seal`). Array task i
+runs the ordinary idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a
+requeued or failed task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
 (generator.pipeline.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
 Plain sbatch scripts (not submitit): no extra package on the login node, nothing pickled, and the
 scripts are what `--slurm-dry-run` prints and what a user can read, edit and resubmit.
@@ -13,6 +14,8 @@ scripts are what `--slurm-dry-run` prints and what a user can read, edit and res
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import re
 import shlex
 import shutil
@@ -21,8 +24,14 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from generator.config import Config, ConfigError
+
+if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
+    from generator.pipeline import RunSummary
+    from generator.render_scenes import RenderJob
+    from generator.run_request import RunRequest
 
 SLURM_DIR = "slurm"
 VISIBLE_FILE = "visible"
@@ -58,7 +67,7 @@ class SlurmPlan:
                 f"#   sbatch --parsable --dependency=afterany:ARRAY_JOB_ID {seal}\n")
 
 
-def check_options(options: SlurmOptions, scenes: int) -> None:
+def check_options(options: SlurmOptions) -> None:
     """ConfigError naming the first option out of range."""
     for name, value, low in (("--slurm-scenes-per-task", options.scenes_per_task, 0),
                              ("--slurm-cpus", options.cpus, 0), ("--slurm-gpus", options.gpus, 0),
@@ -158,55 +167,111 @@ def _sbatch(*args: str) -> str:
     return proc.stdout.strip().split(";")[0]
 
 
-def submit(slurm_plan: SlurmPlan) -> tuple[str, str]:
-    """Write the scripts and the visibility marker, submit the array and the sealing job after it.
-
-    Returns (array job id, sealing job id).
-    """
-    from dotsim.file_io import atomic_write_bytes
-
-    folder = slurm_plan.folder
-    folder.mkdir(parents=True, exist_ok=True)
-    array_path = atomic_write_bytes(folder / "generate.sbatch", slurm_plan.array_script.encode())
-    seal_path = atomic_write_bytes(folder / "seal.sbatch", slurm_plan.seal_script.encode())
-    atomic_write_bytes(folder / VISIBLE_FILE, b"written by the driver; array tasks check it\n")
-    array_id = _sbatch(str(array_path))
-    seal_id = _sbatch(f"--dependency=afterany:{array_id}", str(seal_path))
-    return array_id, seal_id
-
-
 def new_tag() -> str:
     """A folder name for one submission's scripts and logs (sortable by time)."""
     return time.strftime("%Y%m%d-%H%M%S")
 
 
-def generate_on_slurm(config: Config, config_path: str, out: str, split: str, scenes: int, start: int,
-                      seed: int, options: SlurmOptions, blender: str | None = None,
-                      dry_run: bool = False) -> str:
-    """Check the run, prepare the dataset and submit it to Slurm; returns what to tell the user.
+def add_options(group: argparse._ArgumentGroup) -> None:
+    """`dotsim generate`'s --slurm options."""
+    from generator.cli import integer_at_least
 
-    dry_run: return the scripts that would be submitted and write nothing. Raises ConfigError
-    before anything is written (no sbatch on PATH, an array too large, a bad config or --out).
-    """
-    from generator.config import check_output_dir
-    from generator.pipeline import prepare_run
+    group.add_argument("--slurm", action="store_true",
+                       help="submit a Slurm job array (one task per range of scenes) and a sealing job "
+                            "that runs when the array has ended; needs sbatch on PATH")
+    group.add_argument("--slurm-dry-run", action="store_true",
+                       help="print the sbatch scripts --slurm would submit and write nothing")
+    group.add_argument("--slurm-scenes-per-task", type=integer_at_least(1), default=0, metavar="R",
+                       help="scenes per array task (default: [output] scenes_per_shard); with R and "
+                            "--start multiples of scenes_per_shard each task seals its own shards")
+    group.add_argument("--slurm-cpus", type=integer_at_least(0), default=0, metavar="C",
+                       help="CPUs per array task (default: [render] threads); the task runs "
+                            "C / threads render workers")
+    group.add_argument("--slurm-gpus", type=integer_at_least(0), default=0, metavar="G",
+                       help="GPUs per array task (--gres=gpu:G; set [render] device = \"GPU\")")
+    group.add_argument("--slurm-partition", default="", metavar="P", help="Slurm partition")
+    group.add_argument("--slurm-time", default="04:00:00", metavar="T",
+                       help="time limit per array task (default 04:00:00)")
+    group.add_argument("--slurm-throttle", type=integer_at_least(0), default=0, metavar="N",
+                       help="at most N array tasks running at once (default: no limit)")
+    group.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
+                       help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "
+                            "(repeatable)")
 
-    check_options(options, scenes)
-    for name, value, low in (("--scenes", scenes, 1), ("--start", start, 0)):
-        if value < low:
-            raise ConfigError(f"{name} {value!r}: allowed: an integer >= {low}")
-    out_dir = check_output_dir(out)
-    slurm_plan = plan(config, Path(config_path).resolve(), out_dir, split, scenes, start, seed, options,
-                      new_tag(), blender)
-    if dry_run:
-        return slurm_plan.dry_run_text()
-    check_sbatch()
-    check_array_size(slurm_plan.tasks, scenes)
-    # Tasks of an earlier submission may still be writing: leave every half-written scene to the
-    # task that owns its range (own: none here).
-    prepare_run(config, out_dir, split, seed, blender, own=range(0))
-    array_id, seal_id = submit(slurm_plan)
-    return (f"submitted array job {array_id} ({slurm_plan.tasks} tasks, scenes {start}.."
-            f"{start + scenes - 1}) "
-            f"and sealing job {seal_id} after it; scripts and logs in {slurm_plan.folder}; follow with "
-            f"`squeue -j {array_id},{seal_id}`; rerun the same command to fill any gaps")
+
+def from_args(args: argparse.Namespace) -> SlurmExecutor | None:
+    """The SlurmExecutor --slurm or --slurm-dry-run asks for, or None; ConfigError for options an
+    array task sets itself."""
+    if not (args.slurm or args.slurm_dry_run):
+        return None
+    if args.no_seal or args.seal_only or args.workers:
+        raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
+                          "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
+    if args.rig:
+        raise ConfigError("--rig with --slurm: each array task reads the config file alone; put the rig "
+                          "into it ([rig] preset or file) and leave --rig out")
+    options = SlurmOptions(scenes_per_task=args.slurm_scenes_per_task, cpus=args.slurm_cpus,
+                           gpus=args.slurm_gpus, partition=args.slurm_partition, time=args.slurm_time,
+                           throttle=args.slurm_throttle, sbatch_args=tuple(args.slurm_sbatch))
+    return SlurmExecutor(options, dry_run=args.slurm_dry_run)
+
+
+class SlurmExecutor:
+    """Submits a run to Slurm: prepare checks the run and the options (ConfigError before anything
+    is written: no sbatch on PATH, an array too large, a bad config or --out) and writes what all
+    scenes share; render submits the array, seal the sealing job after it; the summary's line
+    says what was submitted. dry_run: the summary's line is the scripts that would be submitted,
+    and nothing is written."""
+
+    option = "--slurm"
+
+    def __init__(self, options: SlurmOptions = SlurmOptions(), dry_run: bool = False):
+        check_options(options)
+        self.options = options
+        self.dry_run = dry_run
+        self.slurm_plan: SlurmPlan | None = None
+        self.array_id = ""
+
+    def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob | None:
+        from generator.pipeline import prepare_run
+
+        self.slurm_plan = plan(request.config, Path(request.config.source).resolve(), request.out,
+                               request.split, request.scenes, request.start, request.seed, self.options,
+                               new_tag(), request.blender)
+        if self.dry_run:
+            return None
+        check_sbatch()
+        check_array_size(self.slurm_plan.tasks, request.scenes)
+        # No writer lock: the array tasks write. Tasks of an earlier submission may still be
+        # writing: leave every half-written scene to the task that owns its range (own: none here).
+        return prepare_run(request, own=range(0))
+
+    def render(self, request: RunRequest, job: RenderJob | None) -> RunSummary:
+        """Write the scripts and the visibility marker and submit the array (dry run: nothing)."""
+        from dotsim.file_io import atomic_write_bytes
+        from generator.pipeline import RunSummary
+
+        if self.dry_run:
+            return RunSummary(out=request.out, submitted=self.slurm_plan.dry_run_text())
+        folder = self.slurm_plan.folder
+        folder.mkdir(parents=True, exist_ok=True)
+        array_path = atomic_write_bytes(folder / "generate.sbatch", self.slurm_plan.array_script.encode())
+        atomic_write_bytes(folder / "seal.sbatch", self.slurm_plan.seal_script.encode())
+        atomic_write_bytes(folder / VISIBLE_FILE, b"written by the driver; array tasks check it\n")
+        self.array_id = _sbatch(str(array_path))
+        return RunSummary(out=request.out)
+
+    def seal(self, request: RunRequest, job: RenderJob | None, summary: RunSummary) -> None:
+        """Submit the sealing job, to run when the array has ended (dry run: nothing)."""
+        if self.dry_run:
+            return
+        folder, array_id = self.slurm_plan.folder, self.array_id
+        seal_id = _sbatch(f"--dependency=afterany:{array_id}", str(folder / "seal.sbatch"))
+        summary.submitted = (
+            f"submitted array job {array_id} ({self.slurm_plan.tasks} tasks, scenes {request.start}.."
+            f"{request.start + request.scenes - 1}) and sealing job {seal_id} after it; scripts and logs "
+            f"in {folder}; follow with `squeue -j {array_id},{seal_id}`; rerun the same command to fill any "
+            "gaps")
+
+    def close(self) -> None:
+        pass  # nothing held: the jobs run on

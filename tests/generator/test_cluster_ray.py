@@ -20,7 +20,7 @@ from bench.one_node_slurm import free_port
 from dotsim import dataset
 from generator.config import ConfigError, load_config
 from generator.pipeline import generate
-from generator.ray_cluster import RayBackend
+from generator.ray_cluster import RayExecutor
 from tests.generator.test_generate import TINY, run_cli
 
 SEED = 5
@@ -67,10 +67,10 @@ def test_two_nodes_one_removed_mid_run_same_bytes_as_local(cluster, local_run, t
 
     remover = threading.Thread(target=remove_worker_after_first_scene, daemon=True)
     remover.start()
-    backend = RayBackend(cluster.address, scenes_per_task=2)
+    backend = RayExecutor(cluster.address, scenes_per_task=2)
     try:
         summary = generate(load_config(TINY), out, "train", SCENES, seed=SEED, progress=False,
-                           backend=backend)
+                           executor=backend)
     finally:
         backend.close()
     remover.join(timeout=60)
@@ -114,7 +114,7 @@ def test_output_folder_a_node_cannot_see(cluster, tmp_path):
          f"mount -t tmpfs none {shared} && exec {ray_bin} start --address={head} --num-cpus=1 "
          f"--object-store-memory={80 * 2**20} --block"],
         start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    backend = RayBackend(head)
+    backend = RayExecutor(head)
     try:
         ray_module = backend.connect()
         deadline = time.monotonic() + 120
@@ -122,7 +122,7 @@ def test_output_folder_a_node_cannot_see(cluster, tmp_path):
             assert time.monotonic() < deadline and node.poll() is None, "the second node did not join"
             time.sleep(0.5)
         with pytest.raises(ConfigError, match=r"not visible on Ray node\(s\) .*mounts") as info:
-            generate(load_config(TINY), shared / "data", "train", 1, progress=False, backend=backend)
+            generate(load_config(TINY), shared / "data", "train", 1, progress=False, executor=backend)
         assert "\n" not in str(info.value)
         assert list(shared.iterdir()) == []
     finally:

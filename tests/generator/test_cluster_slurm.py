@@ -13,6 +13,7 @@ from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from generator.config import load_config
 from generator.pipeline import generate, seal_run
+from generator.run_request import RunRequest
 from generator.slurm import SlurmOptions, plan
 from tests.generator.test_cluster_ray import tree_bytes
 from tests.generator.test_generate import TINY, run_cli
@@ -113,9 +114,9 @@ def test_ranges_written_without_sealing_then_sealed_equal_one_run(local3, tmp_pa
     sealed_by_task = out / dataset.shard_name(0) / dataset.SHARD_FILE
     assert sealed_by_task.is_file() and not (out / dataset.shard_name(1) / dataset.SHARD_FILE).exists()
     written = sealed_by_task.stat().st_mtime_ns
-    assert seal_run(load_config(TINY), out, "train", 4, seed=SEED).failed == [3]
+    assert seal_run(RunRequest(load_config(TINY), out, "train", 4, seed=SEED)).failed == [3]
     assert sealed_by_task.stat().st_mtime_ns == written  # kept by the final seal, not hashed again
-    sealed = seal_run(load_config(TINY), out, "train", 3, seed=SEED)
+    sealed = seal_run(RunRequest(load_config(TINY), out, "train", 3, seed=SEED))
     assert (sealed.skipped, sealed.failed) == (3, [])
     assert tree_bytes(out) == tree_bytes(local3)
 

@@ -20,6 +20,7 @@ from dotsim.rig_files import load_rig_file
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import RAW_PASSES, make_frame
+from generator.run_request import RunRequest
 from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[2]
@@ -263,7 +264,7 @@ def test_render_scenes_in_a_fresh_process_as_another_front_end_would(rendered, t
 
     source, _ = rendered
     out = tmp_path / "front_end"
-    job = prepare_run(load_config(TINY), out, "train", seed=3)
+    job = prepare_run(RunRequest(load_config(TINY), out, "train", 2, seed=3))
     (tmp_path / "job.pickle").write_bytes(pickle.dumps(job))
     task = ("import pickle, sys; from generator.render_scenes import render_scenes; "
             "job = pickle.load(open(sys.argv[1], 'rb')); "

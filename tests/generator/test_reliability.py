@@ -486,6 +486,7 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
                                                                                       capsys):
     from generator.pipeline import prepare_run
     from generator.render_scenes import _sample, render_scenes
+    from generator.run_request import RunRequest
 
     cache, config = copied_cache(asset_cache, tmp_path)
     texture = sorted((cache / "test" / "textures").glob("*.png"))[0]
@@ -496,7 +497,7 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
     assert f"asset file {texture} does not match its sha256 in the index" in err, err
     # damaged after the run checked it (prepare_run) and before a render reads it: the scene fails
     texture.write_bytes(original)
-    job = prepare_run(load_config(config), tmp_path / "out", "test", 3)
+    job = prepare_run(RunRequest(load_config(config), tmp_path / "out", "test", 1, seed=3))
     mesh = Path(next(p for p in map(Path, dataset_inputs(_sample(job, 0))) if p.suffix == ".npz"))
     garble(mesh)
     [result] = render_scenes(job, [0])
