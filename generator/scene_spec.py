@@ -1,4 +1,4 @@
-"""The SceneSpec: one scene, fully determined, as typed values validated once (docs/SCENE_SPEC.md).
+"""The SceneSpec: one scene, fully determined, as typed records checked when made (docs/SCENE_SPEC.md).
 
 The sampler (generator/sample_scene.py) makes one from a config; the Blender stage
 (generator/blender/render.py) builds and renders it; the post-render stage (generator/post_render.py)
@@ -45,7 +45,7 @@ Vector4 = tuple[float, float, float, float]
 Matrix4 = tuple[Vector4, Vector4, Vector4, Vector4]
 
 
-WHERE = "scene spec"
+_WHERE = "scene spec"
 
 
 @dataclass(frozen=True)
@@ -321,35 +321,35 @@ class SceneSpec(Checked):
         """The spec of a dict made by to_dict() (e.g. read from JSON); ConfigError (a ValueError)
         naming the first field that is missing, unknown or not allowed, and its value."""
         if not isinstance(d, dict):
-            raise ConfigError(f"{WHERE} = {d!r}: not a mapping; allowed: a mapping with the keys "
+            raise ConfigError(f"{_WHERE} = {d!r}: not a mapping; allowed: a mapping with the keys "
                               f"{', '.join(_TOP_LEVEL)}")
         if missing := [key for key in _TOP_LEVEL if key not in d]:
-            raise ConfigError(f"{WHERE}: {missing[0]} is missing")
+            raise ConfigError(f"{_WHERE}: {missing[0]} is missing")
         if unknown := [key for key in d if key not in _TOP_LEVEL]:
-            raise ConfigError(f"{WHERE}: {unknown[0]} is not a field; allowed: {', '.join(_TOP_LEVEL)}")
+            raise ConfigError(f"{_WHERE}: {unknown[0]} is not a field; allowed: {', '.join(_TOP_LEVEL)}")
         try:
             rig = Rig.from_dict(d["rig"])
         except ValueError as error:
-            raise ConfigError(f"{WHERE}: {error}") from None
+            raise ConfigError(f"{_WHERE}: {error}") from None
         one_key = {}
         for key, (inner, name) in _ONE_KEY.items():
             if not isinstance(d[key], dict) or set(d[key]) != {inner}:
-                raise ConfigError(f"{WHERE}: {key} = {d[key]!r}: not allowed; allowed: a mapping with the "
+                raise ConfigError(f"{_WHERE}: {key} = {d[key]!r}: not allowed; allowed: a mapping with the "
                                   f"one key {inner}")
-            one_key[name] = check_field(cls, name, d[key][inner], f"{WHERE}: {key}.{inner}")
+            one_key[name] = check_field(cls, name, d[key][inner], f"{_WHERE}: {key}.{inner}")
         return cls(
-            scene_index=check_field(cls, "scene_index", d["scene_index"], f"{WHERE}: scene_index"),
-            split=check_field(cls, "split", d["split"], f"{WHERE}: split"),
-            seed=check_field(cls, "seed", d["seed"], f"{WHERE}: seed"),
-            render=RenderSettings.from_dict(d["render"], f"{WHERE}: render"),
+            scene_index=check_field(cls, "scene_index", d["scene_index"], f"{_WHERE}: scene_index"),
+            split=check_field(cls, "split", d["split"], f"{_WHERE}: split"),
+            seed=check_field(cls, "seed", d["seed"], f"{_WHERE}: seed"),
+            render=RenderSettings.from_dict(d["render"], f"{_WHERE}: render"),
             rig=rig,
-            pattern=PatternRef.from_dict(d["pattern"], f"{WHERE}: pattern"),
-            lights=tuple(light_from_dict(light, f"{WHERE}: lights[{k}]")
-                         for k, light in enumerate(_items(d["lights"], f"{WHERE}: lights"))),
-            poses=_poses(d["poses"], f"{WHERE}: poses"),
-            objects=tuple(SceneObject.from_dict(obj, f"{WHERE}: objects[{k}]")
-                          for k, obj in enumerate(_items(d["objects"], f"{WHERE}: objects"))),
-            sensor=SensorModel.from_dict(d["sensor"], f"{WHERE}: sensor"),
-            masks=MaskParams.from_dict(d["masks"], f"{WHERE}: masks"),
+            pattern=PatternRef.from_dict(d["pattern"], f"{_WHERE}: pattern"),
+            lights=tuple(light_from_dict(light, f"{_WHERE}: lights[{k}]")
+                         for k, light in enumerate(_items(d["lights"], f"{_WHERE}: lights"))),
+            poses=_poses(d["poses"], f"{_WHERE}: poses"),
+            objects=tuple(SceneObject.from_dict(obj, f"{_WHERE}: objects[{k}]")
+                          for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
+            sensor=SensorModel.from_dict(d["sensor"], f"{_WHERE}: sensor"),
+            masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             **one_key,
         )
