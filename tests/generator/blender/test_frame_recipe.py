@@ -25,7 +25,7 @@ from generator.blender.frame_recipe import (
 from generator.post_render import RAW_PASSES
 from generator.scene_spec import SceneSpec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[3]
 LIGHT = {"type": "POINT", "location": [0.0, -0.5, 1.0], "power": 20.0, "radius": 0.1}
 
 
