@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 import dotsim
 from dotsim import dataset
@@ -202,10 +203,6 @@ def render_missing(request: RunRequest, job: RenderJob, render_todo: RenderTodo)
     damaged = [i for i in todo if dataset.remove_scene(out, i, spp)]
     _unseal(out, todo, spp)
     summary = RunSummary(out=out, skipped=request.scenes - len(todo), redone=damaged)
-    # Imported here: the Blender add-on builds RunRequests (whose default executor is this module's
-    # pool) inside a Blender whose Python has no tqdm.
-    from tqdm import tqdm
-
     bar = tqdm(total=len(todo), unit="scene", desc=f"generate {request.split}", disable=not request.progress,
                dynamic_ncols=True)
 
@@ -247,7 +244,7 @@ def run(request: RunRequest) -> RunSummary:
     close it when done.
     """
     began = time.perf_counter()
-    executor = request.executor
+    executor = request.executor or local_pool()
     with contextlib.ExitStack() as hold:
         job = executor.prepare(request, hold)
         summary = executor.render(request, job)

@@ -12,7 +12,7 @@ config: Config.calibrated_rig) and the projector pattern (made on first use) are
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -64,7 +64,7 @@ class RunRequest:
     start: int = 0
     seed: int = 0
     blender: str | None = None
-    executor: Executor = field(default_factory=local_pool)
+    executor: Executor | None = None  # None: the local pool of one worker, made when the run starts
     progress: bool = True
     seal: bool = True
 
