@@ -6,10 +6,10 @@ this checkout's, and compare every frame file byte for byte (sha256).
 A refactor that must not change behaviour (issue 28's rule) proves it here: the tiny config, and the
 default config at [rig] scale 0.05 (cached assets, from `make assets-train`; 1 sample), split train,
 seed 3. Scenes of both kinds of render recipe are among them (with extra lights and without:
-docs/RENDERING.md); the output lists each scene's extra lights. The other revision is checked out in a
-temporary git worktree and removed afterwards. Both sides run with this interpreter, so only the code
-differs. scene.json files are compared apart: they record the config file's path, which differs
-between checkouts. Exit status 1 when any frame differs.
+docs/RENDERING.md); the output lists each scene's extra lights. The other revision is unpacked into a
+temporary folder (bench.generate_stages.unpack). Both sides run with this interpreter, so only the code
+differs. JSON files are left out: scene.json records the config file's path, which differs between
+checkouts. Exit status 1 when any frame differs.
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from bench.generate_stages import unpack
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -60,27 +62,22 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="dotsim-same-frames-") as tmp:
         tmp = Path(tmp)
-        before = tmp / "before-checkout"
-        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(before), args.before],
-                       check=True, capture_output=True)
-        try:
-            configs = {"tiny": "tiny", "default at scale 0.05": str(small_default(tmp))}
-            differ = 0
-            for name, config in configs.items():
-                sums = {}
-                for side, root in (("before", before), ("after", REPO)):
-                    out = tmp / side / name.split()[0]
-                    render(root, config, out, args.scenes)
-                    sums[side] = frame_sums(out)
-                scenes = sorted((tmp / "after" / name.split()[0]).glob("shard_*/scene_*/scene.json"))
-                lights = [len(json.loads(p.read_text())["lights"]) for p in scenes]
-                bad = [k for k in sums["before"].keys() | sums["after"].keys()
-                       if sums["before"].get(k) != sums["after"].get(k)]
-                differ += len(bad)
-                print(f"{name}: {len(sums['after'])} files, extra lights per scene {lights}: "
-                      + ("byte-identical" if not bad else f"{len(bad)} DIFFER, e.g. {sorted(bad)[:3]}"))
-        finally:
-            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(before)], check=True)
+        before = unpack(args.before, tmp)
+        configs = {"tiny": "tiny", "default at scale 0.05": str(small_default(tmp))}
+        differ = 0
+        for name, config in configs.items():
+            sums = {}
+            for side, root in (("before", before), ("after", REPO)):
+                out = tmp / side / name.split()[0]
+                render(root, config, out, args.scenes)
+                sums[side] = frame_sums(out)
+            scenes = sorted((tmp / "after" / name.split()[0]).glob("shard_*/scene_*/scene.json"))
+            lights = [len(json.loads(p.read_text())["lights"]) for p in scenes]
+            bad = [k for k in sums["before"].keys() | sums["after"].keys()
+                   if sums["before"].get(k) != sums["after"].get(k)]
+            differ += len(bad)
+            print(f"{name}: {len(sums['after'])} files, extra lights per scene {lights}: "
+                  + ("byte-identical" if not bad else f"{len(bad)} DIFFER, e.g. {sorted(bad)[:3]}"))
     print(f"{args.before} -> this checkout: " + ("same frames" if not differ else f"{differ} file(s) differ"))
     return 1 if differ else 0
 
