@@ -19,8 +19,9 @@ out/bench_accuracy/train and out/bench_accuracy/test from dotsim/configs/bench_a
 has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
 boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder. The output
 says which. The step count is fitted to the time budget from the time per step of two short
-calibration runs (5 and 25 steps; their difference leaves out start-up), and the step decay
-halves the learning rate at 25, 50 and 75 % of it.
+calibration runs (5 and 25 steps, reading every sample; their difference leaves out start-up), less
+the reading that [data].cache_mb saves after a frame's first read, and the step decay halves the
+learning rate at 25, 50 and 75 % of it.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -38,7 +40,7 @@ from generator.config import load_config as load_generator_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
-from trainer.data import list_frames
+from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import THRESHOLDS, chosen_sgbm, evaluate, overall
 from trainer.train import train
 
@@ -62,6 +64,20 @@ def generated_datasets(root: Path = Path("out")) -> tuple[Path, Path] | None:
             if train_dir.parent == test_dir.parent:
                 return train_dir, test_dir
     return None
+
+
+def planned_steps(read_step_s: float, frames: list, rig, cfg, seconds: float) -> int:
+    """Steps that fill `seconds`, given the time of a step that reads its samples (`read_step_s`). With
+    [data].cache_mb each cached frame is read once, in the first epoch, and later steps only crop:
+    the time to read a frame is measured here and taken out of the steps that no longer pay it."""
+    dataset = FrameDataset(frames, rig, replace(cfg.data, cache_mb=0), cfg.seed, augment=False)
+    start = time.perf_counter()
+    frame_bytes = [sum(a.nbytes for a in dataset.targets(i).values()) for i in range(min(4, len(frames)))]
+    read_s = (time.perf_counter() - start) / len(frame_bytes)
+    cached = min(1.0, cfg.data.cache_mb * 2**20 / (max(frame_bytes) * len(frames)))
+    batch = cfg.train.batch_size
+    step_s = max(read_step_s - batch * read_s * cached, 1e-3)
+    return max(10, int((seconds - cached * len(frames) * read_s) / step_s))
 
 
 def main(argv=None) -> int:
@@ -110,24 +126,27 @@ def main(argv=None) -> int:
         test_frames, _, _ = list_frames(test_data, "test")
         base = load_config(args.config).to_dict()
 
-        def config(steps: int, epochs: int):
+        def config(steps: int, epochs: int, cache_mb: int | None = None):
             d = json.loads(json.dumps(base))
             # StepLR halving every epochs // 4 epochs: at 25, 50 and 75 % of the run
             d["train"].update(max_steps=steps, epochs=epochs, lr_step_epochs=max(1, epochs // 4),
                               checkpoint_every=max(steps, 1), image_every=max(steps // 10, 1))
+            if cache_mb is not None:
+                d["data"]["cache_mb"] = cache_mb
             return config_from_dict(d, args.config)
 
         # A step's time is the difference of two short runs: one run's time also holds start-up
         # (model, loader, TensorBoard, first-step allocations), which made a 60 min budget train 41 min.
-        short, long = (train(config(n, 1000), data, work / f"calibration_{n}", progress=False)["seconds"]
-                       for n in (5, 25))
-        per_step = max(long - short, 1e-3) / 20
+        # Both read every sample (no cache), so the difference is 20 steps with their reads.
+        short, long = (train(config(n, 1000, cache_mb=0), data, work / f"calibration_{n}",
+                             progress=False)["seconds"] for n in (5, 25))
+        steps = planned_steps(max(long - short, 1e-3) / 20, frames, rig, config(1, 1), args.minutes * 60)
+        per_step = args.minutes * 60 / steps
         steps_per_epoch = len(frames) // base["train"]["batch_size"]
-        steps = max(10, int(args.minutes * 60 / per_step))
         epochs = max(1, round(steps / steps_per_epoch))
         print(f"data: {source}\n{len(frames)} train / {len(test_frames)} test frames at "
               f"{rig.camera.width}x{rig.camera.height}; "
-              f"{per_step:.2f} s/step -> {steps} steps ({epochs} epochs) for {args.minutes:g} min",
+              f"{per_step:.3f} s/step -> {steps} steps ({epochs} epochs) for {args.minutes:g} min",
               flush=True)
         cfg = config(steps, epochs)
         start = time.perf_counter()

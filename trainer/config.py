@@ -67,6 +67,8 @@ class DataConfig(Checked):
                                "channel", low=0.0)
     intensity_scale: FloatRange = setting((1.0, 1.0), "uniform random gain range", low=0.0)
     workers: int = setting(0, "DataLoader worker processes (0 = load in the training process)", low=0)
+    cache_mb: int = setting(0, "decoded frames kept in memory, up to this many MB (0 = read every time); "
+                            "needs workers = 0", low=0)
 
 
 AMP_CHOICES = ("off", "float16", "bfloat16")
@@ -169,6 +171,10 @@ def validate(cfg: Config, source: str = "<dict>") -> None:
         if getattr(dcfg, key) % 2:
             raise fail(f"[data] {key}", getattr(dcfg, key), "odd (the output is at half resolution)",
                        "an even number of pixels, or 0")
+    if dcfg.cache_mb and dcfg.workers:
+        # a loader worker lives one epoch and reads each frame once in it: its cache would never be hit
+        raise fail("[data] cache_mb", dcfg.cache_mb, f"set with workers = {dcfg.workers}",
+                   "0, or workers = 0 (the training process keeps the cache)")
     if len(t.ce_weights) != levels:
         raise fail("[train] ce_weights", t.ce_weights, "not one weight per tree level",
                    f"{levels} weights")

@@ -131,13 +131,27 @@ class FrameDataset(Dataset):
         h, w = rig.camera.height, rig.camera.width
         self.crop_h = min(cfg.crop_height or h, h - h % 2)
         self.crop_w = min(cfg.crop_width or w, w - w % 2)
+        self._cached: dict[int, dict[str, np.ndarray]] = {}
+        self._cache_left = cfg.cache_mb * 2**20
 
     def __len__(self) -> int:
         return len(self.frames)
 
+    def targets(self, i: int) -> dict[str, np.ndarray]:
+        """frame_targets of frame i, kept (read-only) while [data].cache_mb lasts: a crop uses 2 % of
+        a 608 x 448 frame, yet reading and decoding the frame took 21 ms, a third of a CPU step."""
+        if i in self._cached:
+            return self._cached[i]
+        t = frame_targets(self.frames[i].read(TRAIN_CHANNELS), self.rig)
+        size = sum(a.nbytes for a in t.values())
+        if size <= self._cache_left:
+            for a in t.values():
+                a.flags.writeable = False
+            self._cached[i], self._cache_left = t, self._cache_left - size
+        return t
+
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        ref = self.frames[i]
-        t = frame_targets(ref.read(TRAIN_CHANNELS), self.rig)
+        t = self.targets(i)
         h, w = t["ir"].shape
         rng = np.random.default_rng([self.seed, self.epoch, i])
         y0 = x0 = jitter = 0
@@ -148,18 +162,18 @@ class FrameDataset(Dataset):
             jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
         rows = slice(y0 + jitter, y0 + jitter + self.crop_h)
         cols = slice(x0, x0 + self.crop_w)
-        ir = t["ir"][rows, cols]
+        ir = np.array(t["ir"][rows, cols])  # a copy: the cached frame stays as read
         if self.augment:
             ir = ir * rng.uniform(*self.cfg.intensity_scale)
             if self.cfg.noise_std > 0:
                 ir = ir + rng.normal(0.0, self.cfg.noise_std, ir.shape).astype(np.float32)
         sample = {
-            "ir": torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None],
+            "ir": torch.from_numpy(ir.astype(np.float32, copy=False))[None],
             "row0": torch.tensor(y0 // 2),
         }
         for key in ("column", "valid", "edge"):
             sub = t[key][rows.start : rows.stop : 2, cols.start : cols.stop : 2]  # output pixel centres
-            sample[key] = torch.from_numpy(np.ascontiguousarray(sub))
+            sample[key] = torch.from_numpy(np.array(sub))
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
 

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 import torch
 
+from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
 from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict
-from trainer.data import FrameDataset, list_frames
+from trainer.data import FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.train import batch_loss, build_model, load_checkpoint, train
@@ -186,3 +187,41 @@ def test_unet_backbone_trains_a_step(data, tmp_path):
     d["model"].update(backbone="unet", unet_channels=[16, 16])
     result = train(config_from_dict(d, "unet"), data, tmp_path, progress=False)
     assert result["step"] == 2 and all(np.isfinite(result["losses"]))
+
+
+def test_cached_frames_give_the_same_samples_and_are_read_once(data, monkeypatch):
+    """[data].cache_mb keeps decoded frames: two epochs give the samples an uncached dataset gives,
+    each frame is read once, a sample changed in place leaves the cache as read, and cache_mb = 0
+    keeps nothing."""
+    cfg = tiny_config(1)
+    frames, rig, _ = list_frames(data, "train")
+    reads, read = [], FrameRef.read
+
+    def counted_read(ref, channels):
+        reads.append(ref.frame_index)
+        return read(ref, channels)
+
+    monkeypatch.setattr(FrameRef, "read", counted_read)
+    plain = FrameDataset(frames, rig, cfg.data, seed=5, augment=True)
+    cached = FrameDataset(frames, rig, dataclasses.replace(cfg.data, cache_mb=64), seed=5, augment=True)
+    for epoch in (0, 1):
+        plain.epoch = cached.epoch = epoch
+        for i in range(len(frames)):
+            a, b = plain[i], cached[i]
+            assert a.keys() == b.keys()
+            for key in a:
+                torch.testing.assert_close(a[key], b[key], rtol=0, atol=0)
+            b["ir"] += 1.0
+            b["column"] += 1.0
+    assert len(reads) == 2 * len(frames) + len(frames)  # plain twice, cached once
+    first = read_frame(frames[0].path)
+    np.testing.assert_array_equal(cached.targets(0)["ir"], first["ir"].astype(np.float32))
+    plain[0]
+    assert not plain._cached
+
+
+def test_cache_with_loader_workers_is_refused():
+    d = tiny_config(1).to_dict()
+    d["data"].update(cache_mb=100, workers=2)
+    with pytest.raises(ConfigError, match=r"\[data\] cache_mb.*workers = 0"):
+        config_from_dict(d, "cache.toml")
