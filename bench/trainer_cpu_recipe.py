@@ -1,6 +1,6 @@
 """What each CPU training-speed idea would buy, by counting, plus an optional short timing.
 
-    python -m bench.trainer_cpu_recipe [--config train_cpu] [--time 20] [--threads 1]
+    python -m bench.trainer_cpu_recipe [--config train_cpu] [--time 20 [--rounds 3] [--compile]] [--threads 1]
 
 Counts (exact, machine-independent): the FLOPs of one training step (forward and backward, batch
 [train].batch_size) split into the backbone's convolutions and the tree's heads, for several crop
@@ -12,14 +12,17 @@ counts say about each idea:
   is fixed by the backbone; a crop buys nothing per pixel, only more distinct images per step;
 - sampling pixels for the branch heads: the heads run on the valid pixels only and are the small
   share printed below, so sampling them can save at most that share;
-- channels_last and torch.compile change no count: only a timing can tell (--time N: N steps of each,
-  after 3 warm-up steps, on synthetic batches; on a shared machine those figures are noise-prone and
-  are printed as such).
+- channels_last and torch.compile change no count: only a timing can tell (--time N: rounds of N
+  steps of each, taking turns after 3 warm-up steps, on synthetic batches; --compile adds
+  torch.compile of the backbone; the load average is printed, since on a shared machine the figures
+  are noise-prone).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import sys
 import time
 
@@ -64,18 +67,39 @@ def count(model: GigaDepthNet, batch: dict) -> tuple[float, float]:
     return backbone / 1e9, (total_counter.get_total_flops() - backbone) / 1e9
 
 
-def steps_per_second(model: GigaDepthNet, batch: dict, steps: int, channels_last: bool = False) -> float:
-    opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)
-    if channels_last:
-        model = model.to(memory_format=torch.channels_last)
-        batch = {**batch, "ir": batch["ir"].contiguous(memory_format=torch.channels_last)}
-    for k in range(steps + 3):
-        if k == 3:
+def timed_variants(cfg, rig, batch: dict, steps: int, rounds: int, compile_backbone: bool) -> dict:
+    """Median steps/s per variant of the same network: contiguous (as trained), channels_last, and
+    with --compile the backbone through torch.compile. The variants take turns, `rounds` rounds of
+    `steps` steps each after their warm-up, so a load that comes and goes falls on all of them; the
+    compile's own time is reported apart."""
+    variants, compile_s = {"contiguous (as trained)": (build_model(cfg, rig), batch)}, None
+    model = build_model(cfg, rig).to(memory_format=torch.channels_last)
+    variants["channels_last"] = (model, {**batch, "ir": batch["ir"].contiguous(
+        memory_format=torch.channels_last)})
+    if compile_backbone:
+        model = build_model(cfg, rig)
+        model.backbone = torch.compile(model.backbone)
+        variants["torch.compile (backbone)"] = (model, batch)
+    runs = {}
+    for name, (model, b) in variants.items():
+        opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)
+        start = time.perf_counter()
+        for _ in range(3):  # warm-up: first-step allocations, and the compile itself
+            opt.zero_grad(set_to_none=True)
+            step_loss(model, b).backward()
+            opt.step()
+        if name.startswith("torch.compile"):
+            compile_s = time.perf_counter() - start
+        runs[name] = (model, b, opt, [])
+    for _ in range(rounds):
+        for model, b, opt, rates in runs.values():
             start = time.perf_counter()
-        opt.zero_grad(set_to_none=True)
-        step_loss(model, batch).backward()
-        opt.step()
-    return steps / (time.perf_counter() - start)
+            for _ in range(steps):
+                opt.zero_grad(set_to_none=True)
+                step_loss(model, b).backward()
+                opt.step()
+            rates.append(steps / (time.perf_counter() - start))
+    return {"rates": {name: statistics.median(r[3]) for name, r in runs.items()}, "compile_s": compile_s}
 
 
 def main(argv=None) -> int:
@@ -83,6 +107,9 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default="train_cpu")
     parser.add_argument("--time", type=int, default=0, metavar="N", help="also time N steps of each idea")
+    parser.add_argument("--rounds", type=int, default=3, help="--time: rounds, the variants taking turns")
+    parser.add_argument("--compile", action="store_true", help="--time: also torch.compile the backbone "
+                        "(inductor builds C++ first: minutes on 2 cores)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -107,10 +134,16 @@ def main(argv=None) -> int:
     if args.time:
         crop = (cfg.data.crop_width or rig.camera.width, cfg.data.crop_height or rig.camera.height)
         batch = synthetic_batch(cfg, rows, *crop)
-        print(f"\nsteps/s of {args.time} steps, {crop[0]} x {crop[1]} crops, {args.threads} thread(s), "
-              "TAKEN ON A SHARED, BUSY MACHINE (relative at best):")
-        print(f"  contiguous (as trained): {steps_per_second(model, batch, args.time):.2f}")
-        print(f"  channels_last: {steps_per_second(build_model(cfg, rig), batch, args.time, True):.2f}")
+        load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+        timed = timed_variants(cfg, rig, batch, args.time, args.rounds, args.compile)
+        print(f"\nsteps/s, median of {args.rounds} rounds of {args.time} steps taking turns, {crop[0]} x "
+              f"{crop[1]} crops, {args.threads} thread(s); load average before timing {load} (on a busy "
+              "machine the ratios are noise-prone):")
+        base = timed["rates"]["contiguous (as trained)"]
+        for name, rate in timed["rates"].items():
+            print(f"  {name}: {rate:.2f} ({rate / base:.2f}x)")
+        if timed["compile_s"] is not None:
+            print(f"  torch.compile's first steps (compiling): {timed['compile_s']:.0f} s")
     return 0
 
 

@@ -55,9 +55,10 @@ def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
 
 # Neighbouring half-resolution samples further apart than this (camera px of disparity) lie on two
 # surfaces: the pixel between them takes the farther one instead of their mean, so no "flying pixels"
-# float between a foreground object and its background. Measured with dotsim/configs/train_cpu.toml after
-# 41 min (docs/TRAINER.md): o(0.5) 0.395 (linear) -> 0.369 (nearer sample) -> 0.354 (farther) on the
-# test split, 0.473 -> 0.448 -> 0.435 on 20 unseen train-asset scenes; 0.5 and 2 px gave within 0.001.
+# float between a foreground object and its background. Measured with dotsim/configs/train_cpu.toml
+# (then with the published backbone) after 41 min (docs/TRAINER.md): o(0.5) 0.395 (linear) -> 0.369
+# (nearer sample) -> 0.354 (farther) on the test split, 0.473 -> 0.448 -> 0.435 on 20 unseen
+# train-asset scenes; 0.5 and 2 px gave within 0.001.
 DEPTH_JUMP_PX = 1.0
 
 
