@@ -72,7 +72,7 @@ def timed_variants(cfg, rig, batch: dict, steps: int, rounds: int, compile_backb
     with --compile the backbone through torch.compile. The variants take turns, `rounds` rounds of
     `steps` steps each after their warm-up, so a load that comes and goes falls on all of them; the
     compile's own time is reported apart."""
-    variants, compile_s = {"contiguous (as trained)": (build_model(cfg, rig), batch)}, None
+    variants = {"contiguous (as trained)": (build_model(cfg, rig), batch)}
     model = build_model(cfg, rig).to(memory_format=torch.channels_last)
     variants["channels_last"] = (model, {**batch, "ir": batch["ir"].contiguous(
         memory_format=torch.channels_last)})
@@ -80,26 +80,26 @@ def timed_variants(cfg, rig, batch: dict, steps: int, rounds: int, compile_backb
         model = build_model(cfg, rig)
         model.backbone = torch.compile(model.backbone)
         variants["torch.compile (backbone)"] = (model, batch)
-    runs = {}
-    for name, (model, b) in variants.items():
-        opt = torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)
-        start = time.perf_counter()
-        for _ in range(3):  # warm-up: first-step allocations, and the compile itself
-            opt.zero_grad(set_to_none=True)
-            step_loss(model, b).backward()
-            opt.step()
-        if name.startswith("torch.compile"):
-            compile_s = time.perf_counter() - start
-        runs[name] = (model, b, opt, [])
+    opts = {name: torch.optim.Adam(model.parameters(), lr=1e-4, fused=True)
+            for name, (model, _) in variants.items()}
+    # warm-up: first-step allocations, and the compile itself
+    warm_up = {name: run_steps(*variants[name], opts[name], 3) for name in variants}
+    rates: dict[str, list[float]] = {name: [] for name in variants}
     for _ in range(rounds):
-        for model, b, opt, rates in runs.values():
-            start = time.perf_counter()
-            for _ in range(steps):
-                opt.zero_grad(set_to_none=True)
-                step_loss(model, b).backward()
-                opt.step()
-            rates.append(steps / (time.perf_counter() - start))
-    return {"rates": {name: statistics.median(r[3]) for name, r in runs.items()}, "compile_s": compile_s}
+        for name in variants:
+            rates[name].append(steps / run_steps(*variants[name], opts[name], steps))
+    return {"rates": {name: statistics.median(r) for name, r in rates.items()},
+            "compile_s": warm_up.get("torch.compile (backbone)")}
+
+
+def run_steps(model: GigaDepthNet, batch: dict, opt, steps: int) -> float:
+    """Seconds for `steps` optimiser steps on `batch`."""
+    start = time.perf_counter()
+    for _ in range(steps):
+        opt.zero_grad(set_to_none=True)
+        step_loss(model, batch).backward()
+        opt.step()
+    return time.perf_counter() - start
 
 
 def main(argv=None) -> int:
