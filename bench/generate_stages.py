@@ -200,6 +200,13 @@ def unpack(revision: str, into: Path) -> Path:
     return into / "tree"
 
 
+def dotsim_command(tree: Path) -> list[str]:
+    """The `dotsim` program of checkout `tree`, run by this interpreter (PYTHONPATH=tree): its entry
+    module is commands.cli, dotsim.cli in revisions before the commands had a folder of their own."""
+    module = "commands.cli" if (tree / "commands" / "cli.py").is_file() else "dotsim.cli"
+    return [sys.executable, "-m", module]
+
+
 def run_side(tree: Path, config_path: Path, width: int, scene: int, repeats: int,
              compressions: bool = False) -> dict:
     """measure() in a child process whose imports come from `tree`."""

@@ -1,4 +1,4 @@
-"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (dotsim.export).
+"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (commands.export).
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
 arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
@@ -9,7 +9,7 @@ arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `
     loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=None, num_workers=4)
 
 A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
-dotsim.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
+commands.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
 URL the `webdataset` library opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`),
 or a list of these. Work is split first over ranks (torch.distributed's, or the RANK and
 WORLD_SIZE environment variables), then over the DataLoader's workers: shards for shard sources,
@@ -35,9 +35,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from commands.export import INDEX_NAME, WEBDATASET_FORMAT, sample_key
 from dotsim import dataset as ds
 from dotsim.dataset.layout import load_json
-from dotsim.export import INDEX_NAME, WEBDATASET_FORMAT, sample_key
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
 
 FRAME_KEYS = ("key", "scene_index", "frame_index", "split", "meta")
@@ -149,7 +149,7 @@ def iter_tar_samples(stream, where: str) -> Iterator[tuple[str, dict[str, bytes]
 
 
 def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str = "") -> dict:
-    """A frame dict from a sample's files (dotsim.export's layout); channels: keep only these."""
+    """A frame dict from a sample's files (commands.export's layout); channels: keep only these."""
     for needed in ("scene.json", "frame.json"):
         if needed not in files:
             raise ds.FormatError(f"{where}: sample {key} has no {needed} (not a dotsim export)")

@@ -95,7 +95,7 @@ def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, 
     tasks = -(-scenes // per_task)
     cpus = _cpus(options, config)
     workers = max(1, cpus // config.render.threads) if config.render.threads else 1
-    dotsim = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(config_path),
+    dotsim = [sys.executable, "-m", "commands.cli", "generate", "--config", str(config_path),
               "--out", str(out), "--split", split, "--seed", str(seed), "--no-progress"]
     if blender:
         dotsim += ["--blender", blender]

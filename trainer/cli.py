@@ -9,7 +9,7 @@ from dotsim.dataset import FormatError
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
-# The trainer's expected errors: one line and exit status 1 (dotsim.cli.main prints them).
+# The trainer's expected errors: one line and exit status 1 (commands.cli.main prints them).
 EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointError: 1}
 
 
@@ -57,7 +57,7 @@ def add_parser(subparsers) -> None:
         "column) on the scenes of --split in DATA. Writes RUN/checkpoint.pt (model, optimiser, schedule, "
         "step, config, rig, RNG states; saved every [train].checkpoint_every steps and at the end) and "
         "TensorBoard logs in RUN/tb (tensorboard --logdir RUN/tb). A CPU run with the same config, data "
-        "and seed is deterministic. --nproc N (or torchrun --nproc_per_node N -m dotsim.cli train ...) "
+        "and seed is deterministic. --nproc N (or torchrun --nproc_per_node N -m commands.cli train ...) "
         "trains with N data-parallel processes (DDP: gloo on CPU, NCCL on CUDA with one GPU each); "
         "[train].batch_size is the global batch, shared out among them, so N processes train as one does.")
     p.add_argument("--config", required=True, metavar="TOML",

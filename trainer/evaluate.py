@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from commands.show import with_legend
 from dotsim.dataset import pattern_path, read_frame, read_scene_meta
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
@@ -32,7 +33,6 @@ from dotsim.rig import (
     projector_column_to_depth,
     reference_image,
 )
-from dotsim.show import with_legend
 from trainer.config import Config
 from trainer.data import DataError, FrameRef, list_frames
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from dotsim import cli
+from commands import cli
+from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
 from dotsim.data import Frames, index_shards, read_indexed
-from dotsim.export import export_webdataset, tar_bytes_of
 from tests.trainer_fixtures import tiny_config
 from trainer.data import DataError, list_frames
 from trainer.train import train

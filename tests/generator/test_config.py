@@ -12,8 +12,8 @@ import pytest
 
 import generator.config as generator_config
 import trainer.config as trainer_config
+from commands.cli import main as cli_main
 from dotsim import config_schema
-from dotsim.cli import main as cli_main
 from dotsim.config_schema import FloatRange, setting
 from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, load_config

@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
+from commands.cli import main as dotsim_main
 from dotsim import dataset
-from dotsim.cli import main as dotsim_main
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file

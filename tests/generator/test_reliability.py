@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from commands.cli import main as dotsim_main
 from dotsim import dataset, file_io
-from dotsim.cli import main as dotsim_main
 from dotsim.dataset.layout import record_layout
 from dotsim.dataset.seal import seal_shard
 from generator.config import load_config
@@ -192,7 +192,7 @@ def descendants(pid: int) -> set[int]:
 def start_generate(out: Path, workers: int = 2) -> subprocess.Popen:
     """`dotsim generate` of SCENES tiny scenes in a process of its own, from this checkout, with its
     stdout a pipe (as `dotsim generate ... | tee log` has it)."""
-    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(TINY), "--out", str(out),
+    command = [sys.executable, "-m", "commands.cli", "generate", "--config", str(TINY), "--out", str(out),
                "--split", "train", "--scenes", str(SCENES), "--seed", "3", "--workers", str(workers),
                "--no-progress"]
     return subprocess.Popen(command, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
@@ -252,7 +252,7 @@ def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tup
     """Start `command` (a dotsim command line) from this checkout, wait until ready(proc) is true,
     send `signum` to its main process and check by pid that none of its processes is left after
     `seconds`; (exit status, output)."""
-    proc = subprocess.Popen([sys.executable, "-m", "dotsim.cli", *command], cwd=REPO, text=True,
+    proc = subprocess.Popen([sys.executable, "-m", "commands.cli", *command], cwd=REPO, text=True,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 300

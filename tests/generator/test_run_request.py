@@ -11,7 +11,7 @@ import pytest
 
 import generator.config
 import generator.run_request
-from dotsim.cli import build_parser
+from commands.cli import build_parser
 from generator.config import ConfigError, load_config
 from generator.executor import executor_from_args
 from generator.local_pool import LocalExecutor

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from dotsim.cli import main as dotsim_main
+from commands.cli import main as dotsim_main
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from commands.show import colourise, grey_for_display, scene_path_of
 from dotsim import dataset as ds
 from dotsim.file_io import temporary_name
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
-from dotsim.show import colourise, grey_for_display, scene_path_of
 
 # Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
 # range shows as a few bright objects on black.
@@ -147,7 +147,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
 
 def view(path, scene_index: int | None = None, frame: int | None = None, predictions=None,
          save: str | Path | None = None, verify: bool = True) -> dict[str, int]:
-    """Log the scene PATH names (dotsim.show.scene_path_of) and write it to `save` (.rrd,
+    """Log the scene PATH names (commands.show.scene_path_of) and write it to `save` (.rrd,
     atomically) or, without `save`, spawn the Rerun viewer on it."""
     rr = _rerun()
     if Path(path).is_file():
