@@ -24,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from commands.show import colourise, grey_for_display, scene_path_of
+from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
+from dotsim.false_colour import colourise
 from dotsim.file_io import temporary_name
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig

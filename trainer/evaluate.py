@@ -20,8 +20,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from commands.show import with_legend
 from dotsim.dataset import pattern_path, read_frame, read_scene_meta
+from dotsim.false_colour import with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern

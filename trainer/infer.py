@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from commands.show import colourise, with_legend
 from dotsim.dataset import FormatError, read_frame
+from dotsim.false_colour import colourise, with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
