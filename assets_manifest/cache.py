@@ -27,6 +27,7 @@ from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 from assets_manifest.user_folders import load_image_file, load_mesh_file
 from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, sha256_bytes, sha256_file
+from dotsim.version import __version__
 
 CACHE_FORMAT = "dotsim-assets/1"
 # Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
@@ -238,8 +239,6 @@ def _versions() -> dict:
     import skimage
     import trimesh
     import xatlas
-
-    from dotsim import __version__
 
     return {
         "dotsim": __version__,

@@ -4,9 +4,9 @@ import argparse
 import importlib
 import sys
 
-from dotsim import __version__
 from dotsim.file_io import DiskFullError
 from dotsim.process_lifetime import Stopped, stop_signals
+from dotsim.version import __version__
 
 # Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int` and may
 # set `errors`, {error type: exit status}: the errors its command expects (bad input named in the

@@ -19,9 +19,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from dotsim import __version__
 from dotsim.file_io import sha256_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
+from dotsim.version import __version__
 
 _LEVELS = 65535
 # Dots per pattern pixel when neither n_dots nor density is given. 0.02 puts about 189k dots in the

@@ -39,12 +39,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-import dotsim
 from dotsim import dataset
 from dotsim.dataset.lock import writer_lock
 from dotsim.dataset.seal import seal_shard, vouched_shards
 from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
+from dotsim.version import __version__
 from generator.config import Config, ConfigError
 from generator.executor import Executor
 from generator.render_scenes import LOG_DIR, RenderJob, SceneResult
@@ -118,7 +118,7 @@ def versions(blender: str | None) -> dict:
         blender_version = first[0].strip() if first else "unknown"
     else:
         blender_version = f"bpy {importlib.metadata.version('bpy')}"
-    return {"dotsim": dotsim.__version__, "blender": blender_version, "numpy": np.__version__,
+    return {"dotsim": __version__, "blender": blender_version, "numpy": np.__version__,
             "python": platform.python_version()}
 
 

@@ -11,8 +11,8 @@ import os
 import re
 from pathlib import Path
 
-from dotsim import __version__ as DOTSIM_VERSION
 from dotsim.file_io import atomic_write_json
+from dotsim.version import __version__ as DOTSIM_VERSION
 
 FORMAT_VERSION = "2.0"
 # Major versions this reader reads: 1.x (every channel stored, ZIP) and 2.x (docs/FORMAT.md "Versioning").
