@@ -124,8 +124,10 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
 
 def prepared(config, folder: Path):
     """The RenderJob of a train-split dataset in `folder` (seed 0), with either side's code."""
-    from generator.pipeline import prepare_run
-
+    try:
+        from generator.run_steps import prepare_run
+    except ImportError:  # before issue 37, generator.pipeline held it
+        from generator.pipeline import prepare_run
     try:
         from generator.run_request import RunRequest
     except ImportError:  # before issue 28, prepare_run took the run's values themselves

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import signal
 import sys
+from types import ModuleType
 
 from dotsim.dataset import FormatError
 from generator.config import ConfigError
-from generator.executor import engine_modules, executor_from_args
+from generator.executor import Executor
 from generator.scene_spec import SPLITS
 
 DESCRIPTION = """\
@@ -50,6 +52,27 @@ examples:
       --scenes 15000 --slurm --slurm-partition cpu --slurm-cpus 8 --slurm-dry-run
 Config keys: docs/CONFIG.md.
 """
+
+
+# The engine modules `dotsim generate` offers besides the local pool, in --help order (each defines
+# add_options and from_args: generator/executor.py).
+ENGINES = ("generator.ray_cluster", "generator.slurm")
+
+
+def engine_modules() -> list[ModuleType]:
+    """The modules of ENGINES."""
+    return [importlib.import_module(name) for name in ENGINES]
+
+
+def executor_from_args(args: argparse.Namespace) -> Executor:
+    """The executor the parsed `dotsim generate` options ask for: an engine of ENGINES, or the
+    local pool of --workers processes. ConfigError when they ask for more than one engine."""
+    from generator.local_pool import LocalExecutor
+
+    chosen = [executor for executor in (module.from_args(args) for module in engine_modules()) if executor]
+    if len(chosen) > 1:
+        raise ConfigError(f"{' and '.join(executor.option for executor in chosen)}: choose one")
+    return chosen[0] if chosen else LocalExecutor(args.workers or 1)
 
 
 def integer_at_least(low: int):
@@ -108,7 +131,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                       help="render nothing: remove half-written scenes (no writer may be running), list the "
                            "scenes of the range still missing, and seal DIR (the Slurm sealing job)")
     cluster = parser.add_argument_group("clusters (docs/SCALE.md)")
-    for engine in engine_modules():  # each engine module adds its own options (generator/executor.py)
+    for engine in engine_modules():  # each engine module adds its own options
         engine.add_options(cluster)
     # A bad config or argument exits 2; a dataset on disk that does not fit (e.g. a damaged scene
     # outside this run's range) exits 1.
@@ -117,7 +140,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from generator import pipeline
+    from generator import pipeline, run_steps
     from generator.config import load_config, with_rig
     from generator.run_request import RunRequest
 
@@ -131,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
     if note:
         print(note, file=sys.stderr)
     if args.seal_only:
-        summary = pipeline.seal_run(request)
+        summary = run_steps.seal_run(request)
         missing = summary.failed
         text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
                 f"{args.scenes} scenes complete")

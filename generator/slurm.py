@@ -7,7 +7,7 @@ does), then writes two sbatch scripts under DATASET/slurm/TAG/ and submits them:
 `render`), and the sealing job with `--dependency=afterany:ARRAY_JOB` (its `seal`). Array task i
 runs the ordinary idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a
 requeued or failed task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
-(generator.pipeline.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
+(generator.run_steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
 Plain sbatch scripts (not submitit): no extra package on the login node, nothing pickled, and the
 scripts are what `--slurm-dry-run` prints and what a user can read, edit and resubmit.
 """
@@ -29,9 +29,9 @@ from typing import TYPE_CHECKING
 from generator.config import Config, ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.pipeline import RunSummary
     from generator.render_scenes import RenderJob
     from generator.run_request import RunRequest
+    from generator.run_steps import RunSummary
 
 SLURM_DIR = "slurm"
 VISIBLE_FILE = "visible"
@@ -233,7 +233,7 @@ class SlurmExecutor:
         self.array_id = ""
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob | None:
-        from generator.pipeline import prepare_run
+        from generator.run_steps import prepare_run
 
         self.slurm_plan = plan(request.config, Path(request.config.source).resolve(), request.out,
                                request.split, request.scenes, request.start, request.seed, self.options,
@@ -249,7 +249,7 @@ class SlurmExecutor:
     def render(self, request: RunRequest, job: RenderJob | None) -> RunSummary:
         """Write the scripts and the visibility marker and submit the array (dry run: nothing)."""
         from dotsim.file_io import atomic_write_bytes
-        from generator.pipeline import RunSummary
+        from generator.run_steps import RunSummary
 
         if self.dry_run:
             return RunSummary(out=request.out, submitted=self.slurm_plan.dry_run_text())

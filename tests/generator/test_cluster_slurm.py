@@ -12,8 +12,9 @@ import pytest
 from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from generator.config import load_config
-from generator.pipeline import generate, seal_run
+from generator.pipeline import generate
 from generator.run_request import RunRequest
+from generator.run_steps import seal_run
 from generator.slurm import SlurmOptions, plan
 from tests.generator.test_cluster_ray import tree_bytes
 from tests.generator.test_generate import TINY, run_cli

@@ -18,9 +18,11 @@ from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
-from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
+from generator.pipeline import generate
 from generator.post_render import RAW_PASSES, make_frame
+from generator.render_scenes import LOG_DIR
 from generator.run_request import RunRequest
+from generator.run_steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
 
 REPO = Path(__file__).resolve().parents[2]
