@@ -9,6 +9,7 @@ import sys
 from types import ModuleType
 
 from dotsim.dataset import FormatError
+from dotsim.option_types import integer_at_least
 from generator.config import ConfigError
 from generator.executor import Executor
 from generator.scene_spec import SPLITS
@@ -73,19 +74,6 @@ def executor_from_args(args: argparse.Namespace) -> Executor:
     if len(chosen) > 1:
         raise ConfigError(f"{' and '.join(executor.option for executor in chosen)}: choose one")
     return chosen[0] if chosen else LocalExecutor(args.workers or 1)
-
-
-def integer_at_least(low: int):
-    """An argparse type: an integer >= low; anything else is refused naming the value and the range."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low:
-            raise argparse.ArgumentTypeError(f"{text!r}: allowed: an integer >= {low}")
-        return value
-    return parse
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

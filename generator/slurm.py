@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from dotsim.option_types import integer_at_least
 from generator.config import Config, ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
@@ -174,8 +175,6 @@ def new_tag() -> str:
 
 def add_options(group: argparse._ArgumentGroup) -> None:
     """`dotsim generate`'s --slurm options."""
-    from generator.cli import integer_at_least
-
     group.add_argument("--slurm", action="store_true",
                        help="submit a Slurm job array (one task per range of scenes) and a sealing job "
                             "that runs when the array has ended; needs sbatch on PATH")
