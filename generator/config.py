@@ -15,6 +15,7 @@ Relative paths in a config file are resolved against the directory of that file;
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from dataclasses import dataclass, field, replace
@@ -25,12 +26,15 @@ from typing import TYPE_CHECKING
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.file_io import json_bytes
 from dotsim.rig import PRESETS
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
 
 if TYPE_CHECKING:
     from dotsim.rig_files import CalibratedRig
+
+SAVED_SUFFIX = ".json"  # a config saved by config_json; any other file is TOML
 
 
 @dataclass(frozen=True)
@@ -258,10 +262,37 @@ def _check_cross_fields(config: Config) -> None:
 
 
 def load_config(path: str | os.PathLike) -> Config:
-    """Read and validate a TOML config file, or a built-in config by name (dotsim.configs). Raises
-    ConfigError (naming the file) on any problem."""
+    """Read and validate a TOML config file, a built-in config by name (dotsim.configs), or a config
+    saved as JSON by `config_json` (the file a Slurm run's array tasks read). Raises ConfigError
+    (naming the file) on any problem."""
     path = config_path(path)
+    if path.suffix.lower() == SAVED_SUFFIX:
+        data = _read_saved(path)
+        return config_from_dict(data, source=data.pop("source"), base_dir=path.parent)
     return config_from_dict(config_schema.read_toml(path), source=str(path), base_dir=relative_base(path))
+
+
+def config_json(config: Config) -> bytes:
+    """The config as JSON (Config.to_dict: every value resolved, paths absolute, its `source`), for
+    `load_config` to read back as an equal Config wherever the same paths exist: how a config built
+    in python reaches processes on other machines (a Slurm run's array tasks)."""
+    return json_bytes(config.to_dict())
+
+
+def _read_saved(path: Path) -> dict:
+    """The dict of a config saved by config_json; ConfigError naming the file."""
+    try:
+        data = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file ({exc.strerror})") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("source"), str):
+        raise ConfigError(f"{path}: not a saved config (a JSON object with a \"source\" string and the "
+                          f"config's tables, as generator.config.config_json writes it)")
+    return data
 
 
 def with_rig(config: Config, spec: str) -> Config:
