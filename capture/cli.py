@@ -22,7 +22,7 @@ from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, ext
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, get_preset
 from dotsim.rig_files import RIG_FILE_SUFFIXES, CalibratedRig, RigFileError, configured_rig, load_rig_file
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
@@ -214,7 +214,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(docs/CAPTURE.md says what each device gives).",
     )
     _device_arguments(info)
-    info.add_argument("--max-depth", type=float, default=20.0, help="max_depth of the rig, m (default 20)")
+    info.add_argument("--max-depth", type=float, default=DEFAULT_MAX_DEPTH,
+                      help=f"max_depth of the rig, m (default {DEFAULT_MAX_DEPTH:g})")
     info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
     info.set_defaults(func=_info)
 

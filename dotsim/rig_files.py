@@ -26,7 +26,15 @@ from dotsim.calibration_files import (
     RigFileError,
     read_calibration,
 )
-from dotsim.rig import Intrinsics, Rig, check_square_pixels, get_preset, project_to_projector, rotation_matrix
+from dotsim.rig import (
+    DEFAULT_MAX_DEPTH,
+    Intrinsics,
+    Rig,
+    check_square_pixels,
+    get_preset,
+    project_to_projector,
+    rotation_matrix,
+)
 
 RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
 PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
@@ -125,7 +133,7 @@ def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
         translation = None if rotation is None else -rotation.T @ calibration.translation
         parts = _Parts(calibration.camera, calibration.projector, rotation, translation,
                        calibration.name or path.stem,
-                       calibration.max_depth if calibration.max_depth is not None else 20.0)
+                       calibration.max_depth if calibration.max_depth is not None else DEFAULT_MAX_DEPTH)
         if calibration.projector is not None and calibration.projector.distorted:
             raise RigFileError(f"{calibration.projector.where}: projector distortion "
                                f"{list(calibration.projector.distortion)} is not zero; dotsim's projector is "
@@ -253,7 +261,7 @@ def _explicit_intrinsics(settings, role: str, kept, where: str) -> Intrinsics | 
 
 
 def device_rig(name: str, camera: Intrinsics, projector_translation, second_camera_translation=None,
-               max_depth: float = 20.0) -> Rig:
+               max_depth: float = DEFAULT_MAX_DEPTH) -> Rig:
     """The rig of a sensor that reports its IR camera but not its projector's optics (RealSense,
     OpenNI2): the projector is drawn as the presets' are (2 projector px per camera px, a field 25%
     wider than the camera's, centred) at `projector_translation` (m, camera frame), unrotated.

@@ -84,8 +84,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--config", required=True, metavar="NAME_OR_TOML",
                         help="generator config: a built-in one's name (default, structure_core, kinect, "
                              "tiny, bench_accuracy; `dotsim config show NAME` prints it), a TOML file "
-                             "(keys: docs/CONFIG.md) or a config saved as JSON (generator.config.config_json: "
-                             "what a --slurm run's tasks read)")
+                             "(keys: docs/CONFIG.md) or a config saved as JSON "
+                             "(generator.config.config_json: what a --slurm run's tasks read)")
     parser.add_argument("--rig", metavar="PRESET_OR_FILE", default=None,
                         help="the rig instead of the config's [rig] preset / file: a preset (structure_core, "
                              "kinect_v1, realsense_d415) or a rig file (dotsim rig JSON, OpenCV, ROS "

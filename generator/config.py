@@ -24,10 +24,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from dotsim import config_schema
-from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, setting
+from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
 from dotsim.file_io import json_bytes
-from dotsim.rig import PRESETS
+from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
 
@@ -66,8 +66,8 @@ class RigConfig(Checked):
                                           "the preset's or file's rotation)", low=-30.0, high=30.0)
     projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
-    max_depth: float = setting(20.0, "largest depth in metres treated as valid ground truth", low=0.5,
-                               high=1000.0)
+    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
+                               **bounds_of(Rig, "max_depth"))
     camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
                                 "set camera_width, camera_height and camera_fx to give one; width and "
                                 "height alone give the size of a file's camera that has none)", low=0,

@@ -11,7 +11,7 @@ import pytest
 
 from dotsim.rig import PRESET_DIR, PRESETS, Intrinsics, Rig, project_to_projector, rotation_matrix
 from dotsim.rig_files import RigFileError, check_rig, configured_rig, load_rig_file, rig_file_json
-from generator.config import ConfigError, config_from_dict, load_config
+from generator.config import ConfigError, RigConfig, config_from_dict, load_config
 from generator.sample_scene import build_rig
 
 # A calibrated-looking rig: off-centre principal points, projector slightly rotated and offset.
@@ -70,6 +70,30 @@ def test_sizes_as_separate_width_and_height_keys(tmp_path):
     storage.release()
     rig = load_rig_file(path).rig
     assert rig.name == "bench_rig" and rig.max_depth == 6.5 and rig.is_rectified and rig.baseline == 0.05
+
+
+@pytest.mark.parametrize("max_depth", [None, 0.5, 1000.0, 0.49, 1000.5])
+def test_max_depth_of_a_rig_file_has_the_configs_bounds_and_default(tmp_path, max_depth):
+    """One bound for max_depth: a calibration file's is held to the config's [rig] max_depth range,
+    and a file without one gets the config's default."""
+    path = tmp_path / "calib.yaml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("K1", K1), ("K2", K2), ("R", np.eye(3)), ("T", np.array([[-0.05], [0.0], [0.0]])),
+                       ("image_size", np.array([[640, 480]])), ("projector_size", np.array([[1600, 1200]]))):
+        storage.write(key, value)
+    if max_depth is not None:
+        storage.write("max_depth", max_depth)
+    storage.release()
+    config_rule = RigConfig.__dataclass_fields__["max_depth"]
+    if max_depth is None or 0.5 <= max_depth <= 1000.0:
+        expected = config_rule.default if max_depth is None else max_depth
+        assert load_rig_file(path).rig.max_depth == expected
+        config_from_dict({"rig": {"max_depth": expected}})  # the config takes it too
+    else:
+        with pytest.raises(RigFileError, match=r"max_depth = .*allowed: a number, 0.5 <= x <= 1000"):
+            load_rig_file(path)
+        with pytest.raises(ConfigError, match=r"max_depth = .*allowed: a number, 0.5 <= x <= 1000"):
+            config_from_dict({"rig": {"max_depth": max_depth}})
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
