@@ -29,7 +29,17 @@ from dotsim.configs import config_path, relative_base
 from dotsim.file_io import json_bytes
 from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
-from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
+from generator.scene_spec import (
+    PRIMITIVE_SHAPES,
+    MaskParams,
+    Material,
+    PointLight,
+    RenderConfig,
+    SceneSpec,
+    SensorConfig,
+    SensorModel,
+    Texture,
+)
 
 if TYPE_CHECKING:
     from dotsim.rig_files import CalibratedRig
@@ -53,7 +63,7 @@ class RigConfig(Checked):
                                   "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
                                   path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
-                           "width and height, same field of view)", low=0.02, high=1.0)
+                           "width and height, same field of view)", **bounds_of(SensorModel, "pixel_scale"))
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
                               "file's)",
                               low=-0.5, high=0.5)
@@ -135,37 +145,39 @@ class SceneConfig(Checked):
                                       choices=PRIMITIVE_SHAPES, min_items=1)
     room_size: FloatRange = setting((4.0, 14.0), "room width and depth, m", low=0.5, high=200.0)
     room_height: FloatRange = setting((2.4, 4.0), "room height, m", low=0.5, high=50.0)
-    albedo: FloatRange = setting((0.05, 0.95), "infrared reflectance", low=0.0, high=1.0)
+    albedo: FloatRange = setting((0.05, 0.95), "infrared reflectance", **bounds_of(Material, "albedo"))
     textured_share: float = setting(0.8, "share of surfaces with a reflectance texture", low=0.0, high=1.0)
     texture_scale: FloatRange = setting((0.5, 4.0), "texture tiles per metre of surface (built-in "
                                         "textures; cached ones carry their own tile size)", low=0.01,
                                         high=1000.0)
     texture_contrast: FloatRange = setting((0.2, 1.0), "texture contrast (0 = flat albedo)",
-                                           low=0.0, high=1.0)
-    roughness: FloatRange = setting((0.3, 1.0), "roughness of ordinary surfaces", low=0.0,
-                                    high=1.0)
-    specular: FloatRange = setting((0.0, 0.5), "specular level of ordinary surfaces", low=0.0,
-                                   high=1.0)
+                                           **bounds_of(Texture, "contrast"))
+    roughness: FloatRange = setting((0.3, 1.0), "roughness of ordinary surfaces",
+                                    **bounds_of(Material, "roughness"))
+    specular: FloatRange = setting((0.0, 0.5), "specular level of ordinary surfaces",
+                                   **bounds_of(Material, "specular"))
     glossy_share: float = setting(0.15, "share of glossy objects (roughness and specular from the glossy"
                                   " ranges)", low=0.0, high=1.0)
-    glossy_roughness: FloatRange = setting((0.02, 0.2), "roughness of glossy objects", low=0.0,
-                                           high=1.0)
+    glossy_roughness: FloatRange = setting((0.02, 0.2), "roughness of glossy objects",
+                                           **bounds_of(Material, "roughness"))
     glossy_specular: FloatRange = setting((0.5, 1.0), "specular level of glossy objects",
-                                          low=0.0, high=1.0)
+                                          **bounds_of(Material, "specular"))
 
 
 @dataclass(frozen=True)
 class LightingConfig(Checked):
     world_strength: FloatRange = setting((0.001, 0.3), "constant ambient (world) strength, "
                                          "log-uniform: dark rooms to bright ambient light",
-                                         low=0.0, high=100.0)
+                                         **bounds_of(SceneSpec, "world_strength"))
     extra_lights: IntRange = setting((0, 3), "number of extra point lights", low=0, high=100)
     light_power: FloatRange = setting((5.0, 200.0), "power of an extra point light, W "
-                                      "(log-uniform)", low=0.0, high=1e6)
+                                      "(log-uniform)", **bounds_of(PointLight, "power"))
     light_radius: FloatRange = setting((0.02, 0.3), "radius of an extra point light, m",
-                                       low=0.0, high=10.0)
+                                       **bounds_of(PointLight, "radius"))
+    # A scene's spec may switch its projector off; a config's scenes always have one (0 left out).
     projector_power: FloatRange = setting((60.0, 200.0), "projector power, W for a fully white "
-                                          "pattern pixel", low=0.0, high=1e6, low_open=True)
+                                          "pattern pixel",
+                                          **{**bounds_of(SceneSpec, "projector_power"), "low_open": True})
     flood_ratio: float = setting(1.0, "flood rectangle power as a multiple of the projector power",
                                  low=0.0, high=100.0, low_open=True)
 
