@@ -72,10 +72,6 @@ class RenderSettings(RenderConfig):
     `direct_light` read as "separate")."""
     seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
-    def to_dict(self) -> dict:
-        return {"samples": self.samples, "seed": self.seed, "max_bounces": self.max_bounces,
-                "device": self.device, "threads": self.threads, "direct_light": self.direct_light}
-
     @classmethod
     def from_dict(cls, d: Any, where: str) -> RenderSettings:
         return record_from_dict(cls, d, where, optional=("direct_light",))
