@@ -23,7 +23,7 @@ from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, get_preset
-from dotsim.rig_files import RIG_FILE_SUFFIXES, CalibratedRig, RigFileError, configured_rig, load_rig_file
+from dotsim.rig_files import CalibratedRig, RigFileError, configured_rig, load_rig_file
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
@@ -35,22 +35,23 @@ def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
     projector_file combine as in `dotsim generate`); then scaled. The lens of a calibrated camera comes
     with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
     """
-    try:
-        if spec in PRESETS:
-            calibrated = CalibratedRig(get_preset(spec))
-        elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-            calibrated = load_rig_file(spec)
-        elif Path(spec).suffix.lower() == ".toml":
-            from generator.config import ConfigError, load_config
+    from generator.config import ConfigError, load_config, rig_settings
 
+    try:
+        if Path(spec).suffix.lower() == ".toml":
             try:
                 config = load_config(spec)
             except ConfigError as error:
                 raise CaptureError(f"--rig {error}") from None
             calibrated = configured_rig(replace(config.rig, scale=1.0), f"{config.source}: [rig]")
         else:
-            raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}), a rig file "
-                               f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
+            try:
+                settings = rig_settings(spec, also=("a generator config (.toml)",))
+            except ConfigError as error:
+                raise CaptureError(str(error)) from None
+            # the preset's or file's rig as it is (its own max_depth), not a config's [rig]
+            calibrated = (load_rig_file(settings.file) if settings.file
+                          else CalibratedRig(get_preset(settings.preset)))
     except RigFileError as error:
         raise CaptureError(f"--rig {error}") from None
     if scale != 1.0:

@@ -307,17 +307,22 @@ def _read_saved(path: Path) -> dict:
     return data
 
 
-def with_rig(config: Config, spec: str) -> Config:
-    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file: a preset
-    name, or a rig file (any layout dotsim.rig_files reads). Raises ConfigError naming --rig."""
+def rig_settings(spec: str, rig: RigConfig = RigConfig(), also: tuple[str, ...] = ()) -> RigConfig:
+    """[rig] settings `rig` with `--rig SPEC` in place of their preset / file: SPEC is a preset name,
+    or a rig file (any layout dotsim.rig_files reads; made absolute). Raises ConfigError naming
+    --rig and what it allows (`also`: what the caller allows besides, named in that message)."""
     if spec in PRESETS:
-        rig = replace(config.rig, preset=spec, file="")
-    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-        rig = replace(config.rig, file=str(Path(spec).resolve()))
-    else:
-        raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a rig file "
-                          f"({', '.join(RIG_FILE_SUFFIXES)})")
-    config = replace(config, rig=rig)
+        return replace(rig, preset=spec, file="")
+    if Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
+        return replace(rig, file=str(Path(spec).resolve()))
+    allowed = [f"a preset ({', '.join(PRESETS)})", f"a rig file ({', '.join(RIG_FILE_SUFFIXES)})", *also]
+    raise ConfigError(f"--rig {spec!r}: neither {', '.join(allowed[:-1])} nor {allowed[-1]}")
+
+
+def with_rig(config: Config, spec: str) -> Config:
+    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file
+    (rig_settings); its other [rig] keys still apply. Raises ConfigError naming --rig."""
+    config = replace(config, rig=rig_settings(spec, config.rig))
     _resolve_rig(config, f"--rig {spec}: with ")
     return config
 
