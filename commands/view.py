@@ -19,7 +19,6 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ import numpy as np
 from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
 from dotsim.false_colour import colourise
-from dotsim.file_io import temporary_name
+from dotsim.file_io import atomic_write_bytes
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
 
@@ -156,26 +155,19 @@ def view(path, scene_index: int | None = None, frame: int | None = None, predict
     scene_path = scene_path_of(path, scene_index)
     if predictions is not None and not Path(predictions).is_dir():
         raise ViewError(f"{predictions}: no such folder (--predictions takes `dotsim infer`'s --out)")
+    if save is not None and Path(save).suffix != ".rrd":
+        raise ViewError(f"{save}: a recording is written as .rrd")
     rec = rr.RecordingStream("dotsim", recording_id=str(scene_path.resolve()))
-    tmp = None
-    if save is not None:
-        save = Path(save)
-        if save.suffix != ".rrd":
-            raise ViewError(f"{save}: a recording is written as .rrd")
-        tmp = save.with_name(temporary_name(save.name))
-        rec.save(tmp)
-    else:
+    # A recording to save is kept in memory and written by the atomic writer, which names a full
+    # disk or an unusable folder (Rerun's own file sink leaves a truncated file and says nothing).
+    recording = rec.memory_recording() if save is not None else None
+    if recording is None:
         rec.spawn()
-    try:
-        sizes = log_scene(rec, scene_path, None if frame is None else [frame],
-                          None if predictions is None else Path(predictions), verify)
-        rec.flush(blocking=True)
-        if tmp is not None:
-            rec.disconnect()
-            os.replace(tmp, save)
-    finally:
-        if tmp is not None:
-            tmp.unlink(missing_ok=True)
+    sizes = log_scene(rec, scene_path, None if frame is None else [frame],
+                      None if predictions is None else Path(predictions), verify)
+    rec.flush(blocking=True)
+    if recording is not None:
+        atomic_write_bytes(save, recording.drain_as_bytes())
     return sizes
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -26,7 +25,7 @@ from typing import TYPE_CHECKING
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
-from dotsim.file_io import json_bytes
+from dotsim.file_io import WriteError, check_writable_folder, json_bytes
 from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from generator.scene_spec import (
@@ -337,26 +336,13 @@ def _resolve_rig(config: Config, prefix: str = "") -> None:
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
-    """Make sure `out` is (or can become) a writable directory, without leaving anything behind.
-
-    Probes the nearest existing ancestor by creating and deleting a temporary file (permission bits
-    alone say nothing for root or read-only mounts). Returns the absolute path; raises ConfigError
-    naming the directory and the problem.
-    """
-    out = Path(out).absolute()
-    existing = out
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ConfigError(f"{source} {out}: {existing} is a file, not a directory; allowed: a writable "
-                          "directory")
+    """`out` made absolute once it is known to be (or able to become) a writable directory
+    (dotsim.file_io.check_writable_folder: nothing is left behind); ConfigError naming `source`, the
+    directory and the problem."""
     try:
-        with tempfile.TemporaryFile(dir=existing, prefix=".dotsim-write-test-"):
-            pass
-    except OSError as exc:
-        raise ConfigError(f"{source} {out}: {existing} is not writable ({exc.strerror}); allowed: a "
-                          "writable directory") from None
-    return out
+        return check_writable_folder(out, source)
+    except WriteError as error:
+        raise ConfigError(str(error)) from None
 
 
 def config_reference_markdown() -> str:

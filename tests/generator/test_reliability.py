@@ -28,6 +28,7 @@ from generator.config import load_config
 from generator.pipeline import generate
 from generator.render_scenes import LOG_DIR
 from generator.resources import TEXTURE_DIR
+from tests.output_folders import leftovers
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -38,10 +39,6 @@ def frame_sums(root: Path) -> dict[str, str]:
     """sha256 of every frame file, by path relative to the dataset (computed with hashlib)."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(root.glob("shard_*/scene_*/frame_*.exr"))}
-
-
-def leftovers(root: Path) -> list[Path]:
-    return sorted(root.rglob(".tmp-*"))
 
 
 @pytest.fixture(scope="module")
