@@ -43,7 +43,9 @@ def leftovers(root: Path) -> list[Path]:
 
 
 def assert_one_line_error(err: str, *names: object) -> None:
-    """A command's stderr: one error line, no traceback, naming each of `names`."""
-    assert err.count("\n") == 1 and "Traceback" not in err and ": error: " in err, err
+    """A command's stderr: one error line (besides a progress bar's, redrawn with carriage returns),
+    no traceback, naming each of `names`."""
+    lines = [line for line in err.split("\n") if line and "\r" not in line]
+    assert len(lines) == 1 and "Traceback" not in err and ": error: " in lines[0], err
     for name in names:
-        assert str(name) in err, (name, err)
+        assert str(name) in lines[0], (name, err)

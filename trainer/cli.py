@@ -6,6 +6,7 @@ import argparse
 from functools import partial
 
 from dotsim.dataset import FormatError
+from dotsim.file_io import check_writable_folder
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
@@ -17,6 +18,7 @@ def _train(args: argparse.Namespace) -> None:
     from trainer.distributed import run_on_ranks
     from trainer.train import disk_full_in, train
 
+    check_writable_folder(args.out, "--out")  # before the data is read or a rank started
     if args.nproc < 1:
         raise DataError(f"--nproc {args.nproc}: need at least 1 process")
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
@@ -30,6 +32,7 @@ def _train(args: argparse.Namespace) -> None:
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
+    check_writable_folder(args.out, "--out")
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
              max_frames=args.max_frames, images=args.images, precision=args.precision,
              val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames)
@@ -38,6 +41,7 @@ def _eval(args: argparse.Namespace) -> None:
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
+    check_writable_folder(args.out, "--out")
     infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision)
 
 
