@@ -20,7 +20,7 @@ from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
 from dotsim.dataset import INDEX_FILE, FormatError
-from dotsim.file_io import atomic_write_bytes
+from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, get_preset
 from dotsim.rig_files import CalibratedRig, RigFileError, configured_rig, load_rig_file
@@ -260,6 +260,7 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 def _import(args: argparse.Namespace) -> int:
+    check_writable_folder(args.out, "--out")  # before any frame is read
     if args.bag is not None:
         return _import_recording(args)
     start = time.perf_counter()
@@ -340,6 +341,7 @@ def _load_wall_images(specs: list[str], what: str, channel: str) -> list:
 
 
 def _pattern(args: argparse.Namespace) -> int:
+    check_writable_folder(args.output.parent, "-o")  # before the captures are read
     start = time.perf_counter()
     try:
         if args.output.suffix.lower() != ".png":
@@ -380,6 +382,7 @@ def _pattern(args: argparse.Namespace) -> int:
         "settings": {"dot_window": args.dot_window, "detect_threshold": args.detect_threshold},
     }
     # the centres and the record first: the pattern file appearing means the set is complete
+    make_folder(args.output.parent)
     atomic_write_bytes(args.output.with_suffix(".csv"), csv.getvalue().encode())
     atomic_write_bytes(args.output.with_suffix(".json"), (json.dumps(record, indent=2) + "\n").encode())
     result.pattern.save_png(args.output)
@@ -398,6 +401,7 @@ def _pattern(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
+    check_writable_folder(args.out, "--out")  # before the device is opened
     start = time.perf_counter()
     try:
         pattern = load_pattern(args.pattern) if args.pattern else None
@@ -423,6 +427,7 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
+    check_writable_folder(args.output.parent, "-o")  # before the device is opened
     try:
         if args.output.suffix.lower() != ".json":
             raise CaptureError(f"-o {args.output}: the rig file is written as .json")
@@ -430,6 +435,7 @@ def _info(args: argparse.Namespace) -> int:
             rig, data = device_rig_file(device, args.max_depth)
     except (CaptureError, ValueError) as error:
         return _fail("info", error)
+    make_folder(args.output.parent)
     atomic_write_bytes(args.output, data)
     camera = rig.camera
     print(f"{device.name}: IR {camera.width}x{camera.height} px, fx {camera.fx:.2f} fy {camera.fy:.2f}, "
