@@ -15,11 +15,13 @@ from assets_manifest.cache import (
 )
 from assets_manifest.manifest import ManifestError, find_overlaps, load_manifest
 from assets_manifest.mesh_arrays import MeshError, load_mesh_npz
+from dotsim.file_io import check_writable_folder
 
 SPLITS = ("train", "test")
 
 
 def _build(args) -> int:
+    check_writable_folder(args.cache, "--cache")  # before anything is built
     manifest_path = Path(args.manifest) if args.manifest else default_manifest_path(args.split)
     try:
         manifest = load_manifest(manifest_path)
