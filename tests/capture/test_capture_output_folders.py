@@ -12,6 +12,7 @@ from commands.cli import main
 from dotsim.rig import get_preset
 from dotsim.rig_files import rig_file_json
 from tests.output_folders import assert_one_line_error, leftovers
+from tests.trainer_fixtures import make_dataset
 
 RIG = get_preset("structure_core").scaled(0.1)  # camera 122 x 90
 
@@ -65,3 +66,10 @@ def test_a_full_output_folder_is_one_line_and_leaves_nothing_half_written(comman
     assert main(commands(inputs, out)[command]) == 1
     assert_one_line_error(capsys.readouterr().err, out, "no space left on device")
     assert not leftovers(tmp_path) and not list(out.glob("shard_*/scene_*"))
+
+
+def test_record_refuses_a_dataset_of_rendered_scenes(inputs, tmp_path, capsys):
+    """A dataset holds one kind of data (issue 37, item 4)."""
+    data = make_dataset(tmp_path / "rendered", scenes=1, frames_per_scene=1)
+    assert main(commands(inputs, data)["record"]) == 2
+    assert_one_line_error(capsys.readouterr().err, f"{data}: holds rendered scenes")
