@@ -39,8 +39,8 @@ from dotsim.file_io import sha256_bytes, sha256_file
 # Kinds of problem: a damaged scene (repair removes it; the generator writes it again), a seal
 # that is not true to the disk (repair seals again), a shard.json that index.json does not vouch
 # for or that disagrees with its scenes (repair removes it; the seal derives it again from the
-# intact scenes), a dataset-level file that no longer matches index.json (repair cannot know the
-# right bytes; sealing would bless the wrong ones).
+# intact scenes), a dataset-level file that no longer matches index.json or that it does not list
+# (repair cannot know the right bytes; sealing would bless the wrong ones or an unknown file).
 SCENE, SEAL, SHARD, FILE = "scene", "seal", "shard", "file"
 
 
@@ -180,7 +180,9 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
     for path in sorted(root.iterdir()):
         if path.is_file() and path.name not in files and path.name != INDEX_FILE \
                 and not path.name.startswith("."):
-            report.add(path, f"not listed in {INDEX_FILE} (written after the seal)")
+            report.add(path, f"not listed in {INDEX_FILE} (written after the seal); repair does not seal "
+                             f"over it: move it out of the dataset, or delete it if `dotsim generate` "
+                             f"writes it", FILE)
     sealed: dict[str, tuple[dict[str, dict] | None, bool]] = {}
     vouched_all: list[tuple[dict, str]] = []
     for entry in index.get("shards", []):
@@ -264,7 +266,8 @@ def repair_dataset(report: VerifyReport) -> RepairResult:
     scenes: the damaged scenes, the shard.json files index.json does not vouch for or whose
     entries disagree with their scenes (the seal derives them again from the scenes' own
     checksums) and the leftovers of crashed writers. A changed file is never hashed into the seal.
-    A dataset-level file that no longer matches index.json stops the seal."""
+    A dataset-level file that no longer matches index.json, or that index.json does not list,
+    stops the seal: verify flagged it, so the seal must not vouch for it."""
     root = report.root
     scenes_per_shard = read_layout(root)
     removed = [index for index in report.damaged_scenes if remove_scene(root, index, scenes_per_shard)]
