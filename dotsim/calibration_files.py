@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dotsim.file_io import DuplicateKeyError, unique_keys
+
 CALIBRATION_SUFFIXES = (".json", ".yaml", ".yml", ".xml")
 
 # Names of each part, the cv2.stereoCalibrate / stereo_calib sample ones first.
@@ -66,24 +68,6 @@ STEREO_CALIB_PAIR = ("intrinsics", "extrinsics")  # the stereo_calib sample's fi
 class RigFileError(ValueError):
     """A calibration file that cannot be read or holds a key or value dotsim cannot use; the message
     names the file and the key."""
-
-
-class _DuplicateKey(Exception):
-    """A mapping of the file gives one key twice (the readers take different ones: refused)."""
-
-    def __init__(self, key):
-        super().__init__(key)
-        self.key = key
-
-
-def _unique(pairs) -> dict:
-    """A mapping from (key, value) pairs; _DuplicateKey when a key comes twice."""
-    mapping = {}
-    for key, value in pairs:
-        if key in mapping:
-            raise _DuplicateKey(key)
-        mapping[key] = value
-    return mapping
 
 
 @dataclass(frozen=True)
@@ -191,14 +175,14 @@ def read_tree(path: Path) -> dict:
     try:
         if suffix == ".json":
             try:
-                tree = json.loads(text, object_pairs_hook=_unique)
-            except ValueError as error:
+                tree = json.loads(text, object_pairs_hook=unique_keys)
+            except json.JSONDecodeError as error:
                 raise RigFileError(f"{path}: not valid JSON ({error})") from None
         elif suffix != ".xml" and not text.lstrip().startswith("%YAML"):
             tree = _plain_yaml_tree(path, text)
         else:
             tree = _file_storage_tree(path, text)
-    except _DuplicateKey as duplicate:
+    except DuplicateKeyError as duplicate:
         raise RigFileError(f"{path}: key {duplicate.key!r} is given twice in one mapping; allowed: each key "
                            "once (YAML readers keep the last, OpenCV's the first)") from None
     if not isinstance(tree, dict):
@@ -214,8 +198,8 @@ def _plain_yaml_tree(path: Path, text: str):
 
     def mapping(loader, node, deep=False):
         loader.flatten_mapping(node)
-        return _unique((loader.construct_object(key, deep=deep), loader.construct_object(value, deep=deep))
-                       for key, value in node.value)
+        return unique_keys((loader.construct_object(key, deep=deep),
+                            loader.construct_object(value, deep=deep)) for key, value in node.value)
 
     UniqueKeys.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
     try:
@@ -255,7 +239,7 @@ def _node_value(node, where):
                 reason = str(error).strip().splitlines()[-1]
                 raise RigFileError(f"{where}: {key}: OpenCV cannot read its value ({reason})") from None
 
-        return _unique((key, value(key)) for key in node.keys())
+        return unique_keys((key, value(key)) for key in node.keys())
     if node.isSeq():
         return [_node_value(node.at(k), where) for k in range(node.size())]
     if node.isInt():

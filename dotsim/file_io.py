@@ -228,6 +228,33 @@ def json_bytes(obj) -> bytes:
     return (json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n").encode()
 
 
+class DuplicateKeyError(ValueError):
+    """A JSON object (or YAML or FileStorage mapping) gives one key twice; `key` is that key."""
+
+    def __init__(self, key):
+        super().__init__(f"key {key!r} is given twice")
+        self.key = key
+
+
+def unique_keys(pairs) -> dict:
+    """A mapping from (key, value) pairs, DuplicateKeyError when a key comes twice: the
+    object_pairs_hook of every JSON file dotsim reads (json keeps the last of two silently, other
+    readers the first).
+
+    >>> json.loads('{"a": 1, "b": 2}', object_pairs_hook=unique_keys)
+    {'a': 1, 'b': 2}
+    >>> json.loads('{"a": 1, "a": 2}', object_pairs_hook=unique_keys)
+    Traceback (most recent call last):
+    dotsim.file_io.DuplicateKeyError: key 'a' is given twice
+    """
+    mapping = {}
+    for key, value in pairs:
+        if key in mapping:
+            raise DuplicateKeyError(key)
+        mapping[key] = value
+    return mapping
+
+
 def atomic_write_json(path: str | os.PathLike, obj) -> Path:
     """Write `obj` as canonical JSON (json_bytes) to `path` atomically; returns the path."""
     return atomic_write_bytes(path, json_bytes(obj))

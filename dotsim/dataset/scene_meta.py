@@ -65,8 +65,9 @@ def parse_scene_meta(path: Path, data: bytes) -> dict:
         raise FormatError(f"{path}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
     frames = require(meta, "frames", list, path)
     if len(frames) != require(meta, "frame_count", int, path) or not all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
-            for e in frames):
-        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file, sha256}}")
+            isinstance(e, dict) and isinstance(e.get("file"), str) and e["file"] == Path(e["file"]).name
+            and e["file"] not in ("", ".", "..") and isinstance(e.get("sha256"), str) for e in frames):
+        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file: a file name in the "
+                          f"scene folder, sha256}}")
     camera_size(meta, path)
     return meta

@@ -24,8 +24,8 @@ from dotsim.dataset.layout import (
     SCENE_FILE,
     SHARD_FILE,
     FormatError,
-    check_format_version,
-    load_json,
+    parse_index,
+    parse_shard,
     read_layout,
     scene_dirs,
     shard_dirs,
@@ -163,8 +163,7 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
     shards, its summary fields and the dataset-level files."""
     index_path = root / INDEX_FILE
     try:
-        index = load_json(index_path)
-        check_format_version(index.get("format_version"), index_path)
+        index = parse_index(index_path)
     except FormatError as error:
         hint = "" if index_path.exists() else " (the dataset is not sealed)"
         report.add(index_path, str(error).removeprefix(f"{index_path}: ") + hint)
@@ -198,11 +197,11 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
             report.add(path, f"sha256 differs from the one in {INDEX_FILE} (a seal was interrupted, "
                              f"or the file changed); repair derives it again from the intact scenes", SHARD)
         try:
-            shard = load_json(path, data)
-            sealed[entry["name"]] = ({s["name"]: s for s in shard["scenes"]}, vouched)
-        except (FormatError, KeyError, TypeError):
-            report.add(path, "not a valid shard.json", SHARD)
+            shard = parse_shard(path, data)
+        except FormatError as error:
+            report.add(path, f"not a valid shard.json ({str(error).removeprefix(f'{path}: ')})", SHARD)
             continue
+        sealed[entry["name"]] = ({s["name"]: s for s in shard["scenes"]}, vouched)
         if vouched:
             vouched_all.append((shard, entry["sha256"]))
     if len(vouched_all) == len(index.get("shards", [])):
