@@ -16,6 +16,7 @@ from assets_manifest.cache import (
 from assets_manifest.manifest import ManifestError, find_overlaps, load_manifest
 from assets_manifest.mesh_arrays import MeshError, load_mesh_npz
 from dotsim.file_io import check_writable_folder
+from dotsim.option_types import integer
 
 SPLITS = ("train", "test")
 
@@ -160,7 +161,7 @@ def add_parser(subparsers) -> None:
     )
     build.add_argument(
         "--workers",
-        type=int,
+        type=integer(0),
         default=0,
         help="processes building assets in parallel (default 0: one per CPU core); the result does not "
         "depend on it",
@@ -194,5 +195,5 @@ def add_parser(subparsers) -> None:
         "--cache", default=DEFAULT_CACHE_DIR, help=f"cache directory (default: {DEFAULT_CACHE_DIR})"
     )
     preview.add_argument("-o", "--output", help="PNG to write (default: assets_<split>.png)")
-    preview.add_argument("--count", type=int, default=24, help="meshes and textures each (default 24)")
+    preview.add_argument("--count", type=integer(1), default=24, help="meshes and textures each (default 24)")
     preview.set_defaults(func=_preview)

@@ -19,11 +19,14 @@ from capture.import_frames import import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
+from dotsim.config_schema import bounds_of
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
+from dotsim.option_types import integer, number
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, get_preset
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig, get_preset
 from dotsim.rig_files import CalibratedRig, RigFileError, configured_rig, load_rig_file
+from generator.config import ConfigError, OutputConfig, load_config, rig_settings
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
@@ -35,8 +38,6 @@ def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
     projector_file combine as in `dotsim generate`); then scaled. The lens of a calibrated camera comes
     with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
     """
-    from generator.config import ConfigError, load_config, rig_settings
-
     try:
         if Path(spec).suffix.lower() == ".toml":
             try:
@@ -71,7 +72,7 @@ def _rig_arguments(parser: argparse.ArgumentParser, default_note: str = "") -> N
                         "or a generator config whose [rig] gives it (camera_file with a preset's projector, "
                         "...); the frames must have its camera resolution, and a calibrated lens "
                         "(distortion) is rectified to the rig's pinhole camera")
-    parser.add_argument("--scale", type=float, default=1.0,
+    parser.add_argument("--scale", type=number(0.0, 1.0, low_open=True), default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")
 
@@ -80,16 +81,17 @@ def _dataset_arguments(parser: argparse.ArgumentParser) -> None:
     """What a real-capture dataset records beside its frames (import and record alike)."""
     parser.add_argument("--split", choices=("train", "test"), default="test",
                         help="split recorded for every scene (default test)")
-    parser.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+    parser.add_argument("--dot-window", type=integer(1), default=DEFAULT_DOT_WINDOW,
                         help="px; at least the widest gap between neighbouring dots in the image "
                         f"(default {DEFAULT_DOT_WINDOW})")
-    parser.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
+    parser.add_argument("--visibility-threshold", type=number(0.0), default=DEFAULT_VISIBILITY_THRESHOLD,
                         help="visible where the dots add more than this share of the 99th-percentile "
                         f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
     parser.add_argument("--pattern", type=Path,
                         help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
                         "DATASET/pattern.png and referenced by every scene")
-    parser.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    parser.add_argument("--scenes-per-shard", type=integer(**bounds_of(OutputConfig, "scenes_per_shard")),
+                        default=100, help="scenes per shard (default 100)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -124,9 +126,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     imp.add_argument("--off", metavar="DIR_OR_GLOB", help="projector-off frames, likewise (with --on)")
     _rig_arguments(imp, "; with --bag: the recording's own calibration")
     imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
-    imp.add_argument("--frames-per-scene", type=int, default=4,
+    imp.add_argument("--frames-per-scene", type=integer(1), default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
-    imp.add_argument("--white-level", type=float,
+    imp.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: full scale of the files: 255, 65535, "
                      "or 1 for EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
     imp.add_argument("--settings", type=Path,
@@ -152,21 +154,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="projector-off captures of the same wall (averaged and subtracted), or a "
                      "recorded dataset (its ambient frames); leave out in a dark room")
     depth = pat.add_mutually_exclusive_group(required=True)
-    depth.add_argument("--distance", type=float, metavar="Z",
+    depth.add_argument("--distance", type=number(0.0, low_open=True), metavar="Z",
                        help="planar distance of the wall in metres (wall facing the camera squarely)")
     depth.add_argument("--depth-map", type=Path, metavar="FILE",
                        help="the wall's planar depth map at the camera resolution (PNG in millimetres or "
                        "EXR in metres; 0 = no reading), e.g. the sensor's own, for a tilted wall")
-    pat.add_argument("--depth-scale", type=float,
+    pat.add_argument("--depth-scale", type=number(0.0, low_open=True),
                      help="metres per depth-map unit (default 0.001 for PNG, 1 for EXR)")
     _rig_arguments(pat)
-    pat.add_argument("--dot-sigma", type=float,
+    pat.add_argument("--dot-sigma", type=number(0.0, low_open=True),
                      help="Gaussian std of the pattern's dots in projector px (default: measured "
                      "from the captures)")
-    pat.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+    pat.add_argument("--dot-window", type=integer(1), default=DEFAULT_DOT_WINDOW,
                      help="px; at least the widest gap between neighbouring dots in the image: sets "
                      f"the local brightness scale (default {DEFAULT_DOT_WINDOW})")
-    pat.add_argument("--detect-threshold", type=float, default=DEFAULT_DETECT_THRESHOLD,
+    pat.add_argument("--detect-threshold", type=number(0.0, 1.0), default=DEFAULT_DETECT_THRESHOLD,
                      help="keep local maxima above this share of the local dot brightness "
                      f"(default {DEFAULT_DETECT_THRESHOLD})")
     pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
@@ -186,19 +188,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     _device_arguments(rec)
     rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
-    rec.add_argument("--scenes", type=int, default=1, help="scenes to record (default 1)")
-    rec.add_argument("--frames", type=int, default=4, help="poses per scene (default 4)")
+    rec.add_argument("--scenes", type=integer(1), default=1, help="scenes to record (default 1)")
+    rec.add_argument("--frames", type=integer(1), default=4, help="poses per scene (default 4)")
     rec.add_argument("--rig", help="rig preset, rig file or generator config (as for import) for the frames "
                      "(default: the device's own calibration, as `capture info` writes it; required for "
                      "opencv devices); a calibrated lens is rectified to the rig's pinhole camera")
-    rec.add_argument("--exposure", type=float, help="fixed exposure in the device's units (default: as set)")
-    rec.add_argument("--gain", type=float, help="fixed gain in the device's units (default: as set)")
-    rec.add_argument("--settle", type=int, default=3,
+    rec.add_argument("--exposure", type=number(0.0, low_open=True),
+                     help="fixed exposure in the device's units (default: as set)")
+    rec.add_argument("--gain", type=number(0.0, low_open=True),
+                     help="fixed gain in the device's units (default: as set)")
+    rec.add_argument("--settle", type=integer(0), default=3,
                      help="frames dropped after switching the projector when the frames do not report its "
                      "state (default 3)")
-    rec.add_argument("--pause", type=float, default=0.0,
+    rec.add_argument("--pause", type=number(0.0), default=0.0,
                      help="seconds between poses, to move the sensor or the scene (default 0)")
-    rec.add_argument("--white-level", type=float,
+    rec.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
     _dataset_arguments(rec)
@@ -215,7 +219,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(docs/CAPTURE.md says what each device gives).",
     )
     _device_arguments(info)
-    info.add_argument("--max-depth", type=float, default=DEFAULT_MAX_DEPTH,
+    info.add_argument("--max-depth", type=number(**bounds_of(Rig, "max_depth")), default=DEFAULT_MAX_DEPTH,
                       help=f"max_depth of the rig, m (default {DEFAULT_MAX_DEPTH:g})")
     info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
     info.set_defaults(func=_info)
@@ -233,7 +237,7 @@ def _device_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the sensor: {DEVICE_SYNTAX} (RealSense needs the extra dotsim[realsense], "
                         "OpenNI2 dotsim[openni2])")
     parser.add_argument("--size", type=_size, metavar="WxH", help="IR stream size (default: the device's)")
-    parser.add_argument("--fps", type=int, help="IR stream frame rate (default: the device's)")
+    parser.add_argument("--fps", type=integer(1), help="IR stream frame rate (default: the device's)")
     parser.add_argument("--ir-format", choices=("y8", "y16"), default="y8",
                         help="RealSense IR format (y16: full bit depth; default y8)")
 

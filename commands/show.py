@@ -30,6 +30,7 @@ from dotsim.false_colour import (
     short_number,
 )
 from dotsim.images import write_image
+from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
 
@@ -341,18 +342,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
     parser.add_argument("-o", "--output", default="contact_sheet.png",
                         help="image to write, .png or .jpg (default: contact_sheet.png)")
-    parser.add_argument("--scene", type=int, default=None, metavar="N",
+    parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
-    parser.add_argument("--frame", type=int, default=0, metavar="K",
+    parser.add_argument("--frame", type=integer(0), default=0, metavar="K",
                         help="the frame --overview and --ply use (default: 0)")
     parser.add_argument("--overview", action="store_true",
                         help="a grid of the IR of the first --scenes scenes of the dataset PATH")
-    parser.add_argument("--scenes", type=int, default=24, metavar="N",
+    parser.add_argument("--scenes", type=integer(1), default=24, metavar="N",
                         help="how many scenes --overview shows (default: 24)")
     parser.add_argument("--ply", default=None, metavar="OUT.ply",
                         help="write the ground-truth point cloud of --frame (metres, OpenCV camera frame, "
                         "IR grey colours; through trimesh) instead of a sheet")
-    parser.add_argument("--tile-width", type=int, default=320, metavar="PX",
+    parser.add_argument("--tile-width", type=integer(16), default=320, metavar="PX",
                         help="width of each tile in pixels (default: 320)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip sha256 verification of the files read (faster; see docs/FORMAT.md)")

@@ -27,6 +27,7 @@ from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
 from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
+from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
 
@@ -189,8 +190,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
         "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
     parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
-    parser.add_argument("--scene", type=int, default=None, metavar="N", help="scene index in a dataset")
-    parser.add_argument("--frame", type=int, default=None, metavar="K", help="only frame K (default: all)")
+    parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
+                        help="scene index in a dataset")
+    parser.add_argument("--frame", type=integer(0), default=None, metavar="K",
+                        help="only frame K (default: all)")
     parser.add_argument("--predictions", default=None, metavar="EVAL_DIR",
                         help="folder of `dotsim infer` outputs for the scene's frames "
                         "(scene_SSSSSSS_frame_K.exr)")

@@ -9,7 +9,7 @@ import sys
 from types import ModuleType
 
 from dotsim.dataset import FormatError
-from dotsim.option_types import integer_at_least
+from dotsim.option_types import integer
 from generator.config import ConfigError
 from generator.executor import Executor
 from generator.scene_spec import SPLITS
@@ -94,17 +94,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
     parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
-    parser.add_argument("--scenes", required=True, type=integer_at_least(1), metavar="N",
+    parser.add_argument("--scenes", required=True, type=integer(1), metavar="N",
                         help="number of scenes")
-    parser.add_argument("--start", type=integer_at_least(0), default=0, metavar="K",
+    parser.add_argument("--start", type=integer(0), default=0, metavar="K",
                         help="index of the first scene (default 0); scene indices are global, so "
                              "ranges rendered on several machines merge into one dataset")
-    parser.add_argument("--workers", type=integer_at_least(1), default=None, metavar="W",
+    parser.add_argument("--workers", type=integer(1), default=None, metavar="W",
                         help="render processes on this machine (default 1); each holds one Blender "
                              "scene for all its scenes. Set [render] threads so W x threads fits the cores. "
                              "With --ray: at most W tasks at once (--ray local: a cluster of W x threads "
                              "CPUs; default: the whole cluster)")
-    parser.add_argument("--seed", type=integer_at_least(0), default=0, metavar="S",
+    parser.add_argument("--seed", type=integer(0), default=0, metavar="S",
                         help="base seed (default 0): scene k uses SeedSequence((S, k))")
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "

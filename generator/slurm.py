@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from dotsim.option_types import integer_at_least
+from dotsim.option_types import integer
 from generator.config import Config, ConfigError, config_json
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
@@ -186,18 +186,18 @@ def add_options(group: argparse._ArgumentGroup) -> None:
                             "that runs when the array has ended; needs sbatch on PATH")
     group.add_argument("--slurm-dry-run", action="store_true",
                        help="print the sbatch scripts --slurm would submit and write nothing")
-    group.add_argument("--slurm-scenes-per-task", type=integer_at_least(1), default=0, metavar="R",
+    group.add_argument("--slurm-scenes-per-task", type=integer(1), default=0, metavar="R",
                        help="scenes per array task (default: [output] scenes_per_shard); with R and "
                             "--start multiples of scenes_per_shard each task seals its own shards")
-    group.add_argument("--slurm-cpus", type=integer_at_least(0), default=0, metavar="C",
+    group.add_argument("--slurm-cpus", type=integer(0), default=0, metavar="C",
                        help="CPUs per array task (default: [render] threads); the task runs "
                             "C / threads render workers")
-    group.add_argument("--slurm-gpus", type=integer_at_least(0), default=0, metavar="G",
+    group.add_argument("--slurm-gpus", type=integer(0), default=0, metavar="G",
                        help="GPUs per array task (--gres=gpu:G; set [render] device = \"GPU\")")
     group.add_argument("--slurm-partition", default="", metavar="P", help="Slurm partition")
     group.add_argument("--slurm-time", default="04:00:00", metavar="T",
                        help="time limit per array task (default 04:00:00)")
-    group.add_argument("--slurm-throttle", type=integer_at_least(0), default=0, metavar="N",
+    group.add_argument("--slurm-throttle", type=integer(0), default=0, metavar="N",
                        help="at most N array tasks running at once (default: no limit)")
     group.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
                        help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "

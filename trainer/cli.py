@@ -7,6 +7,7 @@ from functools import partial
 
 from dotsim.dataset import FormatError
 from dotsim.file_io import check_writable_folder
+from dotsim.option_types import integer, number
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
@@ -19,11 +20,7 @@ def _train(args: argparse.Namespace) -> None:
     from trainer.train import disk_full_in, train
 
     check_writable_folder(args.out, "--out")  # before the data is read or a rank started
-    if args.nproc < 1:
-        raise DataError(f"--nproc {args.nproc}: need at least 1 process")
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
-    if args.minutes < 0:
-        raise DataError(f"--minutes {args.minutes}: need 0 (no time limit) or more")
     with disk_full_in(args.out):
         run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
             split=args.split, max_seconds=args.minutes * 60)
@@ -79,10 +76,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="cpu (default) or cuda; [train].amp sets the precision on either")
     p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
-    p.add_argument("--nproc", type=int, default=1, metavar="N",
+    p.add_argument("--nproc", type=integer(1), default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
                    "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
-    p.add_argument("--minutes", type=float, default=0.0, metavar="M",
+    p.add_argument("--minutes", type=number(0.0), default=0.0, metavar="M",
                    help="stop (with a checkpoint) after the first step that ends past M minutes of training "
                    "(default 0: run the config's epochs / max_steps)")
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
@@ -101,14 +98,16 @@ def add_parser(subparsers) -> None:
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
-    p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
-    p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
+    p.add_argument("--max-frames", type=integer(0), default=0, metavar="N",
+                   help="evaluate the first N frames only (default 0: all)")
+    p.add_argument("--images", type=integer(0), default=8, metavar="N",
+                   help="error images for the first N frames")
     p.add_argument("--val-data", default=None, metavar="DIR",
                    help="dataset whose --val-split frames choose SGBM's preprocessing (plain or LCN) "
                    "by o(0.5), e.g. the training data (SGBM learns nothing from it), never the evaluated "
                    "frames. Default: none (SGBM plain)")
     p.add_argument("--val-split", default="train", help="split of --val-data (default train)")
-    p.add_argument("--val-frames", type=int, default=8, metavar="N",
+    p.add_argument("--val-frames", type=integer(0), default=8, metavar="N",
                    help="validation frames, spread over the split (default 8; 0 = all)")
     _add_inference_device(p)
     p.set_defaults(func=_eval, errors=EXPECTED_ERRORS)

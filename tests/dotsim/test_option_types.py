@@ -14,6 +14,6 @@ def test_docstring_examples():
 
 
 @pytest.mark.parametrize("text", ["-1", "x", "1.5", "", "1e3"])
-def test_integer_at_least_refuses_naming_value_and_range(text):
+def test_integer_refuses_naming_value_and_range(text):
     with pytest.raises(argparse.ArgumentTypeError, match=rf"^{text!r}: allowed: an integer >= 0$"):
-        option_types.integer_at_least(0)(text)
+        option_types.integer(0)(text)
