@@ -1,4 +1,4 @@
-"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (dotsim.export).
+"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (commands.export).
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
 arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
@@ -9,7 +9,7 @@ arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `
     loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=None, num_workers=4)
 
 A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
-dotsim.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
+commands.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
 URL the `webdataset` library opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`),
 or a list of these. Work is split first over ranks (torch.distributed's, or the RANK and
 WORLD_SIZE environment variables), then over the DataLoader's workers: shards for shard sources,

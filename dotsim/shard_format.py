@@ -1,6 +1,6 @@
 """The WebDataset sample format of `dotsim export`: member names, channel codecs, versions.
 
-One module for both sides: `dotsim.export` writes samples with `encode_channel`, `dotsim.data`
+One module for both sides: `commands.export` writes samples with `encode_channel`, `dotsim.data`
 reads them with `decode_channel`, so a codec is defined once. A sample is one frame; its members
 are named KEY.EXT (the WebDataset convention), KEY = scene_SSSSSSS_frame_K. Format 2.0 stores each
 channel in the first codec of this list that holds it:

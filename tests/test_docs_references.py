@@ -167,7 +167,7 @@ def _option_names(parser) -> set[str]:
 
 
 def test_documented_dotsim_commands_are_real():
-    from dotsim.cli import build_parser
+    from commands.cli import build_parser
 
     top = build_parser()
     problems, checked = [], 0

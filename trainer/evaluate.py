@@ -21,6 +21,7 @@ import torch
 from tqdm import tqdm
 
 from dotsim.data import pattern_file
+from dotsim.false_colour import with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
@@ -32,7 +33,6 @@ from dotsim.rig import (
     projector_column_to_depth,
     reference_image,
 )
-from dotsim.show import with_legend
 from trainer.config import Config
 from trainer.data import DataError, FrameRef, list_frames
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast

@@ -47,6 +47,7 @@ from dotsim.file_io import (
     json_bytes,
     sha256_file,
 )
+from dotsim.option_types import integer
 from dotsim.shard_format import (
     INDEX_NAME,
     PATTERN_NAME,
@@ -354,9 +355,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--shard-size", default=None, metavar="BYTES",
                       help="most bytes of samples per shard, e.g. 64M, 1G (default 256M)")
-    size.add_argument("--samples-per-shard", type=int, default=None, metavar="N",
+    size.add_argument("--samples-per-shard", type=integer(1), default=None, metavar="N",
                       help="N samples (frames) per shard")
-    size.add_argument("--shards", type=int, default=None, metavar="N",
+    size.add_argument("--shards", type=integer(1), default=None, metavar="N",
                       help="N shards of equal sample counts (a multiple of the loader's workers)")
     parser.add_argument("--split", default=None, help="export only the scenes of this split (default: all)")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim import cli, show
+from commands import cli, show
 from dotsim import dataset as ds
 from dotsim.rig import get_preset
 

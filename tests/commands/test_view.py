@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from dotsim import cli
+from commands import cli
 from dotsim import dataset as ds
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
