@@ -144,6 +144,12 @@ class SceneConfig(Checked):
                                       choices=PRIMITIVE_SHAPES, min_items=1)
     room_size: FloatRange = setting((4.0, 14.0), "room width and depth, m", low=0.5, high=200.0)
     room_height: FloatRange = setting((2.4, 4.0), "room height, m", low=0.5, high=50.0)
+    back_wall_distance: FloatRange = setting((0.0, 0.0), "[0, 0]: the camera stands anywhere in the front "
+                                             "half of the room and looks around; else it faces the back "
+                                             "wall head-on (level, at mid width and mid height) from a "
+                                             "distance drawn in this range, m: a back plane behind the "
+                                             "objects (below the room's smallest `room_size`)",
+                                             low=0.0, high=200.0)
     albedo: FloatRange = setting((0.05, 0.95), "infrared reflectance", **bounds_of(Material, "albedo"))
     textured_share: float = setting(0.8, "share of surfaces with a reflectance texture", low=0.0, high=1.0)
     texture_scale: FloatRange = setting((0.5, 4.0), "texture tiles per metre of surface (built-in "
@@ -265,6 +271,11 @@ def _check_cross_fields(config: Config) -> None:
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
     _resolve_rig(config)
+    wall, room = config.scene.back_wall_distance, config.scene.room_size
+    if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
+        raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
+                          f"must stand inside the room; allowed: [0, 0], or 0 < low <= high < the smallest "
+                          f"room_size ({room[0]:g} m)")
     if config.assets.source == "cache":
         path = config.assets.cache_dir
         if not path or not Path(path).is_dir():
@@ -383,7 +394,43 @@ def config_reference_markdown() -> str:
         "object), `room_size` (the walls are the farthest surfaces), and the light: the projector's "
         "power against `world_strength` and the sensor's noise decide how far dots stay visible (the "
         "mask's `visibility_margin` must not be loosened to get there: the network would learn from "
-        "pixels with no visible dot)."))
+        "pixels with no visible dot).\n\n"
+        "## GigaDepth's Table 2 conditions (`--config table2`)\n\n"
+        "GigaDepth's Table 2 (its supplementary material: SGM o(0.5) 10.4-12.9 %, GigaDepth 1.75-1.88 %) "
+        "was measured on DepthInSpace / Connecting-the-Dots style synthetic data. "
+        "dotsim/configs/table2.toml renders such data from the published description; what each key "
+        "stands for:\n\n"
+        "| published | key | dotsim |\n"
+        "|---|---|---|\n"
+        "| camera 512 x 432, f 435 px, baseline 2.5 cm | [rig] preset = \"ctd_synthetic\" "
+        "(dotsim/rigs/ctd_synthetic.json) | as published; the projector is not published: 1280 x 1088 at f "
+        "870 px (2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other "
+        "presets); max_depth 6 m |\n"
+        "| a few objects | [scene] object_count | 2-6 per scene (3-9 in the test split: the test cache's "
+        "clutter_density 1.5) |\n"
+        "| objects 0.5-3 m from the camera | [scene] distance | [0.5, 3]: object centres (a surface can lie "
+        "up to a quarter of its distance nearer); in_view_share 1, max_angular_size 0.5 |\n"
+        "| a back plane 3-5 m away | [scene] back_wall_distance | [3, 5]: the camera faces the room's back "
+        "wall head-on; rooms 8-10 m wide and 6 m high keep side walls, floor and ceiling out of view |\n"
+        "| untextured single-colour objects (ShapeNet) | [scene] textured_share 0, albedo [0.2, 0.9], "
+        "roughness 1, specular 0, glossy_share 0; [assets] source = \"cache\" | matte single-colour "
+        "surfaces; no ShapeNet here: the asset cache's procedural meshes (docs/ASSETS.md: boxes, blobs, "
+        "tables and shelves in train; capsules, rocks, chairs and stools in test), so the splits share no "
+        "mesh |\n"
+        "| low ambient light | [lighting] extra_lights [1, 1], light_power [2, 20] | one weak lamp (about "
+        "3 % of the flood's light); `world_strength` is left alone: the world's light never enters the "
+        "closed room |\n"
+        "| no render noise | [sensor] shot_noise 0, read_noise 0 | the 10-bit quantisation, the 0.5 px "
+        "blur and bloom stay; so does Cycles' one sample per pixel (the pattern pre-filtered, "
+        "docs/RENDERING.md) |\n"
+        "| a dense random dot pattern (Kinect) | [pattern] density 0.025 | 0.1 dots per camera px, as Kinect "
+        "v1's ~30 k dots over 640 x 480 (a procedural pattern, not Kinect's own) |\n\n"
+        "What else differs: the projector's light falls off with the square of the distance and the "
+        "exposure follows the 99th percentile of the image, so a back plane at 5 m behind an object at "
+        "0.5 m keeps its dots a few tens of levels above black (the published renderer's falloff and "
+        "exposure are not described); with the noise off the visibility mask is every pixel the "
+        "projector lights directly with a dot within 5 x 5 px, close to GigaDepth's 'any projector "
+        "light'; each scene has four frames from nearby poses ([motion])."))
 
 
 if __name__ == "__main__":

@@ -272,10 +272,15 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     # near to far (the back wall) all occur.
     clearance = np.minimum(_WALL_CLEARANCE, (room_hi - room_lo) / 4)
     cam_lo, cam_hi = room_lo + clearance, room_hi - clearance
-    cam_pos = np.array([rng.uniform(cam_lo[0], cam_hi[0]),
-                        rng.uniform(cam_lo[1], min(cam_hi[1], 0.0)),
-                        rng.uniform(cam_lo[2], min(cam_hi[2], 2.0))])
-    cam_rot = camera_rotation(rng.uniform(-0.7, 0.7), rng.uniform(-0.6, 0.2), rng.uniform(-0.1, 0.1))
+    if sc.back_wall_distance[1] > 0:  # a back plane behind the objects (GigaDepth's Table 2 data)
+        to_wall = min(_uniform(rng, sc.back_wall_distance), room_hi[1] - cam_lo[1])
+        cam_pos = np.array([0.0, room_hi[1] - to_wall, room[2] / 2])
+        cam_rot = camera_rotation(0.0, 0.0, 0.0)
+    else:
+        cam_pos = np.array([rng.uniform(cam_lo[0], cam_hi[0]),
+                            rng.uniform(cam_lo[1], min(cam_hi[1], 0.0)),
+                            rng.uniform(cam_lo[2], min(cam_hi[2], 2.0))])
+        cam_rot = camera_rotation(rng.uniform(-0.7, 0.7), rng.uniform(-0.6, 0.2), rng.uniform(-0.1, 0.1))
     base_pose = np.eye(4)
     base_pose[:3, :3], base_pose[:3, 3] = cam_rot, cam_pos
 

@@ -1,5 +1,5 @@
 """The built-in configs, shipped inside the package: generator configs (default, structure_core,
-kinect, tiny, bench_accuracy) and training configs (train_tiny, train_cpu, train_gigadepth).
+kinect, tiny, bench_accuracy, table2) and training configs (train_tiny, train_cpu, train_gigadepth).
 
 `--config NAME` names one of them; anything else is a path. A built-in config's relative paths
 (its `cache_dir = "assets_cache"`) are resolved against the current directory, where `dotsim

@@ -20,7 +20,8 @@ from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, config_json, load_config
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml"]
+GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml",
+                     "table2.toml"]
 TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml"]
 # (config module, its reference page)
 CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]
@@ -177,6 +178,9 @@ ERROR_CASES = [
     (GEN, '[sensor]\nexposure = "autom"\n', ['did you mean "auto"', '"fixed", "auto"']),
     (GEN, '[scene]\nshapes = ["box", "cube"]\n', ["'cube'"]),
     (GEN, "[scene]\nshapes = []\n", ["needs at least 1 entry", "a non-empty list of"]),
+    (GEN, "[scene]\nroom_size = [6, 8]\nback_wall_distance = [3, 6]\n",
+     ["[scene] back_wall_distance = [3.0, 6.0]", "0 < low <= high < the smallest room_size (6 m)"]),
+    (GEN, "[scene]\nback_wall_distance = [0, 3]\n", ["[scene] back_wall_distance = [0.0, 3.0]"]),
     (TRAIN, "seed = -1\n", ["seed = -1: out of range; allowed: an integer, 0 <= x <= 4294967295"]),
     (TRAIN, "[model]\ncolumn_padding = 0.5\n",
      ["[model] column_padding = 0.5: out of range; allowed: a number, 0 <= x < 0.5"]),

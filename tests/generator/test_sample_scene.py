@@ -230,3 +230,24 @@ def test_area_and_volume_distance_sampling_follow_depth_powers():
             expected = (x**power - a**power) / (b**power - a**power)
             assert abs(np.mean(z < x) - expected) < 0.01, (name, x)
     assert DISTANCE_SAMPLERS["area"](rng, 2.0, 2.0) == 2.0
+
+
+def test_a_camera_facing_the_back_wall_sees_it_head_on_behind_the_objects():
+    """[scene] back_wall_distance: the camera looks level along +y at the back wall from a distance
+    in the range, from mid width and mid height; the objects lie between camera and wall."""
+    overrides = {"scene": {"back_wall_distance": [3.0, 5.0], "room_size": [8.0, 10.0],
+                           "room_height": [6.0, 6.0], "distance": [0.5, 3.0], "object_count": [20, 20],
+                           "in_view_share": 1.0}}
+    for index in range(5):
+        d = spec_dict(overrides, index=index)
+        walls = {o["name"]: o for o in d["objects"] if not o["name"].startswith("object_")}
+        back_y = walls["wall_back"]["location"][1]
+        pose = np.array(d["poses"][0])
+        assert np.allclose(pose[:3, :3] @ [0, 0, 1], [0, 1, 0])  # optical axis along +y, level
+        assert np.allclose(pose[:3, :3] @ [0, 1, 0], [0, 0, -1])  # image down = world down
+        x, y, z = pose[:3, 3]
+        assert 3.0 <= back_y - y <= 5.0 and x == 0.0
+        assert z == pytest.approx(walls["ceiling"]["location"][2] / 2)
+        depths = camera_points(d)[:, 2]
+        assert len(depths) == 20 and depths.min() > 0 and depths.max() < back_y - y
+    assert len({spec_dict(overrides, index=k)["poses"][0][1][3] for k in range(5)}) == 5  # drawn per scene
