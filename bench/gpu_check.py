@@ -55,11 +55,12 @@ from dotsim.file_io import atomic_write_bytes, atomic_write_json
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
+from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames
-from trainer.evaluate import PRECISIONS, evaluate, overall
-from trainer.model import autocast
-from trainer.train import build_model, train
+from trainer.evaluate import evaluate, overall
+from trainer.model import autocast, build_model
+from trainer.train import train
 
 CUDA_TESTS = ("tests/trainer/test_trainer_cuda.py", "tests/trainer/test_trainer_precision.py")
 # Each section's share of --minutes (of the shares of the sections run); the tests take what is left.

@@ -31,8 +31,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from dotsim.rig import get_preset
 from trainer.config import load_config
-from trainer.model import GigaDepthNet
-from trainer.train import build_model
+from trainer.model import GigaDepthNet, build_model
 
 CROPS = ((96, 64), (192, 128), (304, 224), (608, 448))  # (width, height), full-resolution px
 VALID_SHARE = 0.55  # share of visible pixels (dotsim stats on make dataset's data: about this)

@@ -31,11 +31,11 @@ import torch
 
 from dotsim.patterns import generate_dot_pattern
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
+from trainer.checkpoint import PRECISIONS, load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames, make_loader
-from trainer.evaluate import PRECISIONS, load_model, predict_disparity
-from trainer.model import LOW_PRECISION, autocast
-from trainer.train import batch_loss, build_model, make_optimizer, train
+from trainer.model import LOW_PRECISION, autocast, build_model
+from trainer.train import batch_loss, make_optimizer, train
 
 PUBLISHED_MS = 60.0  # GigaDepth's conv network per 1216 x 896 frame on a GPU; its UNet ablation 1 s
 

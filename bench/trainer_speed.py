@@ -22,10 +22,11 @@ import torch
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
 from tests.trainer_fixtures import make_dataset, random_depth, synthetic_frame
+from trainer.checkpoint import predict_disparity
 from trainer.config import load_config
-from trainer.evaluate import predict_disparity
+from trainer.model import build_model
 from trainer.sgbm import num_disparities_for, sgbm_disparity
-from trainer.train import batch_loss, build_model
+from trainer.train import batch_loss
 
 
 def median_seconds(fn, repeats: int) -> float:

@@ -43,7 +43,7 @@ def _infer(args: argparse.Namespace) -> None:
 
 
 def _add_inference_device(p: argparse.ArgumentParser) -> None:
-    from trainer.evaluate import PRECISIONS
+    from trainer.checkpoint import PRECISIONS
 
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
     p.add_argument("--precision", choices=PRECISIONS, default="float32",

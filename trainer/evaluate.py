@@ -5,7 +5,7 @@ o(t) is the share of valid pixels whose disparity error exceeds t camera pixels 
 method gives no estimate for counts as an outlier, so no method gains by abstaining. The network's
 half-resolution output sits on pixels (2i, 2j); it is converted column -> depth -> disparity with
 dotsim.rig there and brought to full resolution by interpolation that keeps those samples exactly and
-does not blend across depth jumps (upsample_half with DEPTH_JUMP_PX). Rows are split by GT depth range
+does not blend across depth jumps (trainer.checkpoint.predict_disparity). Rows are split by GT depth range
 as well as overall.
 """
 
@@ -17,7 +17,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 from tqdm import tqdm
 
 from dotsim.data import pattern_file
@@ -27,20 +26,15 @@ from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import (
     Rig,
-    depth_to_disparity,
     depth_to_projector_column,
     disparity_to_depth,
-    projector_column_to_depth,
     reference_image,
 )
-from trainer.config import Config
+from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, list_frames
-from trainer.model import LOW_PRECISION, GigaDepthNet, autocast
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
-from trainer.train import build_model, check_rig, load_checkpoint
 
 THRESHOLDS = (0.5, 1.0, 2.0, 5.0)
-PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
 EVAL_CHANNELS = ("ir", "visibility", "disparity")  # depth follows from disparity: exports may hold no depth
 
@@ -51,73 +45,6 @@ def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
     err = np.abs(np.asarray(pred, np.float64) - gt)[valid]
     err = np.where(np.isfinite(err), err, np.inf)
     return int(valid.sum()), [int((err > t).sum()) for t in thresholds]
-
-
-# Neighbouring half-resolution samples further apart than this (camera px of disparity) lie on two
-# surfaces: the pixel between them takes the farther one instead of their mean, so no "flying pixels"
-# float between a foreground object and its background. Measured with dotsim/configs/train_cpu.toml
-# (then with the published backbone) after 41 min (docs/TRAINER.md): o(0.5) 0.395 (linear) -> 0.369
-# (nearer sample) -> 0.354 (farther) on the test split, 0.473 -> 0.448 -> 0.435 on 20 unseen
-# train-asset scenes; 0.5 and 2 px gave within 0.001.
-DEPTH_JUMP_PX = 1.0
-
-
-def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None = None) -> np.ndarray:
-    """(h, w) values at full-res pixels (2i, 2j) -> (height, width), the native samples kept exactly.
-
-    In between: the mean of the two neighbouring samples (linear), or, with `jump`, the smaller of the
-    two where they differ by more than `jump` or one is nan (for disparity: the farther surface). The
-    odd last row/column (if any) is extrapolated linearly from the two samples before it (copied from
-    the last one across a jump). Applied along rows, then columns."""
-    def along(a: np.ndarray, n: int, axis: int) -> np.ndarray:
-        a = np.moveaxis(a, axis, 0)
-        out = np.empty((n, *a.shape[1:]), np.float64)
-        out[0::2] = a[: (n + 1) // 2]
-        left, right = a[:-1], a[1:]
-        inner = (left + right) / 2
-        if jump is not None:
-            inner = np.where(np.abs(left - right) <= jump, inner, np.fmin(left, right))
-        out[1::2][: len(inner)] = inner[: n // 2]
-        if n % 2 == 0:  # the last (odd) index has no sample to its right
-            last = a[n // 2 - 1]
-            if len(a) > 1:
-                before = a[n // 2 - 2]
-                extrapolated = 1.5 * last - 0.5 * before
-                last = extrapolated if jump is None else np.where(np.abs(last - before) <= jump,
-                                                                  extrapolated, last)
-            out[n - 1] = last
-        return np.moveaxis(out, 0, axis)
-
-    return along(along(np.asarray(half, np.float64), height, 0), width, 1)
-
-
-def load_model(checkpoint: str | Path, device: str = "cpu") -> tuple[GigaDepthNet, Config, Rig]:
-    """The trained network of a checkpoint on `device`, in eval mode, with its config and rig.
-
-    The file is read to CPU whatever device wrote it (a CUDA run's checkpoint loads on a machine
-    without one), then the network is moved to `device`."""
-    ckpt, cfg, rig = load_checkpoint(checkpoint)
-    model = build_model(cfg, rig)
-    model.load_state_dict(ckpt["model"])
-    return model.to(device).eval(), cfg, rig
-
-
-def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu",
-                      precision: str = "float32"):
-    """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth.
-
-    precision: float32, or float16 / bfloat16 autocast (the column itself is computed in float32)."""
-    model.eval()
-    with torch.no_grad(), autocast(device, precision):
-        x = torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None, None].to(device)
-        column = model(x)[0].float().cpu().numpy()
-    height, width = rig.camera.height, rig.camera.width
-    # Linear upsampling of the column keeps the samples at (2i, 2j) exact, so converting at full size
-    # and reading those pixels back gives each sample's disparity at its own pixel.
-    full_column = upsample_half(column, height, width)
-    disparity = depth_to_disparity(projector_column_to_depth(full_column, rig, normalised=True), rig)
-    disparity = upsample_half(disparity[0::2, 0::2], height, width, jump=DEPTH_JUMP_PX)
-    return disparity.astype(np.float32), disparity_to_depth(disparity, rig).astype(np.float32)
 
 
 # Colours of the error images (BGR) and what they mean, for the images and their legends.

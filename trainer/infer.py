@@ -22,8 +22,8 @@ from dotsim.file_io import atomic_write_bytes, make_folder
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
+from trainer.checkpoint import load_model, predict_disparity
 from trainer.data import DataError
-from trainer.evaluate import load_model, predict_disparity
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
@@ -66,7 +66,7 @@ DISPARITY_SWATCHES = (((0, 0, 0), "black: no estimate"),)
 
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
           progress: bool = True, precision: str = "float32") -> list[Path]:
-    """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
+    """Run the network on each input in `precision` (trainer.checkpoint.PRECISIONS); returns the written
     EXR paths (PNG and PLY lie beside them)."""
     model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written

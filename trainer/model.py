@@ -33,7 +33,8 @@ import torch.distributed._functional_collectives as funcol  # autograd-aware col
 import torch.nn.functional as F
 from torch import nn
 
-from trainer.config import ModelConfig
+from dotsim.rig import Rig
+from trainer.config import Config, ModelConfig
 
 LOW_PRECISION = {"float16": torch.float16, "bfloat16": torch.bfloat16}
 
@@ -354,3 +355,8 @@ class GigaDepthNet(nn.Module):
         l1 = torch.zeros_like(pos).index_add(0, k, (offset.float() - (pos[k] - cand)).abs())
         return {"ce": ce, "l1": l1}
 
+
+
+def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
+    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2))."""
+    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2)

@@ -21,11 +21,11 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
-from dotsim.rig import Rig
-from trainer.config import Config, config_from_dict, resolution_mismatch
+from trainer.checkpoint import check_rig, load_checkpoint
+from trainer.config import Config, resolution_mismatch
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
-from trainer.model import GigaDepthNet, autocast
+from trainer.model import GigaDepthNet, autocast, build_model
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -34,11 +34,6 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-
-
-def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
-    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2))."""
-    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2)
 
 
 def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE_PROCESS
@@ -141,30 +136,6 @@ def disk_full_in(run_dir: str | Path):
         threading.excepthook = previous
         for bar in list(tqdm._instances):  # the message starts a line of its own, not the bar's
             bar.close()
-
-
-def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:
-    """Read a checkpoint and the config and rig it was trained with; clear errors for other files."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: checkpoint not found")
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as e:  # torch raises many kinds for non-checkpoint files
-        raise DataError(f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e})") from e
-    if not isinstance(ckpt, dict) or not {"model", "config", "rig"} <= set(ckpt):
-        raise DataError(f"{path}: not a dotsim trainer checkpoint (needs model, config and rig entries)")
-    return ckpt, config_from_dict(ckpt["config"], f"{path} config"), Rig.from_dict(ckpt["rig"])
-
-
-def check_rig(expected: Rig, found: Rig, what: str, source: str) -> None:
-    """Refuse data whose rig (resolution, intrinsics, baseline) differs from the model's."""
-    if expected != found:
-        diffs = [k for k in expected.to_dict() if expected.to_dict()[k] != found.to_dict()[k]]
-        raise DataError(
-            f"{source}: rig {found.name!r} ({found.camera.width}x{found.camera.height}) differs from the "
-            f"{what}'s rig {expected.name!r} ({expected.camera.width}x{expected.camera.height}) in {diffs}"
-        )
 
 
 def _without_length(cfg: Config) -> Config:

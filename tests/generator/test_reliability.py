@@ -638,7 +638,7 @@ def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp
     """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
     the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
     from tests.trainer_fixtures import make_dataset
-    from trainer.train import load_checkpoint
+    from trainer.checkpoint import load_checkpoint
 
     data = make_dataset(tmp_path / "data", scenes=2)
     tiny = (REPO / "dotsim" / "configs" / "train_tiny.toml").read_text()

@@ -9,10 +9,12 @@ import torch
 
 from dotsim.dataset import read_frame
 from tests.trainer_fixtures import make_dataset
+from trainer.checkpoint import load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames
-from trainer.evaluate import evaluate, load_model, predict_disparity
-from trainer.train import batch_loss, build_model, train
+from trainer.evaluate import evaluate
+from trainer.model import build_model
+from trainer.train import batch_loss, train
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(),
                                 reason="needs a CUDA device (torch.cuda.is_available() is False)")

@@ -12,9 +12,10 @@ from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
 from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
+from trainer.checkpoint import upsample_half
 from trainer.config import config_from_dict, load_config
 from trainer.data import DataError
-from trainer.evaluate import evaluate, outlier_counts, upsample_half
+from trainer.evaluate import evaluate, outlier_counts
 from trainer.infer import infer
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train

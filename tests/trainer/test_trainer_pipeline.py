@@ -12,11 +12,13 @@ from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
 from tests.trainer_fixtures import tiny_config
+from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict
 from trainer.data import FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
-from trainer.train import batch_loss, build_model, load_checkpoint, train
+from trainer.model import build_model
+from trainer.train import batch_loss, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -158,8 +160,9 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
 
 
 def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path):
-    """A checkpoint whose rig's max_depth is the median predicted depth: the PLY holds exactly the
-    pixels with a depth up to it, none beyond (the EXR keeps every depth)."""
+    """A checkpoint whose rig's max_depth is the median predicted depth beyond 0.5 m (a rig's max_depth
+    is at least that): the PLY holds exactly the pixels with a depth up to it, none beyond (the EXR
+    keeps every depth)."""
     import OpenEXR
 
     frames, _, _ = list_frames(data, "test")
@@ -167,7 +170,7 @@ def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path
     name = f"{frames[0].path.parent.name}_{frames[0].path.stem}"
     depth = OpenEXR.File(str(tmp_path / "full" / f"{name}.exr"), separate_channels=True
                          ).channels()["depth"].pixels
-    limit = float(np.nanmedian(depth))
+    limit = float(np.nanmedian(depth[depth > 0.5]))
     ckpt = torch.load(trained["run"] / "checkpoint.pt", weights_only=False)
     ckpt["rig"]["max_depth"] = limit
     torch.save(ckpt, tmp_path / "near.pt")

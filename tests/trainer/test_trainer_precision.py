@@ -10,11 +10,11 @@ import torch
 from dotsim.dataset import read_frame
 from tests.trainer.test_trainer_model import _naive_linear
 from tests.trainer_fixtures import tiny_config
+from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
 from trainer.data import FrameDataset, list_frames
-from trainer.evaluate import load_model, predict_disparity
-from trainer.model import IndexedLinear, autocast, plan_groups
-from trainer.train import batch_loss, build_model, load_checkpoint, train
+from trainer.model import IndexedLinear, autocast, build_model, plan_groups
+from trainer.train import batch_loss, train
 
 LOW = [torch.bfloat16, torch.float16]
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])

@@ -1,0 +1,113 @@
+"""Loading a trained network and predicting with it: what `dotsim eval` and `dotsim infer` stand on.
+
+A checkpoint (trainer/train.py writes it) holds the network's weights with the config and rig it was
+trained with, so the network is rebuilt from the file alone. The network's half-resolution column is
+turned into full-resolution disparity and depth here, once, for evaluation and inference alike.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dotsim.rig import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
+from trainer.config import Config, config_from_dict
+from trainer.data import DataError
+from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model
+
+PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
+
+
+def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:
+    """Read a checkpoint and the config and rig it was trained with; clear errors for other files."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: checkpoint not found")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as e:  # torch raises many kinds for non-checkpoint files
+        raise DataError(f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e})") from e
+    if not isinstance(ckpt, dict) or not {"model", "config", "rig"} <= set(ckpt):
+        raise DataError(f"{path}: not a dotsim trainer checkpoint (needs model, config and rig entries)")
+    return ckpt, config_from_dict(ckpt["config"], f"{path} config"), Rig.from_dict(ckpt["rig"])
+
+
+def check_rig(expected: Rig, found: Rig, what: str, source: str) -> None:
+    """Refuse data whose rig (resolution, intrinsics, baseline) differs from the model's."""
+    if expected != found:
+        diffs = [k for k in expected.to_dict() if expected.to_dict()[k] != found.to_dict()[k]]
+        raise DataError(
+            f"{source}: rig {found.name!r} ({found.camera.width}x{found.camera.height}) differs from the "
+            f"{what}'s rig {expected.name!r} ({expected.camera.width}x{expected.camera.height}) in {diffs}"
+        )
+
+
+# Neighbouring half-resolution samples further apart than this (camera px of disparity) lie on two
+# surfaces: the pixel between them takes the farther one instead of their mean, so no "flying pixels"
+# float between a foreground object and its background. Measured with dotsim/configs/train_cpu.toml
+# (then with the published backbone) after 41 min (docs/TRAINER.md): o(0.5) 0.395 (linear) -> 0.369
+# (nearer sample) -> 0.354 (farther) on the test split, 0.473 -> 0.448 -> 0.435 on 20 unseen
+# train-asset scenes; 0.5 and 2 px gave within 0.001.
+DEPTH_JUMP_PX = 1.0
+
+
+def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None = None) -> np.ndarray:
+    """(h, w) values at full-res pixels (2i, 2j) -> (height, width), the native samples kept exactly.
+
+    In between: the mean of the two neighbouring samples (linear), or, with `jump`, the smaller of the
+    two where they differ by more than `jump` or one is nan (for disparity: the farther surface). The
+    odd last row/column (if any) is extrapolated linearly from the two samples before it (copied from
+    the last one across a jump). Applied along rows, then columns."""
+    def along(a: np.ndarray, n: int, axis: int) -> np.ndarray:
+        a = np.moveaxis(a, axis, 0)
+        out = np.empty((n, *a.shape[1:]), np.float64)
+        out[0::2] = a[: (n + 1) // 2]
+        left, right = a[:-1], a[1:]
+        inner = (left + right) / 2
+        if jump is not None:
+            inner = np.where(np.abs(left - right) <= jump, inner, np.fmin(left, right))
+        out[1::2][: len(inner)] = inner[: n // 2]
+        if n % 2 == 0:  # the last (odd) index has no sample to its right
+            last = a[n // 2 - 1]
+            if len(a) > 1:
+                before = a[n // 2 - 2]
+                extrapolated = 1.5 * last - 0.5 * before
+                last = extrapolated if jump is None else np.where(np.abs(last - before) <= jump,
+                                                                  extrapolated, last)
+            out[n - 1] = last
+        return np.moveaxis(out, 0, axis)
+
+    return along(along(np.asarray(half, np.float64), height, 0), width, 1)
+
+
+def load_model(checkpoint: str | Path, device: str = "cpu") -> tuple[GigaDepthNet, Config, Rig]:
+    """The trained network of a checkpoint on `device`, in eval mode, with its config and rig.
+
+    The file is read to CPU whatever device wrote it (a CUDA run's checkpoint loads on a machine
+    without one), then the network is moved to `device`."""
+    ckpt, cfg, rig = load_checkpoint(checkpoint)
+    model = build_model(cfg, rig)
+    model.load_state_dict(ckpt["model"])
+    return model.to(device).eval(), cfg, rig
+
+
+def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu",
+                      precision: str = "float32"):
+    """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth.
+
+    precision: float32, or float16 / bfloat16 autocast (the column itself is computed in float32)."""
+    model.eval()
+    with torch.no_grad(), autocast(device, precision):
+        x = torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None, None].to(device)
+        column = model(x)[0].float().cpu().numpy()
+    height, width = rig.camera.height, rig.camera.width
+    # Linear upsampling of the column keeps the samples at (2i, 2j) exact, so converting at full size
+    # and reading those pixels back gives each sample's disparity at its own pixel.
+    full_column = upsample_half(column, height, width)
+    disparity = depth_to_disparity(projector_column_to_depth(full_column, rig, normalised=True), rig)
+    disparity = upsample_half(disparity[0::2, 0::2], height, width, jump=DEPTH_JUMP_PX)
+    return disparity.astype(np.float32), disparity_to_depth(disparity, rig).astype(np.float32)
+
+
