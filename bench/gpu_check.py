@@ -59,6 +59,7 @@ from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate, overall
+from trainer.metrics import ratio
 from trainer.model import autocast, build_model
 from trainer.train import train
 
@@ -252,7 +253,7 @@ def accuracy_section(report: Report, clock: Clock, cfg, train_data, test_data, d
                f"  eval on {net['pixels']} valid test pixels: network o(0.5) {net['o(0.5)']:.4f} "
                f"o(5) {net['o(5)']:.4f}; {sgbm['method']} o(0.5) {sgbm['o(0.5)']:.4f} "
                f"o(5) {sgbm['o(5)']:.4f} "
-               f"(ratio {net['o(0.5)'] / max(sgbm['o(0.5)'], 1e-12):.2f}); OUT/eval.md")
+               f"(ratio {ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f}); OUT/eval.md")
 
 
 def tests_section(report: Report, clock: Clock, tests: list[str], out: Path) -> None:

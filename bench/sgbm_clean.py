@@ -28,14 +28,8 @@ from dotsim.dataset import read_frame
 from generator.config import config_from_dict
 from generator.pipeline import generate
 from trainer.data import list_frames
-from trainer.evaluate import (
-    DEPTH_BINS,
-    THRESHOLDS,
-    load_reference,
-    outlier_counts,
-    sgbm_nearest_depth,
-    valid_pixels,
-)
+from trainer.evaluate import DEPTH_BINS, load_reference, sgbm_nearest_depth, valid_pixels
+from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 CLEAN = {"lighting": {"world_strength": [0.0, 0.0], "extra_lights": [0, 0]},
@@ -107,11 +101,12 @@ def main(argv=None) -> int:
     print("| SGBM | pixels | " + " | ".join(f"o({t:g})" for t in THRESHOLDS) + " |")
     print("|" + "---|" * (2 + len(THRESHOLDS)))
     for (p, r), c in rows.items():
-        rates = " | ".join(f"{v / c[0]:.4f}" if c[0] else "-" for v in c[1:])
+        rates = " | ".join(f"{outlier_rate(int(v), int(c[0])):.4f}" if c[0] else "-" for v in c[1:])
         print(f"| {p}, {r} | {c[0]} | {rates} |")
     total = rows[(PREPROCESSINGS[0], "all")][0]
     for p in PREPROCESSINGS:
-        print(f"{p}: {missing[p]} lit pixel(s) without an estimate ({missing[p] / max(total, 1):.2%} of lit)")
+        share = outlier_rate(missing[p], int(total))
+        print(f"{p}: {missing[p]} lit pixel(s) without an estimate ({share:.2%} of lit)")
     return 0
 
 

@@ -32,19 +32,11 @@ from dotsim.rig import (
 )
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, list_frames
+from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
-THRESHOLDS = (0.5, 1.0, 2.0, 5.0)
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
 EVAL_CHANNELS = ("ir", "visibility", "disparity")  # depth follows from disparity: exports may hold no depth
-
-
-def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
-                   thresholds=THRESHOLDS) -> tuple[int, list[int]]:
-    """(valid pixels, [pixels with |pred - gt| > t for t in thresholds]); nan predictions are outliers."""
-    err = np.abs(np.asarray(pred, np.float64) - gt)[valid]
-    err = np.where(np.isfinite(err), err, np.inf)
-    return int(valid.sum()), [int((err > t).sum()) for t in thresholds]
 
 
 # Colours of the error images (BGR) and what they mean, for the images and their legends.
@@ -140,7 +132,7 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
         for name in PREPROCESSINGS:
             pred = sgbm_disparity(f["ir"].astype(np.float32), reference, num_disparities, preprocessing=name)
             outliers[name] += outlier_counts(pred, gt, valid, thresholds=(0.5,))[1][0]
-    rates = {name: outliers[name] / pixels if pixels else float("nan") for name in PREPROCESSINGS}
+    rates = {name: outlier_rate(outliers[name], pixels) for name in PREPROCESSINGS}
     return min(PREPROCESSINGS, key=lambda name: (not rates[name] <= 1, rates[name])), rates
 
 
@@ -179,8 +171,8 @@ def verdict(rows: list[dict], sgbm_method: str) -> str:
         better = net[t] < sgbm[t]
         parts.append(f"{'better' if better else 'not better'} than {sgbm_method} at {t} "
                      f"({net[t]:.4f} vs {sgbm[t]:.4f})")
-    ratio = net["o(0.5)"] / sgbm["o(0.5)"] if sgbm["o(0.5)"] else float("inf")
-    return (f"verdict: the network is {parts[0]} and {parts[1]}; o(0.5) ratio network / SGBM {ratio:.2f} "
+    return (f"verdict: the network is {parts[0]} and {parts[1]}; o(0.5) ratio network / SGBM "
+            f"{ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f} "
             f"(GigaDepth's: 0.18; the goal: at most 0.5)")
 
 
@@ -262,7 +254,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         row = {"method": method, "range": name, "pixels": int(c[0]), "outside": int(c[1]),
                "chosen": method == sgbm_chosen}
         for k, t in enumerate(THRESHOLDS):
-            row[f"o({t:g})"] = c[2 + k] / c[0] if c[0] else float("nan")
+            row[f"o({t:g})"] = outlier_rate(int(c[2 + k]), int(c[0]))
         rows.append(row)
     table = format_table(rows)
     outside = overall(rows, sgbm_chosen)["outside"]

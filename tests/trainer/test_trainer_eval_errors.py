@@ -15,20 +15,10 @@ from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.checkpoint import upsample_half
 from trainer.config import config_from_dict, load_config
 from trainer.data import DataError
-from trainer.evaluate import evaluate, outlier_counts
+from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train
-
-
-def test_outlier_counts_hand_computed():
-    gt = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
-    pred = np.array([[1.4, 2.6, 3.0], [np.nan, 10.0, 7.5]])
-    valid = np.array([[True, True, True], [True, True, False]])
-    # valid errors: 0.4, 0.6, 0.0, none (nan -> outlier), 5.0 ; the 1.5 at (1, 2) is not valid
-    pixels, over = outlier_counts(pred, gt, valid, thresholds=(0.5, 1.0, 2.0, 5.0))
-    assert pixels == 5
-    assert over == [3, 2, 2, 1]  # > 0.5: 0.6, nan, 5 | > 1: nan, 5 | > 2: nan, 5 | > 5: nan only
 
 
 def test_upsample_half_is_exact_for_linear_fields():

@@ -1,0 +1,52 @@
+"""Metrics of a disparity estimate against ground truth: small pure functions, one per metric.
+
+Disparities are in camera pixels at full resolution; `valid` selects the pixels that are scored. A
+pixel a method gives no estimate for (nan) counts as wrong at every threshold, so no method gains by
+abstaining. trainer/evaluate.py, bench/sgbm_clean.py and bench/trainer_accuracy.py compute every
+figure they print with these.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+THRESHOLDS = (0.5, 1.0, 2.0, 5.0)  # o(t), camera px: GigaDepth's
+
+
+def outliers(pred: np.ndarray, gt: np.ndarray, t: float) -> np.ndarray:
+    """Where |pred - gt| > t, or pred is no estimate (nan): bool, the shape of pred.
+
+    >>> outliers(np.array([1.0, 1.4, 2.0, np.nan]), np.array([1.0, 1.0, 1.0, 1.0]), 0.5)
+    array([False, False,  True,  True])
+    """
+    err = np.abs(np.asarray(pred, np.float64) - gt)
+    return ~(err <= t)
+
+
+def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
+                   thresholds=THRESHOLDS) -> tuple[int, list[int]]:
+    """(valid pixels, [valid pixels that are outliers at t, for t in thresholds]).
+
+    >>> outlier_counts(np.array([1.0, 1.4, 2.0, np.nan]), np.ones(4), np.array([1, 1, 1, 0], bool), (0.5, 2))
+    (3, [1, 0])
+    """
+    valid = np.asarray(valid, bool)
+    return int(valid.sum()), [int((outliers(pred, gt, t) & valid).sum()) for t in thresholds]
+
+
+def outlier_rate(count: int, pixels: int) -> float:
+    """o(t): the share of scored pixels that are outliers; nan when no pixel was scored.
+
+    >>> outlier_rate(1, 4), outlier_rate(0, 0)
+    (0.25, nan)
+    """
+    return count / pixels if pixels else float("nan")
+
+
+def ratio(rate: float, baseline: float) -> float:
+    """rate / baseline (the goal compares the network's o(0.5) with SGBM's); inf when the baseline is 0.
+
+    >>> ratio(0.2, 0.4), ratio(0.1, 0.0)
+    (0.5, inf)
+    """
+    return rate / baseline if baseline else float("inf")
