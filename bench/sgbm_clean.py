@@ -28,8 +28,8 @@ from dotsim.dataset import read_frame
 from generator.config import config_from_dict
 from generator.pipeline import generate
 from trainer.data import list_frames
-from trainer.evaluate import DEPTH_BINS, load_reference, sgbm_nearest_depth, valid_pixels
-from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate
+from trainer.evaluate import DEPTH_BINS, load_reference, sgbm_nearest_depth
+from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 CLEAN = {"lighting": {"world_strength": [0.0, 0.0], "extra_lights": [0, 0]},
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     missing = dict.fromkeys(PREPROCESSINGS, 0)
     for ref in frames:
         f = read_frame(ref.path, channels=("ir", "visibility", "edge", "depth", "disparity"))
-        lit, gt = valid_pixels(f), f["disparity"].astype(np.float64)
+        lit, gt = valid_pixels(f["visibility"], f["disparity"]), f["disparity"].astype(np.float64)
         for p in PREPROCESSINGS:
             pred = sgbm_disparity(f["ir"].astype(np.float32), reference, n_disp, preprocessing=p)
             missing[p] += int((lit & ~np.isfinite(pred)).sum())

@@ -32,7 +32,7 @@ from dotsim.rig import (
 )
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, list_frames
-from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio
+from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio, valid_pixels
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
@@ -73,12 +73,6 @@ def load_reference(data, rig: Rig) -> np.ndarray:
     return reference_image(pattern.image, rig, supersample=4)
 
 
-def valid_pixels(frame: dict[str, np.ndarray]) -> np.ndarray:
-    """Pixels that are scored: the pattern is visible and the GT disparity finite and positive."""
-    gt = frame["disparity"]
-    return (frame["visibility"] > 0) & np.isfinite(gt) & (gt > 0)
-
-
 def configured_nearest_depth(ref: FrameRef) -> float | None:
     """The nearest object distance of the config a frame was rendered with ([scene] distance's lower
     bound, from scene.json), or None for data without one (captures, oracle-rendered tests)."""
@@ -92,7 +86,7 @@ def nearest_valid_depth(frames: list[FrameRef], rig: Rig) -> float:
     largest = 0.0
     for ref in frames:
         f = ref.read(("visibility", "disparity"))
-        valid = valid_pixels(f)
+        valid = valid_pixels(f["visibility"], f["disparity"])
         if valid.any():
             largest = max(largest, float(f["disparity"][valid].max()))
     return float(disparity_to_depth(np.float64(largest), rig)) if largest > 0 else np.inf
@@ -127,7 +121,7 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
     pixels = 0
     for ref in frames:
         f = ref.read(EVAL_CHANNELS)
-        valid, gt = valid_pixels(f), f["disparity"].astype(np.float64)
+        valid, gt = valid_pixels(f["visibility"], f["disparity"]), f["disparity"].astype(np.float64)
         pixels += int(valid.sum())
         for name in PREPROCESSINGS:
             pred = sgbm_disparity(f["ir"].astype(np.float32), reference, num_disparities, preprocessing=name)
@@ -223,7 +217,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
         f = ref.read(EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
-        valid = valid_pixels(f)
+        valid = valid_pixels(f["visibility"], f["disparity"])
         depth = disparity_to_depth(gt, rig)
         preds = {"network": predict_disparity(model, rig, ir, device, precision)[0]}
         for p in PREPROCESSINGS:

@@ -13,6 +13,17 @@ import numpy as np
 THRESHOLDS = (0.5, 1.0, 2.0, 5.0)  # o(t), camera px: GigaDepth's
 
 
+def valid_pixels(visibility: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """The scored pixels: the pattern is visible and the GT disparity finite and positive.
+
+    >>> valid_pixels(np.array([1, 1, 0, 1]), np.array([2.0, np.nan, 3.0, 0.0]))
+    array([ True, False, False, False])
+    """
+    gt = np.asarray(gt)
+    with np.errstate(invalid="ignore"):
+        return (np.asarray(visibility) > 0) & np.isfinite(gt) & (gt > 0)
+
+
 def outliers(pred: np.ndarray, gt: np.ndarray, t: float) -> np.ndarray:
     """Where |pred - gt| > t, or pred is no estimate (nan): bool, the shape of pred.
 
