@@ -85,6 +85,21 @@ def list_frames(data: str | Path, split: str, cache_dir: str | Path | None = Non
     return frames, rigs.rig, rigs.pattern
 
 
+def spread(frames: list, count: int) -> list:
+    """`count` items spread evenly over `frames` (all of them when there are fewer, or count is 0)."""
+    if count <= 0 or len(frames) <= count:
+        return list(frames)
+    return [frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)]
+
+
+def check_held_out(frames: list[FrameRef], others: list[FrameRef], what: str, where: str) -> None:
+    """DataError when any of `frames` (`what`) is one of `others` (`where`): validation frames must be
+    held out from the frames they judge."""
+    taken = {(f.path, f.scene_index, f.frame_index) for f in others}
+    if any((f.path, f.scene_index, f.frame_index) in taken for f in frames):
+        raise DataError(f"{what} overlap {where}; give another split or dataset")
+
+
 class _OneRig:
     """The rig and pattern of the first scene seen; DataError for a scene with another rig."""
 

@@ -31,7 +31,7 @@ from dotsim.rig import (
     reference_image,
 )
 from trainer.checkpoint import check_rig, load_model, predict_disparity
-from trainer.data import DataError, FrameRef, list_frames
+from trainer.data import DataError, FrameRef, check_held_out, list_frames, spread
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio, valid_pixels
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
@@ -103,13 +103,6 @@ def sgbm_nearest_depth(frames: list[FrameRef], rig: Rig) -> float:
         raise DataError(f"{frames[0].path if frames else 'no frames'}: no valid pixel (visible "
                         "pattern with finite depth) to size SGBM's disparity range on")
     return nearest
-
-
-def spread(frames: list, count: int) -> list:
-    """`count` items spread evenly over `frames` (all of them when there are fewer)."""
-    if count <= 0 or len(frames) <= count:
-        return list(frames)
-    return [frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)]
 
 
 def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disparities: int
@@ -194,10 +187,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         all_val, val_rig, _ = list_frames(val_data, val_split)
         check_rig(rig, val_rig, f"checkpoint {checkpoint}", str(val_data))
         validation = spread(all_val, val_frames)
-        if any((ref.path, ref.scene_index, ref.frame_index) in {(f.path, f.scene_index, f.frame_index)
-                                                                 for f in frames} for ref in validation):
-            raise DataError(f"{val_data}: validation frames (split {val_split!r}) overlap the evaluated "
-                            f"frames of {data_dir} (split {split!r}); give another split or dataset")
+        check_held_out(validation, frames, f"{val_data}: validation frames (split {val_split!r})",
+                       f"the evaluated frames of {data_dir} (split {split!r})")
     nearest = sgbm_nearest_depth(frames + validation, rig)
     n_disp = num_disparities_for(rig, nearest)
     if validation:
