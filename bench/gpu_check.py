@@ -25,7 +25,7 @@ Sections, in this order, each within its share of --minutes:
    left.
 
 OUT/gpu_check.json is rewritten after every measurement; OUT/gpu_check.md summarises at the end.
-`--device cpu --small` runs every section on CPU at 128 x 94 with dotsim/configs/train_tiny.toml (the
+`--device cpu --small` runs every section on CPU at 122 x 90 with dotsim/configs/train_tiny.toml (the
 test suite's dry run: tests/bench/test_gpu_check.py), as a check that the script works, not figures.
 """
 
@@ -326,7 +326,7 @@ def main(argv=None) -> int:
     parser.add_argument("--minutes", type=float, default=7.0, help="the whole check's budget (default 7; at "
                         "most 9 so one device call of 10 minutes holds it)")
     parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
-    parser.add_argument("--small", action="store_true", help="train_tiny at 128 x 94 for every section "
+    parser.add_argument("--small", action="store_true", help="train_tiny at 122 x 90 for every section "
                         "(the CPU dry run)")
     parser.add_argument("--repeats", type=int, default=30, help="timed inference runs (median)")
     parser.add_argument("--train-steps", type=int, default=15, help="timed training steps (median)")
@@ -361,7 +361,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="gpu_check_") as tmp:
         work = Path(tmp)
         if "inference" in sections:
-            size = "128 x 94" if args.small else "1216 x 896"
+            size = "122 x 90" if args.small else "1216 x 896"
             print(f"2. inference ({published_name}, {size}):", flush=True)
             inference_section(report, clock, published, get_preset("structure_core").scaled(scale), device,
                               args.repeats, variants, args.out)

@@ -17,7 +17,7 @@ Data: --generate, else --data (its train split) and --test-data (its test split;
 the Blender generator's output under out/: a folder holding a train and a test split, or sibling folders (e.g.
 out/bench_accuracy/train and out/bench_accuracy/test from dotsim/configs/bench_accuracy.toml, whose header
 has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
-boxes, exact geometry, Structure Core scaled to 128 x 94) written to a temporary folder. The output
+boxes, exact geometry, Structure Core scaled to 122 x 90) written to a temporary folder. The output
 says which. The step count is fitted to the time budget from the time per step of two short
 calibration runs (5 and 25 steps, reading every sample; their difference leaves out start-up), less
 the reading that [data].cache_mb saves after a frame's first read, and the step decay halves the

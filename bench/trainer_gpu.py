@@ -13,7 +13,7 @@ trained one (then the conv rows use it). --compile compiles the backbone with to
 replays the backbone from a captured CUDA graph (the tree's per-pixel routing has data-dependent
 shapes, so only the backbone can be captured). --train-run N trains N steps with train() in each low
 precision and reports whether the loss fell, NaNs, and end-to-end samples/s (data loading included).
-Without CUDA the bench says so and exits 0; `--device cpu --small` runs every part on CPU at 128 x 94
+Without CUDA the bench says so and exits 0; `--device cpu --small` runs every part on CPU at 122 x 90
 with dotsim/configs/train_tiny.toml, as a check that it works (not figures to report).
 """
 
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", choices=("cuda", "cpu"), default="cuda")
     parser.add_argument("--small", action="store_true",
-                        help="train_tiny on 128 x 94 frames (a CPU check of the bench itself)")
+                        help="train_tiny on 122 x 90 frames (a CPU check of the bench itself)")
     parser.add_argument("--config", help="training config (default: the published one, or tiny with --small)")
     parser.add_argument("--precisions", default=",".join(PRECISIONS), help="comma-separated, of " +
                         ", ".join(PRECISIONS))

@@ -20,7 +20,7 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column, get_preset, pixel_grid, pixel_rays
 
-TINY_SCALE = 0.105  # Structure Core at 128 x 94 camera px, 323 x 323 pattern
+TINY_SCALE = 0.1  # Structure Core at 122 x 90 camera px, 307 x 307 pattern: dotsim/configs/tiny.toml's
 
 
 def planar_depth(rig: Rig, z0: float, tilt_x: float, tilt_y: float) -> np.ndarray:
@@ -80,6 +80,8 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
                         "height": rig.projector.height, "params": dots.params},
             "poses": [np.eye(4).tolist()] * frames_per_scene,
             "render": {"kind": "oracle (tests/trainer_fixtures.py)", "noise": noise},
+            # the noise as a config's [sensor] records it (dotsim/solvable.py reads it)
+            "config": {"sensor": {"read_noise": noise, "shot_noise": 0.0, "bit_depth": ir_bits}},
         }
         write_scene(root, k, meta, frames, scenes_per_shard=3)
     seal_dataset(root)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from functools import partial
 
 from dotsim.dataset import FormatError
@@ -20,10 +21,14 @@ def _train(args: argparse.Namespace) -> None:
     from trainer.train import disk_full_in, train
 
     check_writable_folder(args.out, "--out")  # before the data is read or a rank started
+    cfg = load_config(args.config)
+    if args.max_steps is not None:
+        cfg = replace(cfg, train=replace(cfg.train, max_steps=args.max_steps))
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
     with disk_full_in(args.out):
-        run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
-            split=args.split, max_seconds=args.minutes * 60)
+        run(cfg, args.data, args.out, resume=args.resume, device=args.device, split=args.split,
+            max_seconds=args.minutes * 60, val_data=args.val_data, val_split=args.val_split,
+            val_frames=args.val_frames)
 
 
 def _eval(args: argparse.Namespace) -> None:
@@ -82,6 +87,16 @@ def add_parser(subparsers) -> None:
     p.add_argument("--minutes", type=number(0.0), default=0.0, metavar="M",
                    help="stop (with a checkpoint) after the first step that ends past M minutes of training "
                    "(default 0: run the config's epochs / max_steps)")
+    p.add_argument("--max-steps", type=integer(1), default=None, metavar="N",
+                   help="stop after optimiser step N (overrides [train].max_steps; a resumed run may "
+                   "change it)")
+    p.add_argument("--val-data", default=None, metavar="DIR",
+                   help="held-out frames to score while training: o(0.5..5) of the network over their valid "
+                   "and their solvable pixels every [train].val_every steps and at the end, and an image of "
+                   "the first one's error, in TensorBoard (validation/...); never the training frames")
+    p.add_argument("--val-split", default="all", help="split of --val-data (default all)")
+    p.add_argument("--val-frames", type=integer(1), default=4, metavar="N",
+                   help="validation frames, spread over the split (default 4)")
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(

@@ -99,6 +99,8 @@ class TrainConfig(Checked):
     log_every: int = setting(10, "steps between logged losses", low=1)
     image_every: int = setting(100, "steps between logged images", low=1)
     checkpoint_every: int = setting(200, "steps between checkpoints (and one at the end)", low=1)
+    val_every: int = setting(500, "steps between scorings of the validation frames (`dotsim train "
+                             "--val-data`; and one at the end)", low=1)
 
 
 @dataclass(frozen=True)

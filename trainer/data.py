@@ -16,8 +16,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from dotsim.data import IndexedSample, index_shards, read_indexed, resolve, stage_shards
+from dotsim.data import IndexedSample, index_shards, pattern_file, read_indexed, resolve, stage_shards
 from dotsim.dataset import FormatError, open_dataset, read_frame, read_scene_meta
+from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import Rig
 from trainer.config import DataConfig
 
@@ -83,6 +84,15 @@ def list_frames(data: str | Path, split: str, cache_dir: str | Path | None = Non
         rigs.check(read_scene_meta(s.path), s.path)
         frames += [FrameRef(p, s.scene_index, k) for k, p in enumerate(s.frame_paths)]
     return frames, rigs.rig, rigs.pattern
+
+
+def dataset_pattern(data, rig: Rig) -> np.ndarray:
+    """The projector pattern the data was rendered with (its pattern.png, or an export's), checked
+    against the rig's projector; DataError naming the file otherwise."""
+    try:
+        return load_pattern(pattern_file(data), (rig.projector.height, rig.projector.width)).image
+    except PatternError as e:
+        raise DataError(str(e)) from e
 
 
 def spread(frames: list, count: int) -> list:

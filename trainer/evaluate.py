@@ -19,11 +19,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from dotsim.data import pattern_file
 from dotsim.false_colour import with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
-from dotsim.patterns import PatternError, load_pattern
 from dotsim.rig import (
     Rig,
     depth_to_projector_column,
@@ -31,7 +29,7 @@ from dotsim.rig import (
     reference_image,
 )
 from trainer.checkpoint import check_rig, load_model, predict_disparity
-from trainer.data import DataError, FrameRef, check_held_out, list_frames, spread
+from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio, valid_pixels
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
@@ -65,12 +63,7 @@ def _labelled(img: np.ndarray, text: str) -> np.ndarray:
 
 def load_reference(data, rig: Rig) -> np.ndarray:
     """The data's pattern (DATASET/pattern.png, or an export's) as seen from infinity on the camera grid."""
-    path = pattern_file(data)
-    try:
-        pattern = load_pattern(path, (rig.projector.height, rig.projector.width))
-    except PatternError as e:
-        raise DataError(f"{e} (SGBM matches against the dataset's projector pattern)") from e
-    return reference_image(pattern.image, rig, supersample=4)
+    return reference_image(dataset_pattern(data, rig), rig, supersample=4)
 
 
 def configured_nearest_depth(ref: FrameRef) -> float | None:

@@ -20,11 +20,24 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
+from dotsim.false_colour import colourise
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
-from trainer.checkpoint import check_rig, load_checkpoint
+from dotsim.rig import Rig, disparity_to_depth
+from dotsim.solvable import pattern_snr, sensor_noise, solvable
+from trainer.checkpoint import check_rig, load_checkpoint, predict_disparity
 from trainer.config import Config, resolution_mismatch
-from trainer.data import DataError, FrameDataset, list_frames, make_loader
+from trainer.data import (
+    DataError,
+    FrameDataset,
+    FrameRef,
+    check_held_out,
+    dataset_pattern,
+    list_frames,
+    make_loader,
+    spread,
+)
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
+from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
 from trainer.model import GigaDepthNet, autocast, build_model
 
 CHECKPOINT = "checkpoint.pt"
@@ -153,6 +166,41 @@ def _set_rng_states(s: dict) -> None:
     random.setstate(s["python"])
 
 
+class Validation:
+    """A few held-out frames that training scores every [train].val_every steps: the network's o(t)
+    over their valid pixels and over the solvable ones (dotsim/solvable.py, where the frames record
+    their sensor), and the first frame's IR and |error| as an image. Read once, at the start."""
+
+    def __init__(self, frames: list[FrameRef], rig: Rig, pattern: np.ndarray):
+        self.rig, self.frames = rig, []
+        for ref in frames:
+            f = ref.read(("ir", "visibility", "disparity"))
+            classes = {"all": valid_pixels(f["visibility"], f["disparity"])}
+            sensor = sensor_noise(ref.scene_meta())
+            if sensor is not None:
+                snr = pattern_snr(f["ir"], disparity_to_depth(f["disparity"], rig), rig, pattern, sensor)
+                classes["solvable"] = classes["all"] & solvable(snr)
+            self.frames.append((f["ir"], f["disparity"].astype(np.float64), classes))
+
+    def __call__(self, model: GigaDepthNet, device: str) -> tuple[dict[str, float], np.ndarray]:
+        """({"all o(0.5)": rate, ...}, an RGB uint8 image of the first frame: its IR above its |error|,
+        0..5 px on the turbo map, black where there is no ground truth or no estimate)."""
+        counts: dict[str, np.ndarray] = {}
+        for n, (ir, gt, classes) in enumerate(self.frames):
+            pred = predict_disparity(model, self.rig, ir, device)[0]
+            for name, selected in classes.items():
+                pixels, over = outlier_counts(pred, gt, selected)
+                counts[name] = counts.get(name, 0) + np.array([pixels, *over])
+            if n == 0:
+                grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
+                error = colourise(np.where(classes["all"], np.abs(pred - gt), np.nan), 0.0, 5.0)
+                image = np.concatenate([np.repeat(grey[..., None], 3, 2), error[..., ::-1]], axis=0)
+        model.train()
+        rates = {f"{name} o({t:g})": outlier_rate(int(c[1 + k]), int(c[0]))
+                 for name, c in counts.items() for k, t in enumerate(THRESHOLDS)}
+        return rates, image
+
+
 def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
     """IR, GT column, predicted column and |error| (leaf units, 0..5) of the first sample."""
     was_training = model.training
@@ -173,12 +221,16 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
 
 
 def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
-          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0) -> dict:
-    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}.
+          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0,
+          val_data: str | Path | None = None, val_split: str = "all", val_frames: int = 4) -> dict:
+    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds",
+    "validation" (the last validation's rates, {} without val_data)}.
 
     Launched as several processes (torchrun, or trainer.distributed.run_on_ranks), each is one DDP rank
     of the same run: each takes its share of every global batch, and rank 0 alone writes and prints.
-    max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time."""
+    max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time.
+    val_data: `val_frames` frames spread over its `val_split` (held out from the training frames) are
+    scored every [train].val_every steps and at the end (Validation), into TensorBoard."""
     from torch.utils.tensorboard import SummaryWriter
 
     out_dir = Path(out_dir)
@@ -203,6 +255,14 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     mismatch = resolution_mismatch(cfg, rig.camera.width, rig.camera.height)
     if mismatch and progress and ranks.main:
         print(f"warning: {mismatch}", flush=True)
+    validation = None
+    if val_data is not None and ranks.main:
+        held_out, val_rig, _ = list_frames(val_data, val_split)
+        check_rig(rig, val_rig, "training data", str(val_data))
+        held_out = spread(held_out, val_frames)
+        check_held_out(held_out, frames, f"{val_data}: validation frames (split {val_split!r})",
+                       f"the training frames of {data_dir} (split {split!r})")
+        validation = Validation(held_out, rig, dataset_pattern(val_data, rig))
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch)
@@ -242,6 +302,7 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
 
     ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
     losses: list[float] = []
+    rates: dict[str, float] = {}
     start = time.perf_counter()
     model.train()
     progress = progress and ranks.main
@@ -278,6 +339,11 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
                     writer.add_scalar("lr", sched.get_last_lr()[0], step)
                 if step % t.image_every == 0 or step == total_steps:
                     _log_images(writer, step, model, batch)
+                if validation is not None and (step % t.val_every == 0 or step == total_steps or out_of_time):
+                    rates, image = validation(model, device)
+                    for name, rate in rates.items():
+                        writer.add_scalar(f"validation/{name}", rate, step)
+                    writer.add_image("validation/ir_and_error_0_to_5_px", image, step, dataformats="HWC")
                 if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
                     save()
             if step >= total_steps or out_of_time:
@@ -294,4 +360,6 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
               f"({len(losses) * t.batch_size / max(seconds, 1e-9):.1f} samples/s on {ranks.world} "
               f"process(es)), last loss {last}; checkpoint {ckpt_path}; TensorBoard logs in "
               f"{out_dir / 'tb'} (tensorboard --logdir {out_dir / 'tb'})")
-    return {"step": step, "losses": losses, "seconds": seconds}
+    if progress and rates:
+        print("validation: " + ", ".join(f"{k} {v:.4f}" for k, v in rates.items()))
+    return {"step": step, "losses": losses, "seconds": seconds, "validation": rates}

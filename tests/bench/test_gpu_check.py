@@ -1,4 +1,4 @@
-"""bench.gpu_check's dry run on CPU at 128 x 94 (4 training frames, 2 steps), so the prepared GPU check
+"""bench.gpu_check's dry run on CPU at 122 x 90 (4 training frames, 2 steps), so the prepared GPU check
 cannot rot between the sessions that have a GPU: every section runs and reports, on real exported
 shards of oracle frames, with a real tiny network and a real eval against SGBM."""
 

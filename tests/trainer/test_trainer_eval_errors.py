@@ -12,7 +12,7 @@ from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
 from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
-from trainer.checkpoint import upsample_half
+from trainer.checkpoint import load_checkpoint, upsample_half
 from trainer.config import config_from_dict, load_config
 from trainer.data import DataError
 from trainer.evaluate import evaluate
@@ -87,11 +87,11 @@ def test_empty_or_missing_data_folder(tmp_path, run):
 
 def test_data_of_another_rig_or_resolution(tmp_path, run):
     other = make_dataset(tmp_path / "other", scenes=0, test_scenes=1, frames_per_scene=1, scale=0.08)
-    with pytest.raises(DataError, match=r"97x72.*differs from the checkpoint.*128x94"):
+    with pytest.raises(DataError, match=r"97x72.*differs from the checkpoint.*122x90"):
         evaluate(run["ckpt"], other, tmp_path / "e", progress=False)
     png = tmp_path / "small.png"
     cv2.imwrite(str(png), np.zeros((72, 97), np.uint16))
-    with pytest.raises(DataError, match=r"small\.png: image is 97x72.*128x94"):
+    with pytest.raises(DataError, match=r"small\.png: image is 97x72.*122x90"):
         infer(run["ckpt"], [png], tmp_path / "i", progress=False)
     assert not (tmp_path / "i").exists()  # bad input: not even an empty output folder
 
@@ -135,7 +135,9 @@ def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
     (tmp_path / "c.toml").write_text(cfg.replace("batch_size = 4", "batch_size = 2"))
     out = tmp_path / "run"
     assert dotsim_main(["train", "--config", str(tmp_path / "c.toml"), "--data", str(run["data"]),
-                        "--out", str(out)]) == 0
+                        "--out", str(out), "--max-steps", "2", "--val-data", str(run["data"]),
+                        "--val-split", "test", "--val-frames", "1"]) == 0
+    assert load_checkpoint(out / "checkpoint.pt")[0]["step"] == 2  # --max-steps over the config's 1
     assert dotsim_main(["eval", "--checkpoint", str(out / "checkpoint.pt"), "--data", str(run["data"]),
                         "--out", str(tmp_path / "eval"), "--images", "1"]) == 0
     frame = next(Path(run["data"]).glob("shard_*/scene_0000001/frame_0.exr"))
@@ -148,16 +150,21 @@ def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
 
 
 def test_config_resolution_mismatch_is_named():
-    """train_cpu's 56 lines divide 608 x 448's 224 half-resolution rows; train_tiny's 47 do not (it is
-    sized for 128 x 94: 47 rows), and the message says which rows and what to choose."""
+    """train_cpu's 56 lines divide 608 x 448's 224 half-resolution rows, and train_tiny's 45 the 45 of
+    the generator's tiny config (122 x 90: `--config tiny` data trains without a warning); train_tiny on
+    608 x 448 does not fit, and the message says which rows and what to choose."""
+    from generator.config import load_config as load_generator_config
+    from generator.sample_scene import build_rig
     from trainer.config import resolution_mismatch
 
     assert resolution_mismatch(load_config("train_cpu"), 608, 448) is None
-    assert resolution_mismatch(load_config("train_tiny"), 128, 94) is None
+    tiny = build_rig(load_generator_config("tiny")).camera
+    assert (tiny.width, tiny.height) == (122, 90)
+    assert resolution_mismatch(load_config("train_tiny"), tiny.width, tiny.height) is None
     message = resolution_mismatch(load_config("train_tiny"), 608, 448)
-    assert "lines = 47" in message and "224 half-resolution rows" in message
-    assert "4.77 rows per line" in message
-    assert "lines = 56" in resolution_mismatch(load_config("train_cpu"), 128, 94)  # 56 > 47 rows
+    assert "lines = 45" in message and "224 half-resolution rows" in message
+    assert "4.98 rows per line" in message
+    assert "lines = 56" in resolution_mismatch(load_config("train_cpu"), 122, 90)  # 56 > 45 rows
 
 
 def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):

@@ -11,10 +11,12 @@ import torch
 from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
+from dotsim.patterns import load_pattern
+from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict
-from trainer.data import FrameDataset, FrameRef, list_frames
+from trainer.data import DataError, FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.model import build_model
@@ -38,7 +40,7 @@ def trained(data, tmp_path_factory):
     torch.manual_seed(cfg.seed)
     before = fixed_loss(build_model(cfg, rig))
     run = tmp_path_factory.mktemp("run")
-    result = train(cfg, data, run, progress=False)
+    result = train(cfg, data, run, progress=False, val_data=data, val_split="test", val_frames=2)
     ckpt, _, _ = load_checkpoint(run / "checkpoint.pt")
     model = build_model(cfg, rig)
     model.load_state_dict(ckpt["model"])
@@ -112,7 +114,7 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
         table = list(csv.DictReader(f))
     assert len(table) == len(rows) == 3 * 6
     pngs = sorted((tmp_path / "eval" / "errors").glob("*.png"))
-    assert len(pngs) == 2 and cv2.imread(str(pngs[0])).shape[1] > 3 * 128
+    assert len(pngs) == 2 and cv2.imread(str(pngs[0])).shape[1] > 3 * 122
     # recompute the network's overall o(1) from infer's EXRs and the GT, by hand
     frames, _, _ = list_frames(data, "test")
     infer(trained["run"] / "checkpoint.pt", [f.path for f in frames], tmp_path / "inf", progress=False)
@@ -132,6 +134,40 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     assert float(net["o(1)"]) == pytest.approx(over / total, abs=1e-12)
 
 
+def test_validation_while_training_scores_the_held_out_frames(data, trained, tmp_path):
+    """The validation rates train() ends with are the final network's o(t) on the held-out frames,
+    recounted here from infer's output; they are in TensorBoard with an image, and the training frames
+    are refused as validation frames."""
+    import OpenEXR
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    frames, rig, _ = list_frames(data, "test")
+    infer(trained["run"] / "checkpoint.pt", [f.path for f in frames], tmp_path / "inf", progress=False)
+    pattern = np.asarray(load_pattern(data / "pattern.png").image, np.float64)
+    counts = {"all": [0, 0], "solvable": [0, 0]}
+    for f in frames:
+        gt = read_frame(f.path)
+        pred = OpenEXR.File(str(tmp_path / "inf" / f"{f.path.parent.name}_{f.path.stem}.exr"),
+                            separate_channels=True).channels()["disparity"].pixels.astype(np.float64)
+        valid = (gt["visibility"] > 0) & np.isfinite(gt["disparity"]) & (gt["disparity"] > 0)
+        snr = pattern_snr(gt["ir"], gt["depth"], rig, pattern,
+                          {"read_noise": 0.01, "shot_noise": 0.0, "bit_depth": 12})  # make_dataset's sensor
+        wrong = ~(np.abs(pred - gt["disparity"]) <= 0.5)
+        for name, selected in (("all", valid), ("solvable", valid & (snr >= 10))):
+            counts[name][0] += int((wrong & selected).sum())
+            counts[name][1] += int(selected.sum())
+    rates = trained["result"]["validation"]
+    assert 0 < counts["solvable"][1] < counts["all"][1]
+    for name, (over, total) in counts.items():
+        assert rates[f"{name} o(0.5)"] == pytest.approx(over / total, abs=1e-12)
+    events = EventAccumulator(str(trained["run"] / "tb")).Reload()
+    assert "validation/solvable o(5)" in events.Tags()["scalars"]
+    (image,) = events.Images("validation/ir_and_error_0_to_5_px")
+    assert (image.width, image.height) == (rig.camera.width, 2 * rig.camera.height)
+    with pytest.raises(DataError, match="validation frames .* overlap the training frames"):
+        train(trained["cfg"], data, tmp_path / "again", progress=False, val_data=data, val_split="all")
+
+
 def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tmp_path):
     frames, rig, _ = list_frames(data, "test")
     ir = read_frame(frames[0].path)["ir"].astype(np.float32)
@@ -146,7 +182,7 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
     np.testing.assert_allclose(disp[finite], rig.camera.fx * rig.baseline / depth[finite], rtol=1e-5)
     ok = finite & (depth <= rig.max_depth)
     colour = cv2.imread(str(tmp_path / "out" / "captured.png"))
-    assert colour.shape[1] == 128 and colour.shape[0] > 94  # the legend is drawn under the image
+    assert colour.shape[1] == 122 and colour.shape[0] > 90  # the legend is drawn under the image
     import trimesh
 
     cloud = trimesh.load(tmp_path / "out" / "captured.ply")  # PLY read back by trimesh's own parser
