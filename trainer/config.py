@@ -50,6 +50,10 @@ class ModelConfig(Checked):
                          low=1)
     regress_neighbours: int = setting(1, "leaves on each side of the true one whose regressors are trained",
                                       low=0)
+    min_depth: float = setting(0.0, "nearest depth the network is asked to find, m: > 0 restricts every "
+                               "level of the tree to the classes whose projector columns a pixel's image "
+                               "column allows for depths from it to the rig's max_depth (as SGBM's disparity "
+                               "range), in training and inference; 0 = every class (GigaDepth's)", low=0.0)
     column_padding: float = setting(0.1, "p of the target x' = (1 - 2 p) x + p, which keeps the column off "
                                     "the tree's ends", low=0.0, high=0.5, high_open=True)
     chunk_pixels: int = setting(65536, "pixels per gathered-weight batch (bounds memory, not results)",

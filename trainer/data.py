@@ -201,6 +201,7 @@ class FrameDataset(Dataset):
         sample = {
             "ir": torch.from_numpy(ir.astype(np.float32, copy=False))[None],
             "row0": torch.tensor(y0 // 2),
+            "x0": torch.tensor(x0),
         }
         for key in ("column", "valid", "edge"):
             sub = t[key][rows.start : rows.stop : 2, cols.start : cols.stop : 2]  # output pixel centres

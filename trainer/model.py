@@ -11,7 +11,9 @@ its true child. Level 1 weights are chosen per line, deeper levels per (line, pa
 hidden layers per (line, leaf parent) and its output layer per (line, leaf); it gives the offset inside
 the leaf. Lines map the half-resolution rows onto `lines` weight sets (row * lines // rows). Inference
 routes by argmax; training routes by the ground-truth class (teacher forcing) and also trains the
-neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does.
+neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does. With [model] min_depth set,
+every level chooses only among the classes whose projector columns the pixel's image column allows for
+depths from min_depth to the rig's max_depth (feasible_positions), in inference and training alike.
 
 Mixed precision (`autocast`, on any device). LCN is computed in float64 and the network's input is
 float32; the convs then run in float16/bfloat16, and the indexed layers compute in the dtype of their
@@ -27,16 +29,21 @@ from __future__ import annotations
 import math
 from itertools import pairwise
 
+import numpy as np
 import torch
 import torch.distributed as dist
 import torch.distributed._functional_collectives as funcol  # autograd-aware collectives
 import torch.nn.functional as F
 from torch import nn
 
-from dotsim.rig import Rig
+from dotsim.config_schema import ConfigError
+from dotsim.rig import Rig, depth_to_projector_column
 from trainer.config import Config, ModelConfig
 
 LOW_PRECISION = {"float16": torch.float16, "bfloat16": torch.bfloat16}
+# Leaves by which a class may miss a pixel's feasible range and still be chosen: rounding, and vertical
+# jitter moving content a row or two against its line (which matters for a rotated projector only).
+FEASIBLE_MARGIN = 0.5
 
 
 def autocast(device: str | torch.device, precision: str):
@@ -250,9 +257,12 @@ class GigaDepthNet(nn.Module):
     """Backbone + branching regressor. `half_height` is the number of half-resolution rows of the full
     camera image (ceil(H / 2)); crops pass their first half-resolution row so lines keep their identity."""
 
-    def __init__(self, cfg: ModelConfig, half_height: int):
+    def __init__(self, cfg: ModelConfig, half_height: int, feasible: torch.Tensor | None = None):
         super().__init__()
         self.cfg, self.half_height = cfg, half_height
+        # [low, high] tree position per (half-resolution row, full-resolution column), or None: every
+        # class may be chosen (feasible_positions); derived from config and rig, so not saved
+        self.register_buffer("feasible", feasible, persistent=False)
         self.backbone = ConvBackbone(cfg) if cfg.backbone == "conv" else UNetBackbone(cfg)
         self.leaves = math.prod(cfg.classes)
         self.classifiers = nn.ModuleList()
@@ -280,6 +290,44 @@ class GigaDepthNet(nn.Module):
         lines = (rows * self.cfg.lines // self.half_height).clamp(0, self.cfg.lines - 1)
         return lines[:, :, None].expand(-1, h, w).reshape(-1)
 
+    def pixel_ranges(self, row0: torch.Tensor, x0: torch.Tensor | None, h: int, w: int) -> torch.Tensor:
+        """[low, high] tree position (B*h*w, 2) of every half-resolution pixel of crops starting at
+        half-resolution row row0 and full-resolution column x0 (None: 0): output pixel (i, j) sits on
+        full-resolution column x0 + 2 j."""
+        rows = row0.to(torch.long)[:, None] + torch.arange(h, device=row0.device)
+        rows = rows.clamp(0, self.half_height - 1)
+        x0 = torch.zeros_like(row0) if x0 is None else x0
+        cols = x0.to(torch.long)[:, None] + 2 * torch.arange(w, device=row0.device)
+        cols = cols.clamp(0, self.feasible.shape[1] - 1)
+        return self.feasible[rows[:, :, None], cols[:, None, :]].reshape(-1, 2)
+
+    def in_range(self, row0: torch.Tensor, x0: torch.Tensor | None, column: torch.Tensor) -> torch.Tensor:
+        """bool (B, h, w): the GT column lies in the pixel's feasible range (all True without one):
+        pixels nearer than [model] min_depth are left out of the loss, as SGBM leaves out what its
+        disparity range does not reach."""
+        if self.feasible is None:
+            return torch.ones_like(column, dtype=torch.bool)
+        b, h, w = column.shape
+        low, high = self.pixel_ranges(row0, x0, h, w).unbind(1)
+        pos = self.pad_column(column.reshape(-1)) * self.leaves
+        return ((pos >= low - FEASIBLE_MARGIN) & (pos <= high + FEASIBLE_MARGIN)).reshape(b, h, w)
+
+    def _feasible_children(self, level: int, first: torch.Tensor, ranges: torch.Tensor | None
+                           ) -> torch.Tensor | None:
+        """bool (N, c + 2 o): which children a parent may choose at `level`: child k of a parent whose
+        first child is the global class `first` (N,) is class first + k - o, feasible where it exists
+        and its leaves meet the pixel's range [low, high] (N, 2) (FEASIBLE_MARGIN leaves wider). None
+        without a range. A pixel none of whose children is feasible keeps them all."""
+        if ranges is None:
+            return None
+        c, o = self.cfg.classes[level], self.cfg.overlaps[level]
+        classes = first[:, None] + torch.arange(c + 2 * o, device=first.device) - o
+        span = self.leaves // math.prod(self.cfg.classes[: level + 1])  # leaves per class at this level
+        low, high = ranges[:, :1] - FEASIBLE_MARGIN, ranges[:, 1:] + FEASIBLE_MARGIN
+        ok = (classes >= 0) & (classes < math.prod(self.cfg.classes[: level + 1]))
+        ok &= ((classes + 1) * span > low) & (classes * span <= high)
+        return ok | ~ok.any(1, keepdim=True)
+
     def _stage_input(self, feat: torch.Tensor, stage: int) -> torch.Tensor:
         off, width = self.cfg.stage_inputs[stage]
         x = feat[:, off : off + width]
@@ -294,19 +342,25 @@ class GigaDepthNet(nn.Module):
         return (padded - p) / (1 - 2 * p)
 
     # ---- inference -----------------------------------------------------------------------------
-    def forward(self, ir: torch.Tensor, row0: torch.Tensor | None = None) -> torch.Tensor:
-        """Hard-routed prediction: normalised projector column (B, h, w) at half resolution."""
+    def forward(self, ir: torch.Tensor, row0: torch.Tensor | None = None, x0: torch.Tensor | None = None
+                ) -> torch.Tensor:
+        """Hard-routed prediction: normalised projector column (B, h, w) at half resolution. Crops
+        give their first half-resolution row (row0) and full-resolution column (x0)."""
         feat = self.features(ir)
         b, _, h, w = feat.shape
         if row0 is None:
             row0 = torch.zeros(b, dtype=torch.long, device=ir.device)
         line = self.pixel_lines(row0, h, w)
+        ranges = None if self.feasible is None else self.pixel_ranges(row0, x0, h, w)
         cls = self.cfg.classes
         g = torch.zeros_like(line)  # global class index at the current level
         for level, (c, o) in enumerate(zip(cls, self.cfg.overlaps, strict=True)):
             parents = math.prod(cls[:level])
             idx = line * parents + g
             logits = self.classifiers[level](self._stage_input(feat, level), idx, idx)
+            feasible = self._feasible_children(level, g * c, ranges)
+            if feasible is not None:
+                logits = logits.masked_fill(~feasible, -math.inf)
             g = (g * c + logits.argmax(1) - o).clamp(0, parents * c - 1)
         hidden_idx = line * (self.leaves // cls[-1]) + g // cls[-1]
         offset = self.regressor(self._stage_input(feat, len(cls)), hidden_idx, line * self.leaves + g)[:, 0]
@@ -315,18 +369,22 @@ class GigaDepthNet(nn.Module):
 
     # ---- training ------------------------------------------------------------------------------
     def loss_terms(
-        self, feat: torch.Tensor, row0: torch.Tensor, column: torch.Tensor, valid: torch.Tensor
+        self, feat: torch.Tensor, row0: torch.Tensor, column: torch.Tensor, valid: torch.Tensor,
+        x0: torch.Tensor | None = None,
     ) -> dict[str, list[torch.Tensor] | torch.Tensor]:
         """Per-pixel loss terms over the valid pixels (in valid.flatten().nonzero() order), teacher forced.
 
-        column: GT normalised column (B, h, w); valid: bool (B, h, w). Returns {"ce": [per level (N,)],
-        "l1": (N,)}: cross-entropy of the GT parent's and its neighbours' classifiers (summed; the
-        neighbours score the true child only where their overlap reaches it) and the L1 error of the
-        offsets of the true leaf and `regress_neighbours` leaves on each side, in leaf units.
+        column: GT normalised column (B, h, w); valid: bool (B, h, w), inside the feasible range
+        (in_range); x0: the crops' first full-resolution columns. Returns {"ce": [per level (N,)],
+        "l1": (N,)}: cross-entropy of the GT parent's and its neighbours' classifiers over their
+        feasible children (summed; the neighbours score the true child only where their overlap
+        reaches it) and the L1 error of the offsets of the true leaf and `regress_neighbours` leaves on
+        each side, in leaf units.
         """
         b, _, h, w = feat.shape
         sel = valid.reshape(-1).nonzero()[:, 0]
         line = self.pixel_lines(row0, h, w)[sel]
+        ranges = None if self.feasible is None else self.pixel_ranges(row0, x0, h, w)[sel]
         pos = self.pad_column(column.reshape(-1)[sel]) * self.leaves
         leaf = pos.floor().long().clamp(0, self.leaves - 1)
         cls = self.cfg.classes
@@ -342,8 +400,11 @@ class GigaDepthNet(nn.Module):
             ok = (parent >= 0) & (parent < parents) & (target >= 0) & (target < c + 2 * o)
             k = ok.nonzero()[:, 1]
             idx = line[k] * parents + parent[ok]
-            logits = self.classifiers[level](self._stage_input(feat, level)[sel][k], idx, idx)
-            loss = F.cross_entropy(logits.float(), target[ok], reduction="none")
+            logits = self.classifiers[level](self._stage_input(feat, level)[sel][k], idx, idx).float()
+            feasible = self._feasible_children(level, parent[ok] * c, None if ranges is None else ranges[k])
+            if feasible is not None:
+                logits = logits.masked_fill(~feasible, -math.inf)
+            loss = F.cross_entropy(logits, target[ok], reduction="none")
             ce.append(torch.zeros_like(pos).index_add(0, k, loss))
         r = self.cfg.regress_neighbours
         cand = leaf + torch.arange(-r, r + 1, device=leaf.device)[:, None]  # (2r+1, N) leaves
@@ -357,6 +418,31 @@ class GigaDepthNet(nn.Module):
 
 
 
+def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
+    """[low, high] tree position (x' * leaves) of the projector columns that depths from
+    [model] min_depth to the rig's max_depth give, per (half-resolution row, full-resolution column) of
+    the camera: (ceil(H / 2), W, 2) float32, or None when min_depth is 0 (no restriction). Along a
+    camera ray the projector column is monotonic in depth (a ratio of two linear functions of it, with
+    no pole in front of the projector), so the ends of the depth range give the ends of the column range;
+    a ray that leaves the projector's front keeps every class."""
+    if cfg.min_depth <= 0:
+        return None
+    if cfg.min_depth >= rig.max_depth:
+        raise ConfigError(f"[model] min_depth = {cfg.min_depth:g}: not below the rig's max_depth "
+                          f"{rig.max_depth:g} m; allowed: 0 (every class) or a depth below max_depth")
+    shape = (rig.camera.height, rig.camera.width)
+    ends = [depth_to_projector_column(np.full(shape, z), rig, normalised=True)[0::2].astype(np.float64)
+            for z in (cfg.min_depth, rig.max_depth)]
+    p, leaves = cfg.column_padding, math.prod(cfg.classes)
+    ends = [(column * (1 - 2 * p) + p) * leaves for column in ends]
+    known = np.isfinite(ends[0]) & np.isfinite(ends[1])
+    low = np.where(known, np.fmin(*ends), -np.inf)
+    high = np.where(known, np.fmax(*ends), np.inf)
+    return torch.from_numpy(np.stack([low, high], -1).astype(np.float32))
+
+
 def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
-    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2))."""
-    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2)
+    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2)), choosing
+    among the classes the rig's depth range allows where [model] min_depth is set."""
+    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2,
+                        feasible=feasible_positions(cfg.model, rig))

@@ -58,8 +58,8 @@ def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE
     weight (times the number of ranks, as DDP averages the ranks' gradients), so the ranks' mean loss and
     gradient are the single-process ones."""
     feat = model.features(batch["ir"])
-    valid = batch["valid"]
-    terms = model.loss_terms(feat, batch["row0"], batch["column"], valid)
+    valid = batch["valid"] & model.in_range(batch["row0"], batch["x0"], batch["column"])
+    terms = model.loss_terms(feat, batch["row0"], batch["column"], valid, batch["x0"])
     weight = 1.0 + cfg.train.edge_weight * batch["edge"][valid]
     norm = ranks.mean(weight.sum()).clamp_min(1.0 / ranks.world)
     parts = {f"ce{k + 1}": (ce * weight).sum() / norm for k, ce in enumerate(terms["ce"])}
@@ -206,7 +206,7 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
     was_training = model.training
     model.eval()
     with torch.no_grad():
-        pred = model(batch["ir"][:1], batch["row0"][:1])[0].float()
+        pred = model(batch["ir"][:1], batch["row0"][:1], batch["x0"][:1])[0].float()
     model.train(was_training)
     ir = batch["ir"][0, 0]
     writer.add_image("ir", (ir / ir.max().clamp_min(1e-6)).clamp(0, 1)[None], step)
