@@ -88,9 +88,18 @@ class TrainConfig(Checked):
     lr: float = setting(4.0, "learning rate", low=0.0, low_open=True)
     momentum: float = setting(0.0, "SGD momentum", low=0.0, high=1.0)
     weight_decay: float = setting(0.0, "L2 weight decay", low=0.0)
+    lr_schedule: str = setting("step", "how the learning rate changes over the run: step (times lr_gamma "
+                               "every lr_step_epochs epochs), cosine (from lr down to lr x lr_final at the "
+                               "run's last step) or piecewise (lr x each of lr_factors in turn, for equal "
+                               "shares of the run's steps: GigaDepth's code)",
+                               choices=("step", "cosine", "piecewise"))
     lr_step_epochs: int = setting(3, "step decay: multiply lr by lr_gamma every lr_step_epochs epochs",
                                   low=1)
     lr_gamma: float = setting(0.5, "step decay factor", low=0.0, high=1.0, low_open=True)
+    lr_final: float = setting(0.01, "cosine: the factor on lr at the run's last step", low=0.0, high=1.0)
+    lr_factors: tuple[float, ...] = setting((1.0, 0.5, 0.25, 0.12, 0.01), "piecewise: the factors on lr, "
+                                            "each for an equal share of the run's steps (GigaDepth's "
+                                            "code: at epochs 2, 4, 6, 8 of 10)", low=0.0, min_items=1)
     ce_weights: tuple[float, ...] = setting((1.0, 1.0, 1.0), "weight of each tree level's cross-entropy",
                                             low=0.0)
     l1_weight: float = setting(1.0, "weight of the L1 on the column in leaf units (column * leaves)",

@@ -62,6 +62,31 @@ def test_same_seed_same_losses_and_resume_continues_identically(data, tmp_path):
     assert straight[0] != straight[1]
 
 
+@pytest.mark.parametrize("schedule", ["cosine", "piecewise"])
+def test_annealing_schedules_follow_their_formula_over_the_run(data, tmp_path, schedule):
+    """The learning rate TensorBoard records per step is lr x the schedule's factor at that step of the
+    run's total, written out here; a resumed, extended run follows the schedule of its new total."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    def logged(run):  # a resumed run's writer purges what was logged after its checkpoint, no more
+        return [e.value for e in EventAccumulator(str(run / "tb")).Reload().Scalars("lr")]
+
+    cfg = tiny_config(10, lr_schedule=schedule, log_every=1, lr=0.01, lr_final=0.05)
+    train(cfg, data, tmp_path / "a", progress=False)
+    # the rate of optimiser step k (1-based) is logged after the scheduler moved on: factor at step k
+    if schedule == "cosine":
+        want = [0.01 * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * k / 10))) for k in range(1, 11)]
+    else:  # [1, .5, .25, .12, .01], each for 2 of the 10 steps
+        want = [0.01 * f for f in (1, .5, .5, .25, .25, .12, .12, .01, .01, .01)]
+    np.testing.assert_allclose(logged(tmp_path / "a"), want, rtol=1e-6)
+    train(tiny_config(4, lr_schedule=schedule, log_every=1, lr=0.01, lr_final=0.05), data, tmp_path / "b",
+          progress=False)
+    train(cfg, data, tmp_path / "b", resume=True, progress=False)
+    resumed = logged(tmp_path / "b")
+    assert len(resumed) == 10
+    np.testing.assert_allclose(resumed[4:], want[4:], rtol=1e-6)
+
+
 def test_loader_workers_do_not_change_the_run(data, tmp_path):
     """Augmentations are keyed by (seed, epoch, frame), so 2 worker processes give the same losses."""
     cfg = tiny_config(2).to_dict()
