@@ -105,9 +105,11 @@ def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str
     height, width = rig.camera.height, rig.camera.width
     # Linear upsampling of the column keeps the samples at (2i, 2j) exact, so converting at full size
     # and reading those pixels back gives each sample's disparity at its own pixel.
-    full_column = upsample_half(column, height, width)
+    half = model.cfg.stride == 2
+    full_column = upsample_half(column, height, width) if half else column
     disparity = depth_to_disparity(projector_column_to_depth(full_column, rig, normalised=True), rig)
-    disparity = upsample_half(disparity[0::2, 0::2], height, width, jump=DEPTH_JUMP_PX)
+    if half:
+        disparity = upsample_half(disparity[0::2, 0::2], height, width, jump=DEPTH_JUMP_PX)
     return disparity.astype(np.float32), disparity_to_depth(disparity, rig).astype(np.float32)
 
 

@@ -29,6 +29,9 @@ class ModelConfig(Checked):
     backbone_kernels: tuple[int, ...] = setting((5, 3, 3, 3, 3, 5, 3, 3), "kernel size of each backbone "
                                                 "conv (odd; only the first conv is strided)", low=1,
                                                 min_items=1)
+    stride: int = setting(2, "stride of the first backbone conv: 2 (published) works at half resolution, "
+                          "1 at full resolution (GigaDepth's supplementary, for sparser patterns): output "
+                          "pixel (i, j) sits on full-resolution pixel (stride i, stride j)", choices=(1, 2))
     unet_channels: tuple[int, ...] = setting((32, 64, 128), "encoder widths below half resolution (unet "
                                              "only)", low=1)
     lcn_window: int = setting(11, "LCN window side, px (odd)", low=1)
@@ -195,16 +198,22 @@ def validate(cfg: Config, source: str = "<dict>") -> None:
                    f"{levels} weights")
 
 
+def output_rows(cfg: ModelConfig, camera_height: int) -> int:
+    """Rows of the network's output for a camera of this height: ceil(height / stride)."""
+    return -(-camera_height // cfg.stride)
+
+
 def resolution_mismatch(cfg: Config, camera_width: int, camera_height: int) -> str | None:
     """Why `cfg` does not fit a camera of this size, or None. The per-line weight tables are made for
-    a number of half-resolution rows: `lines` must divide them (each line then covers whole rows, as
+    a number of output rows: `lines` must divide them (each line then covers whole rows, as
     configured) and not exceed them (lines beyond the last row would never train)."""
-    rows = (camera_height + 1) // 2
+    rows = output_rows(cfg.model, camera_height)
     lines = cfg.model.lines
     if lines <= rows and rows % lines == 0:
         return None
+    kind = "half-resolution" if cfg.model.stride == 2 else "full-resolution"
     return (f"[model] lines = {lines} does not fit the data's {camera_width} x {camera_height} camera "
-            f"({rows} half-resolution rows, {rows / lines:.2f} rows per line): the config was sized for "
+            f"({rows} {kind} rows, {rows / lines:.2f} rows per line): the config was sized for "
             f"another resolution; choose lines dividing {rows} (the built-in train_cpu: 608 x 448)")
 
 

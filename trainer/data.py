@@ -1,10 +1,12 @@
-"""Training samples from dotsim shards: IR crops with the GT projector column at half resolution.
+"""Training samples from dotsim shards: IR crops with the GT projector column at the network's output
+resolution (half, or full with [model] stride 1).
 
-A sample keeps the identity of the network's lines: crops start on even full-resolution rows and carry
-their first half-resolution row (`row0`), so the per-line weights see the rows they are meant for. The
-targets are read at the full-resolution pixels the half-resolution outputs sit on, (2i, 2j) of the crop
-(trainer/model.py), so no target is interpolated. Augmentations (gain, noise, vertical jitter) draw from
-an RNG keyed by (seed, epoch, frame index): the same sample comes out in any worker and after a resume.
+A sample keeps the identity of the network's lines: crops start on full-resolution rows that are
+multiples of the network's stride and carry their first output row (`row0`) and column (`x0`), so the
+per-line weights see the rows they are meant for. The targets are read at the full-resolution pixels
+the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated.
+Augmentations (gain, noise, vertical jitter) draw from an RNG keyed by (seed, epoch, frame index): the
+same sample comes out in any worker and after a resume.
 """
 
 from __future__ import annotations
@@ -154,10 +156,13 @@ def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarra
 
 
 class FrameDataset(Dataset):
-    """Frames as training samples; `augment` turns on crops and GigaDepth's augmentations."""
+    """Frames as training samples; `augment` turns on crops and GigaDepth's augmentations. `stride`:
+    the network's ([model] stride), whose output pixels the targets are read at."""
 
-    def __init__(self, frames: list[FrameRef], rig: Rig, cfg: DataConfig, seed: int, augment: bool):
+    def __init__(self, frames: list[FrameRef], rig: Rig, cfg: DataConfig, seed: int, augment: bool,
+                 stride: int = 2):
         self.frames, self.rig, self.cfg, self.seed, self.augment = frames, rig, cfg, seed, augment
+        self.stride = stride
         self.epoch = 0
         h, w = rig.camera.height, rig.camera.width
         self.crop_h = min(cfg.crop_height or h, h - h % 2)
@@ -187,7 +192,7 @@ class FrameDataset(Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, i])
         y0 = x0 = jitter = 0
         if self.augment:
-            y0 = 2 * int(rng.integers(0, (h - self.crop_h) // 2 + 1))
+            y0 = self.stride * int(rng.integers(0, (h - self.crop_h) // self.stride + 1))
             x0 = int(rng.integers(0, w - self.crop_w + 1))
             j = self.cfg.vertical_jitter
             jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
@@ -200,11 +205,12 @@ class FrameDataset(Dataset):
                 ir = ir + rng.normal(0.0, self.cfg.noise_std, ir.shape).astype(np.float32)
         sample = {
             "ir": torch.from_numpy(ir.astype(np.float32, copy=False))[None],
-            "row0": torch.tensor(y0 // 2),
+            "row0": torch.tensor(y0 // self.stride),
             "x0": torch.tensor(x0),
         }
         for key in ("column", "valid", "edge"):
-            sub = t[key][rows.start : rows.stop : 2, cols.start : cols.stop : 2]  # output pixel centres
+            step = self.stride  # at the output pixels
+            sub = t[key][rows.start : rows.stop : step, cols.start : cols.stop : step]
             sample[key] = torch.from_numpy(np.array(sub))
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample

@@ -1,15 +1,16 @@
 """The GigaDepth branching network: a conv backbone and a classification tree over the projector column.
 
 Conventions. The input is the IR image (B, 1, H, W) at full camera resolution; the network works at
-half resolution: output pixel (i, j) is centred on full-resolution pixel (2i, 2j) (first conv: odd
-kernel, stride 2, padding k // 2). The target is the projector column normalised by the projector width,
+half resolution (the published [model] stride 2; stride 1: at full resolution): output pixel (i, j) is
+centred on full-resolution pixel (stride i, stride j) (first conv: odd kernel, that stride, padding
+k // 2). The target is the projector column normalised by the projector width,
 x in [0, 1], padded to x' = (1 - 2p) x + p; x' * leaves is a position on the leaves of the tree.
 
 Tree. Level l has classes[l] classes per parent (leaves = product). A parent at level l >= 1 also scores
 overlaps[l] children of each neighbouring parent, so a pixel routed to the wrong neighbour can still reach
 its true child. Level 1 weights are chosen per line, deeper levels per (line, parent), the regressor's
 hidden layers per (line, leaf parent) and its output layer per (line, leaf); it gives the offset inside
-the leaf. Lines map the half-resolution rows onto `lines` weight sets (row * lines // rows). Inference
+the leaf. Lines map the output rows onto `lines` weight sets (row * lines // rows). Inference
 routes by argmax; training routes by the ground-truth class (teacher forcing) and also trains the
 neighbouring parents (CE) and neighbouring leaves (L1), as GigaDepth does. With [model] min_depth set,
 every level chooses only among the classes whose projector columns the pixel's image column allows for
@@ -38,7 +39,7 @@ from torch import nn
 
 from dotsim.config_schema import ConfigError
 from dotsim.rig import Rig, depth_to_projector_column
-from trainer.config import Config, ModelConfig
+from trainer.config import Config, ModelConfig, output_rows
 
 LOW_PRECISION = {"float16": torch.float16, "bfloat16": torch.bfloat16}
 # Leaves by which a class may miss a pixel's feasible range and still be chosen: rounding, and vertical
@@ -218,20 +219,20 @@ class ConvBackbone(nn.Sequential):
     def __init__(self, cfg: ModelConfig):
         layers, cin = [], 2
         for n, (c, k) in enumerate(zip(cfg.backbone_channels, cfg.backbone_kernels, strict=True)):
-            layers += _conv_bn(cin, c, k, 2 if n == 0 else 1)
+            layers += _conv_bn(cin, c, k, cfg.stride if n == 0 else 1)
             cin = c
         super().__init__(*layers)
 
 
 class UNetBackbone(nn.Module):
-    """GigaDepth's UNet ablation: a strided stem (backbone_channels[0], backbone_kernels[0]) to half
-    resolution, an encoder of unet_channels (each halving), a decoder with skip connections back to half
-    resolution, and a 3x3 conv to backbone_channels[-1]."""
+    """GigaDepth's UNet ablation: a stem (backbone_channels[0], backbone_kernels[0], [model] stride) to
+    the output resolution, an encoder of unet_channels (each halving), a decoder with skip connections
+    back to it, and a 3x3 conv to backbone_channels[-1]."""
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         stem = cfg.backbone_channels[0]
-        self.stem = nn.Sequential(*_conv_bn(2, stem, cfg.backbone_kernels[0], 2))
+        self.stem = nn.Sequential(*_conv_bn(2, stem, cfg.backbone_kernels[0], cfg.stride))
         widths = [stem, *cfg.unet_channels]
         self.down = nn.ModuleList(
             nn.Sequential(*_conv_bn(a, b, 3, 2), *_conv_bn(b, b, 3)) for a, b in pairwise(widths)
@@ -254,13 +255,13 @@ class UNetBackbone(nn.Module):
 
 
 class GigaDepthNet(nn.Module):
-    """Backbone + branching regressor. `half_height` is the number of half-resolution rows of the full
-    camera image (ceil(H / 2)); crops pass their first half-resolution row so lines keep their identity."""
+    """Backbone + branching regressor. `rows` is the number of output rows of the full camera image
+    (ceil(H / stride)); crops pass their first output row so lines keep their identity."""
 
-    def __init__(self, cfg: ModelConfig, half_height: int, feasible: torch.Tensor | None = None):
+    def __init__(self, cfg: ModelConfig, rows: int, feasible: torch.Tensor | None = None):
         super().__init__()
-        self.cfg, self.half_height = cfg, half_height
-        # [low, high] tree position per (half-resolution row, full-resolution column), or None: every
+        self.cfg, self.rows = cfg, rows
+        # [low, high] tree position per (output row, full-resolution column), or None: every
         # class may be chosen (feasible_positions); derived from config and rig, so not saved
         self.register_buffer("feasible", feasible, persistent=False)
         self.backbone = ConvBackbone(cfg) if cfg.backbone == "conv" else UNetBackbone(cfg)
@@ -285,19 +286,19 @@ class GigaDepthNet(nn.Module):
         return self.backbone(self.inputs(ir))
 
     def pixel_lines(self, row0: torch.Tensor, h: int, w: int) -> torch.Tensor:
-        """Line index (B*h*w,) of every half-resolution pixel of crops starting at half-res rows row0."""
+        """Line index (B*h*w,) of every output pixel of crops starting at output rows row0."""
         rows = row0.to(torch.long)[:, None] + torch.arange(h, device=row0.device)
-        lines = (rows * self.cfg.lines // self.half_height).clamp(0, self.cfg.lines - 1)
+        lines = (rows * self.cfg.lines // self.rows).clamp(0, self.cfg.lines - 1)
         return lines[:, :, None].expand(-1, h, w).reshape(-1)
 
     def pixel_ranges(self, row0: torch.Tensor, x0: torch.Tensor | None, h: int, w: int) -> torch.Tensor:
-        """[low, high] tree position (B*h*w, 2) of every half-resolution pixel of crops starting at
-        half-resolution row row0 and full-resolution column x0 (None: 0): output pixel (i, j) sits on
-        full-resolution column x0 + 2 j."""
+        """[low, high] tree position (B*h*w, 2) of every output pixel of crops starting at output row
+        row0 and full-resolution column x0 (None: 0): output pixel (i, j) sits on full-resolution
+        column x0 + stride j."""
         rows = row0.to(torch.long)[:, None] + torch.arange(h, device=row0.device)
-        rows = rows.clamp(0, self.half_height - 1)
+        rows = rows.clamp(0, self.rows - 1)
         x0 = torch.zeros_like(row0) if x0 is None else x0
-        cols = x0.to(torch.long)[:, None] + 2 * torch.arange(w, device=row0.device)
+        cols = x0.to(torch.long)[:, None] + self.cfg.stride * torch.arange(w, device=row0.device)
         cols = cols.clamp(0, self.feasible.shape[1] - 1)
         return self.feasible[rows[:, :, None], cols[:, None, :]].reshape(-1, 2)
 
@@ -420,8 +421,8 @@ class GigaDepthNet(nn.Module):
 
 def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
     """[low, high] tree position (x' * leaves) of the projector columns that depths from
-    [model] min_depth to the rig's max_depth give, per (half-resolution row, full-resolution column) of
-    the camera: (ceil(H / 2), W, 2) float32, or None when min_depth is 0 (no restriction). Along a
+    [model] min_depth to the rig's max_depth give, per (output row, full-resolution column) of the
+    camera: (ceil(H / stride), W, 2) float32, or None when min_depth is 0 (no restriction). Along a
     camera ray the projector column is monotonic in depth (a ratio of two linear functions of it, with
     no pole in front of the projector), so the ends of the depth range give the ends of the column range;
     a ray that leaves the projector's front keeps every class."""
@@ -431,10 +432,10 @@ def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
         raise ConfigError(f"[model] min_depth = {cfg.min_depth:g}: not below the rig's max_depth "
                           f"{rig.max_depth:g} m; allowed: 0 (every class) or a depth below max_depth")
     shape = (rig.camera.height, rig.camera.width)
-    ends = [depth_to_projector_column(np.full(shape, z), rig, normalised=True)[0::2].astype(np.float64)
+    ends = [depth_to_projector_column(np.full(shape, z), rig, normalised=True)[:: cfg.stride]
             for z in (cfg.min_depth, rig.max_depth)]
     p, leaves = cfg.column_padding, math.prod(cfg.classes)
-    ends = [(column * (1 - 2 * p) + p) * leaves for column in ends]
+    ends = [(column.astype(np.float64) * (1 - 2 * p) + p) * leaves for column in ends]
     known = np.isfinite(ends[0]) & np.isfinite(ends[1])
     low = np.where(known, np.fmin(*ends), -np.inf)
     high = np.where(known, np.fmax(*ends), np.inf)
@@ -442,7 +443,7 @@ def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
 
 
 def build_model(cfg: Config, rig: Rig) -> GigaDepthNet:
-    """The network for this config on this rig's camera (half-resolution rows = ceil(H / 2)), choosing
+    """The network for this config on this rig's camera (output rows = ceil(H / stride)), choosing
     among the classes the rig's depth range allows where [model] min_depth is set."""
-    return GigaDepthNet(cfg.model, half_height=(rig.camera.height + 1) // 2,
+    return GigaDepthNet(cfg.model, rows=output_rows(cfg.model, rig.camera.height),
                         feasible=feasible_positions(cfg.model, rig))

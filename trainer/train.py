@@ -315,7 +315,7 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
             "rng": _rng_states(), "torch_version": torch.__version__,
         }, ckpt_path)
 
-    ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
+    ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True, stride=cfg.model.stride)
     losses: list[float] = []
     rates: dict[str, float] = {}
     start = time.perf_counter()

@@ -77,10 +77,10 @@ def _count(cfg: ModelConfig) -> int:
 
 
 def test_parameter_count_tiny_and_published_on_meta_device():
-    assert sum(p.numel() for p in GigaDepthNet(TINY, half_height=6).parameters()) == _count(TINY)
+    assert sum(p.numel() for p in GigaDepthNet(TINY, rows=6).parameters()) == _count(TINY)
     published = load_config("dotsim/configs/train_gigadepth.toml").model
     with torch.device("meta"):
-        net = GigaDepthNet(published, half_height=448)
+        net = GigaDepthNet(published, rows=448)
     n = sum(p.numel() for p in net.parameters())
     assert n == _count(published)
     assert 340e6 < n < 420e6, n  # "about 380 M parameters"
@@ -89,7 +89,7 @@ def test_parameter_count_tiny_and_published_on_meta_device():
 def test_forward_routes_to_leaf_and_shapes():
     """With tree weights set by hand, hard routing must land in the leaf whose classifier says so."""
     torch.manual_seed(2)
-    net = GigaDepthNet(TINY, half_height=6).eval()
+    net = GigaDepthNet(TINY, rows=6).eval()
     with torch.no_grad():
         for mlp in [*net.classifiers, net.regressor]:
             for layer in mlp.layers:
@@ -108,7 +108,7 @@ def test_forward_routes_to_leaf_and_shapes():
 
 
 def test_pixel_lines_follow_crop_offset():
-    net = GigaDepthNet(TINY, half_height=6)
+    net = GigaDepthNet(TINY, rows=6)
     lines = net.pixel_lines(torch.tensor([0, 2]), h=4, w=1).reshape(2, 4)
     # rows 0..3 and 2..5 of 6 half-res rows onto 3 lines: row * 3 // 6
     assert lines.tolist() == [[0, 0, 1, 1], [1, 1, 2, 2]]
@@ -117,7 +117,7 @@ def test_pixel_lines_follow_crop_offset():
 def test_loss_terms_teacher_forcing_targets():
     """A pixel whose GT is exactly in leaf 5 with offset 0.5: CE targets per level and L1 targets."""
     torch.manual_seed(3)
-    net = GigaDepthNet(TINY, half_height=6)
+    net = GigaDepthNet(TINY, rows=6)
     feat = torch.randn(1, 8, 1, 1)
     padded = (5 + 0.5) / 24
     column = torch.tensor([[[(padded - 0.1) / 0.8]]])
@@ -147,7 +147,7 @@ def test_loss_terms_of_many_pixels_equal_each_pixel_alone():
     """All pixels (every line, leaves at both ends of the tree, some masked) in one call give the terms
     each pixel gets alone, gradients included: the batched neighbour pairs keep pixels apart."""
     torch.manual_seed(4)
-    net = GigaDepthNet(TINY, half_height=6)
+    net = GigaDepthNet(TINY, rows=6)
     feat = torch.randn(2, 8, 6, 5, requires_grad=True)
     column = torch.rand(2, 6, 5)
     column[0, 0, :2] = torch.tensor([0.0, 1.0])  # leaves 2 and 21 of 24 after padding: tree ends near

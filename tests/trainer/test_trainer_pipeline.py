@@ -12,9 +12,10 @@ from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
 from dotsim.patterns import load_pattern
+from dotsim.rig import depth_to_disparity, projector_column_to_depth
 from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
-from trainer.checkpoint import load_checkpoint
+from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
 from trainer.data import DataError, FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
@@ -95,13 +96,15 @@ def test_loader_workers_do_not_change_the_run(data, tmp_path):
     assert with_workers == train(tiny_config(2), data, tmp_path / "n", progress=False)["losses"]
 
 
-def test_samples_keep_line_identity_and_target_alignment(data):
-    """A crop's targets are the full frame's at (y0 + 2i, x0 + 2j), and row0 = y0 / 2."""
+@pytest.mark.parametrize("stride", [2, 1])
+def test_samples_keep_line_identity_and_target_alignment(data, stride):
+    """A crop's targets are the full frame's at (y0 + stride i, x0 + stride j), its row0 = y0 / stride
+    and x0 its first column ([model] stride 2: half resolution, 1: full)."""
     cfg = tiny_config(1)
     plain = dataclasses.replace(cfg.data, noise_std=0.0, intensity_scale=(1.0, 1.0))
     cfg = dataclasses.replace(cfg, data=plain)
     frames, rig, _ = list_frames(data, "train")
-    ds = FrameDataset(frames, rig, cfg.data, seed=3, augment=True)
+    ds = FrameDataset(frames, rig, cfg.data, seed=3, augment=True, stride=stride)
     for i in range(3):
         s = ds[i]
         full = read_frame(frames[i].path)
@@ -112,12 +115,31 @@ def test_samples_keep_line_identity_and_target_alignment(data):
                 if np.array_equal(ir[y : y + ch, x : x + cw], crop)]
         assert len(hits) == 1
         y0, x0 = hits[0]
-        assert y0 % 2 == 0 and int(s["row0"]) == y0 // 2
-        col = full["projector_column"][y0 : y0 + 48 : 2, x0 : x0 + 64 : 2] / rig.projector.width
+        assert y0 % stride == 0 and int(s["row0"]) == y0 // stride and int(s["x0"]) == x0
+        at = (slice(y0, y0 + 48, stride), slice(x0, x0 + 64, stride))
+        col = full["projector_column"][at] / rig.projector.width
         valid = s["valid"].numpy()
         np.testing.assert_array_equal(s["column"].numpy()[valid], col[valid].astype(np.float32))
-        np.testing.assert_array_equal(valid, (full["visibility"][y0 : y0 + 48 : 2, x0 : x0 + 64 : 2] > 0)
-                                      & np.isfinite(col) & (col >= 0) & (col <= 1))
+        np.testing.assert_array_equal(valid, (full["visibility"][at] > 0) & np.isfinite(col) & (col >= 0)
+                                      & (col <= 1))
+
+
+def test_a_full_resolution_network_trains_and_predicts_every_pixel(data, tmp_path):
+    """[model] stride 1: the backbone keeps full resolution, one line per camera row, and the disparity
+    of every pixel is the network's own (no upsampling): converted back to a column it is the output."""
+    cfg = tiny_config(3)
+    cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, stride=1, lines=90))
+    result = train(cfg, data, tmp_path / "run", progress=False)
+    assert len(result["losses"]) == 3 and np.isfinite(result["losses"]).all()
+    model, _, rig = load_model(tmp_path / "run" / "checkpoint.pt")
+    frames, _, _ = list_frames(data, "test")
+    ir = read_frame(frames[0].path)["ir"].astype(np.float32)
+    with torch.no_grad():
+        column = model(torch.from_numpy(ir)[None, None])[0].numpy()
+    assert column.shape == ir.shape
+    disparity = predict_disparity(model, rig, ir)[0]
+    want = depth_to_disparity(projector_column_to_depth(column, rig, normalised=True), rig)
+    np.testing.assert_array_equal(disparity, want)
 
 
 def test_model_input_lcn_equals_numpy_lcn(data):
