@@ -9,8 +9,9 @@ says where the outliers are.
 Renders `--scenes` test-split scenes of the config with world_strength 0, no extra lights, shot and
 read noise 0 (the 10-bit quantisation stays) into --out (resumed if already there), then scores SGBM
 (plain and LCN, its disparity range sized to the nearest depth, trainer.evaluate) on the lit pixels
-(visibility = 1, finite GT): o(0.5..5) overall, per depth range, off the edge mask, and how many of
-the outliers are pixels SGBM left without an estimate.
+(visibility = 1, finite GT): o(0.5..5) overall, per depth range, on and off the edge mask, solvable or
+not (dotsim/solvable.py), by the dots' 5 x 5 contrast, and how many of the outliers are pixels SGBM
+left without an estimate.
 """
 
 from __future__ import annotations
@@ -25,10 +26,11 @@ import numpy as np
 from dotsim.config_schema import read_toml
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset import read_frame
+from dotsim.solvable import pattern_snr, sensor_noise, solvable
 from generator.config import config_from_dict
 from generator.pipeline import generate
-from trainer.data import list_frames
-from trainer.evaluate import DEPTH_BINS, load_reference, sgbm_nearest_depth
+from trainer.data import dataset_pattern, list_frames
+from trainer.evaluate import load_reference, pixel_classes, sgbm_nearest_depth
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
@@ -76,26 +78,23 @@ def main(argv=None) -> int:
     bits = read_toml(args.config).get("sensor", {}).get("bit_depth", 10)
     nearest = sgbm_nearest_depth(frames, rig)
     n_disp = num_disparities_for(rig, nearest)
-    ranges = {"all": None, **{f"{a:g}-{b:g} m": (a, b) for a, b in zip(DEPTH_BINS[:-1], DEPTH_BINS[1:],
-                                                                       strict=True)}}
-    rows = {(p, r): np.zeros(1 + len(THRESHOLDS), np.int64) for p in PREPROCESSINGS
-            for r in [*ranges, "off edges", f"contrast < {FAINT_LSB} LSB", f"contrast >= {FAINT_LSB} LSB"]}
+    pattern = dataset_pattern(args.out, rig)
+    rows: dict[tuple[str, str], np.ndarray] = {}
     missing = dict.fromkeys(PREPROCESSINGS, 0)
     for ref in frames:
         f = read_frame(ref.path, channels=("ir", "visibility", "edge", "depth", "disparity"))
         lit, gt = valid_pixels(f["visibility"], f["disparity"]), f["disparity"].astype(np.float64)
+        snr = pattern_snr(f["ir"], f["depth"], rig, pattern, sensor_noise(ref.scene_meta()))
+        selections = pixel_classes(lit, f["depth"], f["edge"], solvable(snr))
+        faint = dot_contrast(f["ir"]) < FAINT_LSB / 2**bits
+        selections[f"contrast < {FAINT_LSB} LSB"] = lit & faint
+        selections[f"contrast >= {FAINT_LSB} LSB"] = lit & ~faint
         for p in PREPROCESSINGS:
             pred = sgbm_disparity(f["ir"].astype(np.float32), reference, n_disp, preprocessing=p)
             missing[p] += int((lit & ~np.isfinite(pred)).sum())
-            selections = {r: lit if lim is None else lit & (f["depth"] >= lim[0]) & (f["depth"] < lim[1])
-                          for r, lim in ranges.items()}
-            selections["off edges"] = lit & (f["edge"] == 0)
-            faint = dot_contrast(f["ir"]) < FAINT_LSB / 2**bits
-            selections[f"contrast < {FAINT_LSB} LSB"] = lit & faint
-            selections[f"contrast >= {FAINT_LSB} LSB"] = lit & ~faint
             for r, sel in selections.items():
                 pixels, over = outlier_counts(pred, gt, sel)
-                rows[(p, r)] += np.array([pixels, *over])
+                rows[(p, r)] = rows.get((p, r), 0) + np.array([pixels, *over])
     print(f"{len(frames)} clean frame(s) at {rig.camera.width}x{rig.camera.height}; SGBM with {n_disp} "
           f"disparities (nearest depth {nearest:.3g} m); lit pixels = visibility 1 with finite GT\n")
     print("| SGBM | pixels | " + " | ".join(f"o({t:g})" for t in THRESHOLDS) + " |")

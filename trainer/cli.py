@@ -106,9 +106,12 @@ def add_parser(subparsers) -> None:
         "plain and LCN-preprocessed) on the same frames: o(t) = share of valid pixels (pattern visible, "
         "finite GT) whose disparity error exceeds t = 0.5, 1, 2, 5 camera pixels at full resolution (no "
         "estimate, or GT outside a method's range, counts as an outlier), overall and per GT depth range, "
-        "with GigaDepth's reference figures and a one-line verdict against the SGBM variant chosen on "
-        "--val-data. Writes OUT/eval.md, OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM "
-        "error, with a legend: 0-5 px turbo, outliers black, no GT grey).")
+        "then by pixel class (on / off the edge mask, solvable or not: the 9 x 9 window's pattern against "
+        "the sensor noise), which pixels both, only one or neither method get wrong, and the share of "
+        "estimates outside the rig's feasible disparity range, with GigaDepth's reference figures and a "
+        "one-line verdict against the SGBM variant chosen on --val-data. Writes OUT/eval.md, OUT/eval.csv "
+        "and OUT/errors/*.png (IR | network error | SGBM error, with a legend: 0-5 px turbo, outliers "
+        "black, no GT grey).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")

@@ -6,7 +6,9 @@ method gives no estimate for counts as an outlier, so no method gains by abstain
 half-resolution output sits on pixels (2i, 2j); it is converted column -> depth -> disparity with
 dotsim.rig there and brought to full resolution by interpolation that keeps those samples exactly and
 does not blend across depth jumps (trainer.checkpoint.predict_disparity). Rows are split by GT depth range
-as well as overall.
+as well as overall, and by pixel class (on / off the edge mask, solvable or not: dotsim/solvable.py);
+a joint table says which pixels both methods, only one or neither get wrong, and a line how many of
+each method's estimates lie outside the rig's feasible disparity range.
 """
 
 from __future__ import annotations
@@ -28,13 +30,38 @@ from dotsim.rig import (
     disparity_to_depth,
     reference_image,
 )
+from dotsim.solvable import SOLVABLE_SNR, pattern_snr, sensor_noise, solvable
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
-from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, ratio, valid_pixels
-from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
+from trainer.metrics import (
+    THRESHOLDS,
+    joint_outliers,
+    outlier_counts,
+    outlier_rate,
+    outside_range,
+    ratio,
+    valid_pixels,
+)
+from trainer.sgbm import PREPROCESSINGS, max_disparity, num_disparities_for, sgbm_disparity
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
-EVAL_CHANNELS = ("ir", "visibility", "disparity")  # depth follows from disparity: exports may hold no depth
+# depth follows from disparity: exports may hold no depth
+EVAL_CHANNELS = ("ir", "visibility", "disparity", "edge")
+CLASSES = ("edge", "off edge", "solvable", "not solvable")  # the pixel classes beside the depth ranges
+
+
+def pixel_classes(valid: np.ndarray, depth: np.ndarray, edge: np.ndarray | None = None,
+                  solvable: np.ndarray | None = None, depth_bins=DEPTH_BINS) -> dict[str, np.ndarray]:
+    """The valid pixels by class: "all", each GT depth range "a-b" (m), and where given on / off the
+    edge mask and solvable or not (dotsim/solvable.py)."""
+    with np.errstate(invalid="ignore"):
+        classes = {"all": valid} | {f"{a:g}-{b:g}": valid & (depth >= a) & (depth < b)
+                                    for a, b in zip(depth_bins[:-1], depth_bins[1:], strict=True)}
+    if edge is not None:
+        classes |= {"edge": valid & (edge > 0), "off edge": valid & ~(edge > 0)}
+    if solvable is not None:
+        classes |= {"solvable": valid & solvable, "not solvable": valid & ~solvable}
+    return classes
 
 
 # Colours of the error images (BGR) and what they mean, for the images and their legends.
@@ -116,13 +143,16 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
     return min(PREPROCESSINGS, key=lambda name: (not rates[name] <= 1, rates[name])), rates
 
 
-# GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): the only published figures on data like ours.
-GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic Kinect data, 640 x 480): SGM o(0.5) 10.4 %, "
-                       "GigaDepth o(0.5) 1.9 % (5.5x fewer outliers)")
+# GigaDepth's Table 2 (its supplementary material; DepthInSpace / CTD-style synthetic data: a few objects
+# before a back plane, 512 x 432; dotsim/configs/table2.toml rebuilds it): the only published figures
+# on data like ours.
+GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic DepthInSpace / CTD-style data, 512 x 432, "
+                       "dotsim/configs/table2.toml rebuilds it): SGM o(0.5) 10.4-12.9 %, GigaDepth o(0.5) "
+                       "1.75-1.88 % (5.5-6.9x fewer outliers)")
 
 
-def format_table(rows: list[dict]) -> str:
-    head = ("| method | depth range (m) | pixels | outside range | "
+def format_table(rows: list[dict], label: str = "depth range (m)") -> str:
+    head = (f"| method | {label} | pixels | outside range | "
             + " | ".join(f"o({t:g})" for t in THRESHOLDS) + " |")
     lines = [head, "|" + "---|" * (4 + len(THRESHOLDS))]
     for r in rows:
@@ -141,8 +171,14 @@ def chosen_sgbm(rows: list[dict]) -> str:
     return next(r["method"] for r in rows if r["chosen"])
 
 
+def row_of(rows: list[dict], method: str, pixels: str) -> dict | None:
+    """The row of a method for a depth range or pixel class, or None."""
+    return next((r for r in rows if r["method"] == method and r["range"] == pixels), None)
+
+
 def verdict(rows: list[dict], sgbm_method: str) -> str:
-    """One line: the network against the chosen SGBM at o(0.5) and o(2), and GigaDepth's ratio."""
+    """One line: the network against the chosen SGBM at o(0.5) and o(2), the o(0.5) ratio against
+    GigaDepth's and the goal, overall and on the solvable pixels."""
     net, sgbm = overall(rows, "network"), overall(rows, sgbm_method)
     if not net["pixels"]:
         return "verdict: no valid pixels were scored"
@@ -151,9 +187,24 @@ def verdict(rows: list[dict], sgbm_method: str) -> str:
         better = net[t] < sgbm[t]
         parts.append(f"{'better' if better else 'not better'} than {sgbm_method} at {t} "
                      f"({net[t]:.4f} vs {sgbm[t]:.4f})")
-    return (f"verdict: the network is {parts[0]} and {parts[1]}; o(0.5) ratio network / SGBM "
-            f"{ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f} "
-            f"(GigaDepth's: 0.18; the goal: at most 0.5)")
+    line = (f"verdict: the network is {parts[0]} and {parts[1]}; o(0.5) ratio network / SGBM "
+            f"{ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f} (GigaDepth's: 0.18; the goal: at most 0.5)")
+    net, sgbm = row_of(rows, "network", "solvable"), row_of(rows, sgbm_method, "solvable")
+    if net and net["pixels"]:
+        line += (f"; on the solvable pixels {net['o(0.5)']:.4f} vs {sgbm['o(0.5)']:.4f}, ratio "
+                 f"{ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f}")
+    return line
+
+
+def joint_table(joint: dict[tuple[str, float], np.ndarray], sgbm_method: str) -> str:
+    """Which valid pixels the network and the chosen SGBM get wrong, per pixel set and threshold."""
+    lines = [f"| pixels | t | both wrong | only the network | only {sgbm_method} | neither |",
+             "|---|---|---|---|---|---|"]
+    for (pixels, t), c in joint.items():
+        total = int(c.sum())
+        shares = " | ".join(f"{outlier_rate(int(v), total):.4f}" if total else "-" for v in c)
+        lines.append(f"| {pixels} | {t:g} | {shares} |")
+    return "\n".join(lines) + "\n"
 
 
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
@@ -195,28 +246,40 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     sgbm_chosen = f"sgbm-{chosen}"
     methods = ("network", *(f"sgbm-{p}" for p in PREPROCESSINGS))
     (out_dir / "errors").mkdir(parents=True, exist_ok=True)
-    bins = list(zip(depth_bins[:-1], depth_bins[1:], strict=True))
-    ranges = [("all", None)] + [(f"{a:g}-{b:g}", (a, b)) for a, b in bins]
-    counts = {(m, r): np.zeros(2 + len(THRESHOLDS), np.int64) for m in methods for r, _ in ranges}
+    pattern = dataset_pattern(data_dir, rig)
+    # the rig's feasible disparities for this data: from its max_depth to the nearest depth SGBM reaches
+    feasible = (max_disparity(rig, rig.max_depth), max_disparity(rig, nearest))
+    counts: dict[tuple[str, str], np.ndarray] = {}
+    joint: dict[tuple[str, float], np.ndarray] = {}
+    infeasible = dict.fromkeys(methods, 0)
     for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
         f = ref.read(EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f["visibility"], f["disparity"])
         depth = disparity_to_depth(gt, rig)
+        sensor = sensor_noise(ref.scene_meta())
+        snr = None if sensor is None else pattern_snr(ir, depth, rig, pattern, sensor)
+        classes = pixel_classes(valid, depth, f["edge"], None if snr is None else solvable(snr), depth_bins)
         preds = {"network": predict_disparity(model, rig, ir, device, precision)[0]}
         for p in PREPROCESSINGS:
             preds[f"sgbm-{p}"] = sgbm_disparity(ir, reference, n_disp, preprocessing=p)
         # what each method can represent: SGBM disparities 0 .. n_disp - 1, the network any column
-        # inside the projector image
+        # inside the projector image (no nearer than [model] min_depth where that restricts it)
         column = depth_to_projector_column(depth, rig, normalised=True)
-        reachable = {"network": (column >= 0) & (column <= 1)}
+        with np.errstate(invalid="ignore"):
+            reachable = {"network": (column >= 0) & (column <= 1) & (depth >= cfg.model.min_depth)}
         reachable |= {f"sgbm-{p}": gt <= n_disp - 1 for p in PREPROCESSINGS}
         for method, pred in preds.items():
-            for name, lim in ranges:
-                sel = valid if lim is None else valid & (depth >= lim[0]) & (depth < lim[1])
+            infeasible[method] += outside_range(pred, *feasible, valid)
+            for name, sel in classes.items():
                 pixels, outliers = outlier_counts(pred, gt, sel)
                 outside = int((sel & ~reachable[method]).sum())
-                counts[(method, name)] += np.array([pixels, outside, *outliers])
+                counts[(method, name)] = counts.get((method, name), 0) + np.array([pixels, outside,
+                                                                                   *outliers])
+        for name in ("all", "solvable"):
+            for t in THRESHOLDS if name in classes else ():
+                both = joint_outliers(preds["network"], preds[sgbm_chosen], gt, classes[name], t)
+                joint[(name, t)] = joint.get((name, t), 0) + np.array(both)
         if n < images:
             grey = cv2.cvtColor(_to_grey(ir), cv2.COLOR_GRAY2BGR)
             panels = [_labelled(grey, "IR")] + [
@@ -234,7 +297,19 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         for k, t in enumerate(THRESHOLDS):
             row[f"o({t:g})"] = outlier_rate(int(c[2 + k]), int(c[0]))
         rows.append(row)
-    table = format_table(rows)
+    table = format_table([r for r in rows if r["range"] not in CLASSES])
+    by_class = [r for r in rows if r["range"] in CLASSES]
+    table += ("\nBy pixel class (the edge mask as the frames store it; solvable: the 9 x 9 window's dots "
+              f"{SOLVABLE_SNR:g} noise sigmas strong, dotsim/solvable.py"
+              + ("" if row_of(rows, "network", "solvable") else "; not given: the frames record no sensor "
+                 "noise") + "):\n\n"
+              + format_table(by_class, "pixel class"))
+    table += ("\nWhich pixels the network and the chosen SGBM get wrong (shares of the pixels of the set):"
+              "\n\n" + joint_table(joint, sgbm_chosen))
+    total = overall(rows, "network")["pixels"]
+    table += (f"\nEstimates outside the rig's feasible disparity range ({feasible[0]:.3g}-{feasible[1]:.3g} "
+              f"px: depths {nearest:.3g}-{rig.max_depth:g} m), shares of the valid pixels: "
+              + ", ".join(f"{m} {outlier_rate(v, total):.4f}" for m, v in infeasible.items()) + ".\n")
     outside = overall(rows, sgbm_chosen)["outside"]
     header = (
         f"Evaluation of {checkpoint} ({precision} inference) on {len(frames)} frame(s) of {data_dir} "

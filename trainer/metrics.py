@@ -45,6 +45,34 @@ def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
     return int(valid.sum()), [int((outliers(pred, gt, t) & valid).sum()) for t in thresholds]
 
 
+def joint_outliers(pred_a: np.ndarray, pred_b: np.ndarray, gt: np.ndarray, valid: np.ndarray,
+                   t: float) -> tuple[int, int, int, int]:
+    """Valid pixels two methods get wrong at t: (both, only a, only b, neither).
+
+    >>> gt = np.zeros(6)
+    >>> a = np.array([0.0, 1.0, 1.0, 0.0, np.nan, 9.0])
+    >>> b = np.array([0.0, 1.0, 0.0, 1.0, 0.0, 9.0])
+    >>> joint_outliers(a, b, gt, np.array([1, 1, 1, 1, 1, 0], bool), 0.5)
+    (1, 2, 1, 1)
+    """
+    valid = np.asarray(valid, bool)
+    wrong_a, wrong_b = outliers(pred_a, gt, t) & valid, outliers(pred_b, gt, t) & valid
+    return (int((wrong_a & wrong_b).sum()), int((wrong_a & ~wrong_b).sum()), int((~wrong_a & wrong_b).sum()),
+            int((valid & ~wrong_a & ~wrong_b).sum()))
+
+
+def outside_range(pred: np.ndarray, low: float, high: float, valid: np.ndarray) -> int:
+    """Valid pixels whose estimate lies outside [low, high] (a feasible disparity range); pixels
+    without an estimate are not counted.
+
+    >>> outside_range(np.array([0.5, 2.0, 9.0, np.nan, 12.0]), 1.0, 10.0, np.array([1, 1, 1, 1, 0], bool))
+    1
+    """
+    pred = np.asarray(pred, np.float64)
+    with np.errstate(invalid="ignore"):
+        return int((np.asarray(valid, bool) & np.isfinite(pred) & ((pred < low) | (pred > high))).sum())
+
+
 def outlier_rate(count: int, pixels: int) -> float:
     """o(t): the share of scored pixels that are outliers; nan when no pixel was scored.
 

@@ -12,7 +12,7 @@ from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
 from dotsim.patterns import load_pattern
-from dotsim.rig import depth_to_disparity, projector_column_to_depth
+from dotsim.rig import depth_to_disparity, projector_column_to_depth, reference_image
 from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
@@ -21,6 +21,7 @@ from trainer.data import DataError, FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.model import build_model
+from trainer.sgbm import sgbm_disparity
 from trainer.train import batch_loss, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -156,29 +157,45 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     rows = evaluate(trained["run"] / "checkpoint.pt", data, tmp_path / "eval", progress=False)
     md = (tmp_path / "eval" / "eval.md").read_text()
     assert "| network | all |" in md and "| sgbm-plain | all |" in md and "| sgbm-lcn | all |" in md
-    assert "verdict: the network is" in md and "10.4 %" in md  # GigaDepth's reference figures
+    assert "verdict: the network is" in md and "10.4-12.9 %" in md  # GigaDepth's reference figures
+    assert "| network | solvable |" in md and "| all | 0.5 |" in md and "feasible disparity range" in md
     with open(tmp_path / "eval" / "eval.csv") as f:
         table = list(csv.DictReader(f))
-    assert len(table) == len(rows) == 3 * 6
+    assert len(table) == len(rows) == 3 * (6 + 4)  # all, 5 depth ranges; edge, off edge, (not) solvable
     pngs = sorted((tmp_path / "eval" / "errors").glob("*.png"))
     assert len(pngs) == 2 and cv2.imread(str(pngs[0])).shape[1] > 3 * 122
-    # recompute the network's overall o(1) from infer's EXRs and the GT, by hand
-    frames, _, _ = list_frames(data, "test")
+    # recompute the network's overall and edge o(1) and the joint table's "only the network" at 0.5 px
+    # from infer's EXRs, SGBM and the GT, by hand
+    frames, rig, _ = list_frames(data, "test")
     infer(trained["run"] / "checkpoint.pt", [f.path for f in frames], tmp_path / "inf", progress=False)
     import OpenEXR
 
     over = total = 0
+    edge = [0, 0]  # outliers at 1 px on the edge mask, its pixels
+    only_network = 0  # valid pixels the network gets wrong at 0.5 px and plain SGBM (chosen here) right
+    reference = reference_image(load_pattern(data / "pattern.png").image, rig, supersample=4)
     for f in frames:
         gt = read_frame(f.path)
         pred = OpenEXR.File(str(tmp_path / "inf" / f"{f.path.parent.name}_{f.path.stem}.exr"),
                             separate_channels=True).channels()["disparity"].pixels
         valid = (gt["visibility"] > 0) & np.isfinite(gt["disparity"]) & (gt["disparity"] > 0)
-        err = np.abs(pred[valid].astype(np.float64) - gt["disparity"][valid])
-        over += int(np.sum(~(err <= 1.0)))
+        err = np.abs(pred.astype(np.float64) - gt["disparity"])
+        over += int(np.sum(~(err[valid] <= 1.0)))
         total += int(valid.sum())
+        on_edge = valid & (gt["edge"] > 0)
+        edge[0] += int(np.sum(~(err[on_edge] <= 1.0)))
+        edge[1] += int(on_edge.sum())
+        sgbm = sgbm_disparity(gt["ir"].astype(np.float32), reference, 16)
+        sgbm_err = np.abs(sgbm.astype(np.float64) - gt["disparity"])
+        only_network += int((valid & ~(err <= 0.5) & (sgbm_err <= 0.5)).sum())
     net = next(r for r in table if r["method"] == "network" and r["range"] == "all")
     assert int(net["pixels"]) == total
     assert float(net["o(1)"]) == pytest.approx(over / total, abs=1e-12)
+    net_edge = next(r for r in table if r["method"] == "network" and r["range"] == "edge")
+    assert int(net_edge["pixels"]) == edge[1] and float(net_edge["o(1)"]) == pytest.approx(edge[0] / edge[1])
+    assert "SGBM: 16 disparities" in md
+    only = float(next(line for line in md.splitlines() if line.startswith("| all | 0.5 |")).split("|")[4])
+    assert only == pytest.approx(only_network / total, abs=1e-4)
 
 
 def test_validation_while_training_scores_the_held_out_frames(data, trained, tmp_path):
