@@ -67,6 +67,18 @@ def generated_datasets(root: Path = Path("out")) -> tuple[Path, Path] | None:
     return None
 
 
+def sized_config(base: dict, steps: int, epochs: int, source: str, cache_mb: int | None = None):
+    """The config `base` (a config's dict) for a run of `steps` steps in `epochs` epochs: step decay
+    halves the learning rate at 25, 50 and 75 % of it (schedules that anneal span the run by
+    themselves), one checkpoint at the end; `cache_mb` replaces [data].cache_mb when given."""
+    d = json.loads(json.dumps(base))
+    d["train"].update(max_steps=steps, epochs=epochs, lr_step_epochs=max(1, epochs // 4),
+                      checkpoint_every=max(steps, 1), image_every=max(steps // 10, 1))
+    if cache_mb is not None:
+        d["data"]["cache_mb"] = cache_mb
+    return config_from_dict(d, source)
+
+
 def planned_steps(read_step_s: float, frames: list, rig, cfg, seconds: float) -> int:
     """Steps that fill `seconds`, given the time of a step that reads its samples (`read_step_s`). With
     [data].cache_mb each cached frame is read once, in the first epoch, and later steps only crop:
@@ -128,13 +140,7 @@ def main(argv=None) -> int:
         base = load_config(args.config).to_dict()
 
         def config(steps: int, epochs: int, cache_mb: int | None = None):
-            d = json.loads(json.dumps(base))
-            # StepLR halving every epochs // 4 epochs: at 25, 50 and 75 % of the run
-            d["train"].update(max_steps=steps, epochs=epochs, lr_step_epochs=max(1, epochs // 4),
-                              checkpoint_every=max(steps, 1), image_every=max(steps // 10, 1))
-            if cache_mb is not None:
-                d["data"]["cache_mb"] = cache_mb
-            return config_from_dict(d, args.config)
+            return sized_config(base, steps, epochs, args.config, cache_mb)
 
         # A step's time is the difference of two short runs: one run's time also holds start-up
         # (model, loader, TensorBoard, first-step allocations), which made a 60 min budget train 41 min.

@@ -30,7 +30,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from dotsim.rig import get_preset
-from trainer.config import load_config
+from trainer.config import load_config, output_rows
 from trainer.model import GigaDepthNet, build_model
 
 CROPS = ((96, 64), (192, 128), (304, 224), (608, 448))  # (width, height), full-resolution px
@@ -38,18 +38,22 @@ VALID_SHARE = 0.55  # share of visible pixels (dotsim stats on make dataset's da
 
 
 def synthetic_batch(cfg, rows: int, width: int, height: int, seed: int = 0) -> dict:
+    """A random batch of crops of width x height full-resolution px for a network with `rows` output
+    rows (trainer.config.output_rows)."""
     g = torch.Generator().manual_seed(seed)
-    b = cfg.train.batch_size
-    h, w = height // 2, width // 2
+    b, stride = cfg.train.batch_size, cfg.model.stride
+    h, w = -(-height // stride), -(-width // stride)
     return {"ir": torch.rand(b, 1, height, width, generator=g),
-            "row0": torch.randint(0, max(rows - h, 0) + 1, (b,), generator=g) // 2 * 2,
+            "row0": torch.randint(0, max(rows - h, 0) + 1, (b,), generator=g),
+            "x0": torch.zeros(b, dtype=torch.long),
             "column": torch.rand(b, h, w, generator=g),
             "valid": torch.rand(b, h, w, generator=g) < VALID_SHARE,
             "edge": torch.zeros(b, h, w)}
 
 
 def step_loss(model: GigaDepthNet, batch: dict) -> torch.Tensor:
-    terms = model.loss_terms(model.features(batch["ir"]), batch["row0"], batch["column"], batch["valid"])
+    terms = model.loss_terms(model.features(batch["ir"]), batch["row0"], batch["column"], batch["valid"],
+                             batch["x0"])
     return sum(ce.sum() for ce in terms["ce"]) + terms["l1"].sum()
 
 
@@ -114,7 +118,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     cfg = load_config(args.config)
     rig = get_preset("structure_core").scaled(0.5)  # 608 x 448
-    rows = rig.camera.height
+    rows = output_rows(cfg.model, rig.camera.height)
     torch.manual_seed(0)
     model = build_model(cfg, rig)
     params = sum(p.numel() for p in model.parameters())
