@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
 from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
@@ -192,6 +193,11 @@ class MotionConfig(Checked):
 @dataclass(frozen=True)
 class OutputConfig(Checked):
     scenes_per_shard: int = setting(100, "scenes per shard directory", low=1, high=100000)
+    exr_compression: str = setting("zstd", "lossless compression of the frame EXRs: zstd (the smallest, "
+                                   "fastest to read; OpenEXR >= 3.4 reads it) or zip / piz (1.4x the bytes; "
+                                   "older OpenEXR readers too); neither makes a frame readable by OpenCV or "
+                                   "imageio (docs/FORMAT.md \"Compression\", README \"Reading frames\")",
+                                   choices=tuple(EXR_COMPRESSIONS))
 
 
 @dataclass(frozen=True)
