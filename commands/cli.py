@@ -20,6 +20,7 @@ SUBCOMMAND_MODULES = [
     "commands.pattern",
     "commands.dataset",
     "commands.config",
+    "commands.rig",
     "commands.stats",
     "trainer.cli",
     "capture.cli",

@@ -88,9 +88,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "(generator.config.config_json: what a --slurm run's tasks read)")
     parser.add_argument("--rig", metavar="PRESET_OR_FILE", default=None,
                         help="the rig instead of the config's [rig] preset / file: a preset (structure_core, "
-                             "kinect_v1, realsense_d415) or a rig file (dotsim rig JSON, OpenCV, ROS "
-                             "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"); the "
-                             "config's other [rig] keys (scale, camera_file, ...) still apply")
+                             "kinect_v1, realsense_d415), a rig file (dotsim rig JSON, OpenCV, ROS "
+                             "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"; a file of a "
+                             "camera alone is its camera_file, with the preset's projector, and says so) or "
+                             "a generator config (.toml: its [rig]); the config's other [rig] keys (scale, "
+                             "...) still apply")
+    parser.add_argument("--camera-file", metavar="FILE", default=None,
+                        help="the IR camera from this calibration file (OpenCV's calibration sample, ROS "
+                             "camera_info, Kalibr, or camera 1 of any rig file) instead of the rig's, as "
+                             "[rig] camera_file; the projector and its pose stay the rig's")
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
     parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
@@ -129,18 +135,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from dotsim.rig_report import summary_line
     from generator import pipeline, run_steps
     from generator.config import load_config, with_rig
     from generator.run_request import RunRequest
 
     executor = executor_from_args(args)
     config = load_config(args.config)
-    if args.rig:
-        config = with_rig(config, args.rig)
+    if args.rig or args.camera_file:
+        config = with_rig(config, args.rig, args.camera_file)
     request = RunRequest(config, args.out, args.split, args.scenes, args.start, args.seed, args.blender,
                          executor, progress=not args.no_progress, seal=not args.no_seal)
-    note = request.rig.rectification_note(f"{config.source}: [rig]")
-    if note:
+    print(summary_line(request.rig), flush=True)  # the rig that renders (`dotsim rig show` lists it)
+    notes = (*request.rig.notes, request.rig.rectification_note(f"{config.source}: [rig]"))
+    for note in filter(None, notes):
         print(note, file=sys.stderr)
     if args.seal_only:
         summary = run_steps.seal_run(request)

@@ -451,6 +451,29 @@ def test_generate_with_rig_file_renders_its_pinhole_model(tmp_path, capsys):
     np.testing.assert_allclose(frame["disparity"][near], 60.0 * 0.06 / frame["depth"][near], rtol=1e-5)
 
 
+def test_generate_with_a_ros_camera_info_by_flag_prints_the_rig_it_renders(tmp_path, capsys):
+    """`--camera-file` with a ROS camera_info: the file's pinhole camera with the config's preset projector
+    renders, the rig is named after both, and generate says so when it starts: the rig in one line
+    (as `dotsim rig show` prints it), the camera-only note and the lens note."""
+    from tests.capture.test_capture_rectify import LENS_K, ros_camera_info
+
+    ros = ros_camera_info(tmp_path / "ir.yaml")
+    assert run_cli("--config", "tiny", "--camera-file", str(ros), "--out", str(tmp_path / "d"), "--split",
+                   "train", "--scenes", "1") == 0
+    out, err = capsys.readouterr()
+    name = "ir_camera (camera) + structure_core (projector)"
+    assert out.splitlines()[0].startswith(f"rig {name}: camera 32 x 24 px, f 26.00 px, field of view ")
+    assert f"{ros} calibrates the camera alone: the projector and its pose are those of preset " \
+        "structure_core" in err
+    assert "the calibrated camera has lens distortion" in err
+    rig = dataset.read_scene_meta(dataset.open_dataset(tmp_path / "d").scenes[0].path)["rig"]
+    focal = (LENS_K[0, 0] + LENS_K[1, 1]) / 2 * 0.1
+    assert rig["name"] == name and (rig["camera"]["width"], rig["camera"]["fx"]) == (32, focal)
+    assert rig["projector"] == get_preset("structure_core").scaled(0.1).projector.to_dict()
+    # the same file as --rig: a camera alone, so the same rig
+    assert with_rig(load_config("tiny"), str(ros)).calibrated_rig.rig.to_dict() == rig
+
+
 def test_generate_rig_option_errors(tmp_path, capsys):
     assert with_rig(load_config("tiny"), "kinect_v1").rig.preset == "kinect_v1"
     for spec, message in (("nosuch", "--rig 'nosuch': neither a preset"),
