@@ -29,6 +29,7 @@ from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
+from dotsim.prediction_file import prediction_path
 from dotsim.rig import Rig
 
 # Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
@@ -48,11 +49,6 @@ def _rerun():
     except ImportError:
         raise ViewError('dotsim view needs rerun-sdk: pip install "dotsim[view]"') from None
     return rerun
-
-
-def prediction_path(predictions: Path, scene_index: int, frame_index: int) -> Path:
-    """`dotsim infer`'s output for a frame of a scene directory (trainer.infer names it so)."""
-    return predictions / f"{ds.scene_name(scene_index)}_frame_{frame_index}.exr"
 
 
 def disparity_error(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:

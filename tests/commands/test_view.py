@@ -1,7 +1,7 @@
 """`dotsim view --save`: the recording read back with Rerun's own dataframe API, entity by entity.
 
 The scene is written with the dataset writer (oracle frames of tests/trainer_fixtures.py) at four
-distinct poses; predictions are files in `dotsim infer`'s format (trainer.infer.write_exr).
+distinct poses; predictions are files in `dotsim infer`'s format (dotsim.prediction_file.write_prediction).
 """
 
 import sys
@@ -12,9 +12,9 @@ import pytest
 from commands import cli
 from dotsim import dataset as ds
 from dotsim.patterns import generate_dot_pattern
+from dotsim.prediction_file import write_prediction
 from dotsim.rig import get_preset
 from tests.trainer_fixtures import random_depth, synthetic_frame
-from trainer.infer import write_exr
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
 
@@ -112,7 +112,7 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     disparity = frame["disparity"] + 1.0  # 1 px off everywhere
     disparity[0, :5] = 0.01  # and hundreds of metres away: beyond the rig's range, not drawn
     depth = RIG.camera.fx * RIG.baseline / disparity
-    write_exr(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
+    write_prediction(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
     out = tmp_path / "pred.rrd"
     assert cli.main(["view", str(path), "--frame", "2", "--predictions", str(preds), "--save", str(out)]) == 0
     entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
