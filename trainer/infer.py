@@ -3,7 +3,8 @@
 Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
 Outputs per input, named after it (dotsim.prediction_file): NAME.exr (float32 channels disparity
-[camera px] and depth [m], nan where no estimate), NAME.png (disparity, turbo colour map over its
+[camera px] and depth [m], nan where no estimate; marked in its header as a prediction of this checkpoint
+for this input), NAME.png (disparity, turbo colour map over its
 1st..99th percentile, black = none, with a legend under it), NAME.ply (dotsim.pointcloud: binary,
 through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue; only depths
 within the rig's max_depth).
@@ -66,10 +67,12 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
     out_dir = make_folder(out_dir)
     written = []
-    todo = list(zip(names, irs, strict=True))
-    for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):
+    todo = list(zip(names, irs, inputs, strict=True))
+    for name, ir, path in tqdm(todo, desc="infer", unit="frame", disable=not progress):
         disparity, depth = predict_disparity(model, rig, ir, device, precision)
-        write_prediction(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
+        write_prediction(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth},
+                         {"checkpoint": str(Path(checkpoint).resolve()), "input": str(Path(path).resolve()),
+                          "precision": precision})
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
         write_image(out_dir / f"{name}.png", with_legend(colourise(disparity, lo, hi), lo, hi,

@@ -112,7 +112,8 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     disparity = frame["disparity"] + 1.0  # 1 px off everywhere
     disparity[0, :5] = 0.01  # and hundreds of metres away: beyond the rig's range, not drawn
     depth = RIG.camera.fx * RIG.baseline / disparity
-    write_prediction(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
+    write_prediction(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth},
+                     {"checkpoint": "c.pt", "input": str(path / "frame_2.exr"), "precision": "float32"})
     out = tmp_path / "pred.rrd"
     assert cli.main(["view", str(path), "--frame", "2", "--predictions", str(preds), "--save", str(out)]) == 0
     entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}

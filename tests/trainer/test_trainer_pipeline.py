@@ -11,6 +11,7 @@ import torch
 from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.lcn import lcn
+from dotsim.prediction_file import prediction_source
 from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict
 from trainer.data import FrameDataset, FrameRef, list_frames
@@ -139,6 +140,9 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
     import OpenEXR
 
     ch = OpenEXR.File(str(tmp_path / "out" / "captured.exr"), separate_channels=True).channels()
+    assert prediction_source(tmp_path / "out" / "captured.exr") == {  # marked as a prediction, and whose
+        "checkpoint": str((trained["run"] / "checkpoint.pt").resolve()), "input": str(png.resolve()),
+        "precision": "float32"}
     depth, disp = ch["depth"].pixels, ch["disparity"].pixels
     finite = np.isfinite(depth)
     np.testing.assert_allclose(disp[finite], rig.camera.fx * rig.baseline / depth[finite], rtol=1e-5)
