@@ -18,6 +18,7 @@ from capture.import_frames import import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.config_schema import bounds_of
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
@@ -138,7 +139,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "2.56 on); needs dotsim[realsense]")
     imp.add_argument("--off", metavar="DIR_OR_GLOB", help="projector-off frames, likewise (with --on)")
     _rig_arguments(imp, "; with --bag: the recording's own calibration")
-    imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
+    add_output(imp, "dataset folder to write", metavar="DATASET", type=Path)
     imp.add_argument("--frames-per-scene", type=integer(1), default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
     imp.add_argument("--white-level", type=number(0.0, low_open=True),
@@ -148,6 +149,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="JSON file of capture settings (exposure, gain, sensor serial, ...) copied into "
                      "every scene.json")
     _dataset_arguments(imp)
+    add_no_progress(imp)
     imp.set_defaults(func=_import)
 
     pat = actions.add_parser(
@@ -184,7 +186,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     pat.add_argument("--detect-threshold", type=number(0.0, 1.0), default=DEFAULT_DETECT_THRESHOLD,
                      help="keep local maxima above this share of the local dot brightness "
                      f"(default {DEFAULT_DETECT_THRESHOLD})")
-    pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
+    add_output(pat, "output pattern .png", metavar="PNG", old=("--output",), dest="output", type=Path)
     pat.set_defaults(func=_pattern)
 
     rec = actions.add_parser(
@@ -200,7 +202,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "live preview shows when a display and an OpenCV with windows are there.",
     )
     _device_arguments(rec)
-    rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
+    add_output(rec, "new dataset folder", metavar="DATASET", type=Path)
     rec.add_argument("--scenes", type=integer(1), default=1, help="scenes to record (default 1)")
     rec.add_argument("--frames", type=integer(1), default=4, help="poses per scene (default 4)")
     rec.add_argument("--rig", help="rig preset, rig file or generator config (as for import) for the frames "
@@ -224,7 +226,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
     _dataset_arguments(rec)
     rec.add_argument("--no-preview", action="store_true", help="no live preview window")
-    rec.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(rec)
     rec.set_defaults(func=_record)
 
     info = actions.add_parser(
@@ -238,7 +240,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     _device_arguments(info)
     info.add_argument("--max-depth", type=number(**bounds_of(Rig, "max_depth")), default=DEFAULT_MAX_DEPTH,
                       help=f"max_depth of the rig, m (default {DEFAULT_MAX_DEPTH:g})")
-    info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
+    add_output(info, "rig file to write (.json)", metavar="JSON", old=("--output",), dest="output", type=Path)
     info.set_defaults(func=_info)
 
 
@@ -298,7 +300,8 @@ def _import(args: argparse.Namespace) -> int:
         summary = import_frames(args.on, args.off, rig, args.out, frames_per_scene=args.frames_per_scene,
                                 split=args.split, white_level=args.white_level, dot_window=args.dot_window,
                                 visibility_threshold=args.visibility_threshold, capture_settings=settings,
-                                pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens)
+                                pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens,
+                                progress=not args.no_progress)
     except (CaptureError, PatternError, FormatError, ValueError) as error:
         return _fail("import", error)
     print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "

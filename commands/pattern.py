@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from dotsim.command_options import add_output
 from dotsim.config_schema import bounds_of
 from dotsim.file_io import atomic_write_json
 from dotsim.option_types import integer, number
@@ -52,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                       help="least distance between dot centres in pattern px (default 3)")
     make.add_argument("--sigma", type=number(**bounds_of(PatternConfig, "dot_sigma")), default=0.8,
                       help="Gaussian dot standard deviation in pattern px (default 0.8)")
-    make.add_argument("-o", "--output", required=True, type=Path, help="output .png path")
+    add_output(make, "output .png path", metavar="PNG", old=("--output",), dest="output", type=Path)
     make.set_defaults(func=_make)
 
     stats = actions.add_parser(

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.command_options import add_output
 from dotsim.false_colour import (
     BACKGROUND,
     FONT,
@@ -354,8 +355,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "predictions). --overview draws the IR of many scenes of a dataset in "
         "one grid instead; --ply writes a frame's ground-truth point cloud instead.")
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
-    parser.add_argument("-o", "--output", default="contact_sheet.png",
-                        help="image to write, .png or .jpg (default: contact_sheet.png)")
+    add_output(parser, "image to write, .png or .jpg (default: contact_sheet.png)", metavar="FILE",
+               required=False, old=("--output",), dest="output", default="contact_sheet.png")
     parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
     parser.add_argument("--frame", type=integer(0), default=0, metavar="K",

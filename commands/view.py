@@ -27,6 +27,7 @@ import numpy as np
 
 from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
+from dotsim.command_options import add_output
 from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
@@ -200,7 +201,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "depth, visibility and edge masks over the `frame` timeline; the ground-truth depth as a point cloud "
         "in the rig frame at each of the scene's poses (world frame, z up); the camera and projector frusta "
         "at every pose; with --predictions, the predicted cloud beside the truth and the disparity error "
-        "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
+        "image. Without -o it spawns the viewer; -o OUT.rrd writes a recording instead (open it "
         "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
     parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
     parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
@@ -210,7 +211,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--predictions", default=None, metavar="EVAL_DIR",
                         help="folder of `dotsim infer` outputs for any of the scene's frames "
                         "(scene_SSSSSSS_frame_K.exr)")
-    parser.add_argument("--save", default=None, metavar="OUT.rrd", help="write a recording; spawn no viewer")
+    add_output(parser, "write a recording (.rrd); spawn no viewer", metavar="OUT.rrd", required=False,
+               old=("--save",), dest="save")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
     parser.set_defaults(func=run, errors={ViewError: 1, ds.FormatError: 1})
     return parser

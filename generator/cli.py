@@ -8,6 +8,7 @@ import signal
 import sys
 from types import ModuleType
 
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.option_types import integer
 from generator.config import ConfigError
@@ -97,7 +98,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         help="the IR camera from this calibration file (OpenCV's calibration sample, ROS "
                              "camera_info, Kalibr, or camera 1 of any rig file) instead of the rig's, as "
                              "[rig] camera_file; the projector and its pose stay the rig's")
-    parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
+    add_output(parser, "dataset directory (created; resumed)", metavar="DIR")
     parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
     parser.add_argument("--scenes", required=True, type=integer(1), metavar="N",
@@ -115,7 +116,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
                              "generator/blender/run_in_blender.py`) instead of the bpy module")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(parser)
     seal = parser.add_mutually_exclusive_group()
     seal.add_argument("--no-seal", action="store_true",
                       help="seal only the shards wholly inside this range (no index.json), and remove only "

@@ -259,10 +259,11 @@ def verdict(rows: list[dict], sgbm_method: str) -> str:
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
-             val_split: str = "train", val_frames: int = 8) -> list[dict]:
+             val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM (plain and LCN) on `split` of data_dir; write OUT/eval.md,
     OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a
-    legend). Returns the table rows.
+    legend). Returns the table rows. progress: print the table, with a progress bar (progress_bar=False:
+    without).
 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
@@ -300,7 +301,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     bins = list(zip(depth_bins[:-1], depth_bins[1:], strict=True))
     ranges = [("all", None)] + [(f"{a:g}-{b:g}", (a, b)) for a, b in bins]
     counts = {(m, r): np.zeros(2 + len(THRESHOLDS), np.int64) for m in methods for r, _ in ranges}
-    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
+    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not (progress and progress_bar))):
         f = ref.read(EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f)

@@ -57,9 +57,10 @@ DISPARITY_SWATCHES = (((0, 0, 0), "black: no estimate"),)
 
 
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
-          progress: bool = True, precision: str = "float32") -> list[Path]:
+          progress: bool = True, precision: str = "float32", progress_bar: bool = True) -> list[Path]:
     """Run the network on each input in `precision` (trainer.evaluate.PRECISIONS); returns the written
-    EXR paths (PNG and PLY lie beside them)."""
+    EXR paths (PNG and PLY lie beside them). progress: say what was written, with a progress bar
+    (progress_bar=False: without)."""
     model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
     names = [output_name(Path(p)) for p in inputs]
@@ -68,7 +69,7 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     out_dir = make_folder(out_dir)
     written = []
     todo = list(zip(names, irs, inputs, strict=True))
-    for name, ir, path in tqdm(todo, desc="infer", unit="frame", disable=not progress):
+    for name, ir, path in tqdm(todo, desc="infer", unit="frame", disable=not (progress and progress_bar)):
         disparity, depth = predict_disparity(model, rig, ir, device, precision)
         write_prediction(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth},
                          {"checkpoint": str(Path(checkpoint).resolve()), "input": str(Path(path).resolve()),

@@ -243,3 +243,20 @@ def test_cache_with_loader_workers_is_refused():
     d["data"].update(cache_mb=100, workers=2)
     with pytest.raises(ConfigError, match=r"\[data\] cache_mb.*workers = 0"):
         config_from_dict(d, "cache.toml")
+
+
+def test_infer_by_its_command_draws_a_bar_unless_told_not_to(data, trained, tmp_path, capsys):
+    """`dotsim infer -o DIR` (the one output spelling) with and without --no-progress: the same files,
+    the bar (tqdm, on stderr) only without it; the line saying what was written either way."""
+    from commands.cli import main
+
+    frames, _, _ = list_frames(data, "test")
+    argv = ["infer", "--checkpoint", str(trained["run"] / "checkpoint.pt"), str(frames[0].path)]
+    assert main([*argv, "-o", str(tmp_path / "bar")]) == 0
+    out, err = capsys.readouterr()
+    assert "infer: 100%" in err and "wrote disparity/depth EXR, PNG and PLY for 1 frame(s)" in out
+    assert main([*argv, "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    out, err = capsys.readouterr()
+    assert "infer:" not in err and "wrote disparity/depth EXR, PNG and PLY for 1 frame(s)" in out
+    assert sorted(p.name for p in (tmp_path / "bar").iterdir()) == \
+        sorted(p.name for p in (tmp_path / "quiet").iterdir())
