@@ -26,14 +26,13 @@ os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")  # its "can't read header" l
 import argparse  # noqa: E402 (after the variable OpenCV reads once)
 import io  # noqa: E402
 import json  # noqa: E402
-import statistics  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench.generate_stages import median_run  # noqa: E402
 from dotsim import dataset as ds  # noqa: E402
 
 NAMINGS = {
@@ -67,16 +66,6 @@ def decode(data: bytes) -> dict[str, np.ndarray]:
 
     return {name: channel.pixels for name, channel in
             OpenEXR.File(io.BytesIO(data), separate_channels=True).channels().items()}
-
-
-def cpu_seconds(work, repeats: int) -> float:
-    """Median CPU seconds (this process, all threads) of `work()`."""
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        work()
-        times.append(time.process_time() - start)
-    return statistics.median(times)
 
 
 def image_read(array, ir: np.ndarray) -> str:
@@ -120,9 +109,10 @@ def measure(frames: list[dict], repeats: int, folder: Path) -> list[dict]:
             path.write_bytes(files[0])
             rows.append({
                 "compression": key, "names": label, "bytes": sum(map(len, files)) / len(files),
-                "encode_s": cpu_seconds(lambda c=compression, n=naming: [encode(p, c, n) for p in pixels],
-                                        repeats) / len(files),
-                "decode_s": cpu_seconds(lambda files=files: [decode(d) for d in files], repeats) / len(files),
+                "encode_s": median_run(lambda c=compression, n=naming: [encode(p, c, n) for p in pixels],
+                                       repeats)[1] / len(files),
+                "decode_s": median_run(lambda files=files: [decode(d) for d in files],
+                                       repeats)[1] / len(files),
                 **readers(path, pixels[0], naming)})
     return rows
 
