@@ -4,6 +4,7 @@ import argparse
 import importlib
 import sys
 
+from dotsim.command_options import take_positional_output
 from dotsim.file_io import DiskFullError, WriteError
 from dotsim.process_lifetime import Stopped, stop_signals
 from dotsim.version import __version__
@@ -20,6 +21,7 @@ SUBCOMMAND_MODULES = [
     "commands.pattern",
     "commands.dataset",
     "commands.config",
+    "commands.rig",
     "commands.stats",
     "trainer.cli",
     "capture.cli",
@@ -40,7 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    # parse_args, but a command's output may also be one argument left over (export's earlier spelling)
+    args, extras = parser.parse_known_args(argv)
+    extras = take_positional_output(args, extras, parser.error)
+    if extras:
+        parser.error(f"unrecognized arguments: {' '.join(extras)}")
     # Any stage can run out of space or find its output folder unwritable: the message names the
     # file (and the space it needed), and the atomic writer left nothing half-written behind.
     errors = {DiskFullError: 1, WriteError: 1, **getattr(args, "errors", {})}

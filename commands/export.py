@@ -38,6 +38,7 @@ from pathlib import Path
 
 from dotsim import __version__
 from dotsim import dataset as ds
+from dotsim.command_options import add_output_or_positional
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import (
     TMP_PREFIX,
@@ -341,8 +342,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--data` and `dotsim eval --data` take OUT, its shards or their URLs. docs/VIEWING.md has the "
         "sizes and the codecs.")
     parser.add_argument("dataset", metavar="DIR", help="sealed dotsim dataset directory")
-    parser.add_argument("out", metavar="OUT", help="folder for the shards (new, empty, or an "
-                        "unfinished export to resume)")
+    add_output_or_positional(parser, "folder for the shards (new, empty, or an unfinished export to resume)")
     parser.add_argument("--format", choices=("webdataset",), default="webdataset",
                         help="webdataset (the only one so far)")
     parser.add_argument("--channels", metavar="A,B,...",

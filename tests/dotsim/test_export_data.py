@@ -20,7 +20,7 @@ from commands import cli
 from commands import export as export_module
 from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
-from dotsim.data import Frames, index_shards, read_indexed
+from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
 from tests.trainer_fixtures import make_dataset, tiny_config
 from trainer.data import DataError, list_frames
 from trainer.evaluate import evaluate
@@ -275,3 +275,76 @@ def test_training_and_eval_from_shards_give_the_folders_figures(data, export, tm
     on_folder = evaluate(checkpoint, data, tmp_path / "e1", progress=False, images=1, val_data=data)
     on_shards = evaluate(checkpoint, export, tmp_path / "e2", progress=False, images=1, val_data=export)
     assert json.dumps(on_folder) == json.dumps(on_shards) and on_folder[0]["pixels"] > 0  # nan == nan
+
+
+def test_default_collate_batches_frames_with_workers_and_their_metadata_as_a_list(data, tmp_path):
+    """DataLoader(Frames(...), batch_size=N) with PyTorch's default collate: channels as tensors, keys
+    and splits as lists, the scene.json dicts (which hold nulls) as a list (dotsim.data.collate_meta)."""
+    out = tmp_path / "two"
+    assert cli.main(["export", str(data), str(out), "--shards", "2"]) == 0
+    expected = {key: (meta, frame) for key, meta, frame in folder_frames(data)}
+    for source in (out, data):
+        loader = torch.utils.data.DataLoader(Frames(source, channels=("ir", "depth", "visibility")),
+                                             batch_size=3, num_workers=2)
+        seen = []
+        for batch in loader:
+            assert isinstance(batch["ir"], torch.Tensor) and batch["ir"].dtype == torch.float16
+            assert isinstance(batch["meta"], list) and len(batch["meta"]) == len(batch["key"]) <= 3
+            for n, key in enumerate(batch["key"]):
+                meta, frame = expected[key]
+                assert batch["meta"][n] == meta and batch["split"][n] == meta["split"]
+                assert batch["scene_index"][n].item() == meta["scene_index"]
+                for name in ("ir", "depth", "visibility"):
+                    assert np.array_equal(batch[name][n].numpy(), frame[name], equal_nan=True), (key, name)
+                seen.append(key)
+        assert sorted(seen) == sorted(expected)
+    # scene.json holds nulls (a capture's poses, a rig without a second camera), which default_collate
+    # cannot batch in a plain dict; a SceneMeta it keeps as a list
+    with pytest.raises(TypeError):
+        torch.utils.data.default_collate([{"poses": [None]}] * 2)
+    assert torch.utils.data.default_collate([SceneMeta({"poses": [None]})] * 2) == [{"poses": [None]}] * 2
+
+
+@pytest.mark.parametrize("precision, channels", [
+    ("exact", None),
+    ("training", "ir,projector_column,visibility,edge"),
+])
+def test_the_webdataset_library_loads_an_export_into_batches_with_two_workers(data, tmp_path, precision,
+                                                                              channels):
+    """An export read by the webdataset library's own pipeline and WebLoader(num_workers=2), each raw
+    sample decoded alone by dotsim.data.decode_webdataset (shuffled, so a scene's scene.json.gz may come
+    after its other frames), batched by webdataset, against the folder read by dotsim.dataset."""
+    import webdataset as wds
+
+    out = tmp_path / precision
+    argv = ["export", str(data), str(out), "--shards", "2", "--precision", precision]
+    assert cli.main(argv + (["--channels", channels] if channels else [])) == 0
+    shards = sorted(str(p) for p in out.glob("shard-*.tar"))
+    pipeline = (wds.WebDataset(shards, shardshuffle=False, nodesplitter=wds.split_by_node)
+                .shuffle(8, seed=1).map(decode_webdataset).batched(3, partial=True))
+    batches = list(wds.WebLoader(pipeline, batch_size=None, num_workers=2))
+    expected = {key: frame for key, _, frame in folder_frames(data)}
+    seen = []
+    for batch in batches:  # WebLoader hands numpy arrays on as tensors
+        assert "meta" not in batch and len(batch["key"]) <= 3 and isinstance(batch["ir"], torch.Tensor)
+        batch = {name: value.numpy() if isinstance(value, torch.Tensor) else value
+                 for name, value in batch.items()}
+        for n, key in enumerate(batch["key"]):
+            frame = expected[key]
+            scene, _, k = key.removeprefix("scene_").partition("_frame_")
+            assert (batch["scene_index"][n], batch["frame_index"][n]) == (int(scene), int(k))
+            for name in ("ir", "edge"):
+                assert np.array_equal(batch[name][n], frame[name]), (key, name)
+            if precision == "exact":
+                for name in ("depth", "projector_column", "disparity", "flood"):
+                    assert np.array_equal(batch[name][n], frame[name], equal_nan=True), (key, name)
+            else:  # the fixed-point column, and disparity derived from it, to their precision
+                lit = frame["visibility"] > 0
+                assert np.all(np.abs(batch["projector_column"][n][lit] - frame["projector_column"][lit])
+                              <= 1 / 32 + 1e-6)
+                assert np.allclose(batch["disparity"][n][lit], frame["disparity"][lit], atol=0.02)
+                assert "depth" not in batch
+            seen.append(key)
+    assert sorted(seen) == sorted(expected)
+    with pytest.raises(ds.FormatError, match="without __key__"):
+        decode_webdataset({"ir.png": b""})
