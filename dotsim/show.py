@@ -20,24 +20,18 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.channels import CHANNEL, CHANNELS
 from dotsim.images import write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
 
-COLUMNS = ("ir", "ambient", "flood", "depth", "visibility", "edge", "projector_column", "disparity")
-TITLES = {"ir": "IR", "ambient": "ambient", "flood": "flood", "depth": "depth",
-          "visibility": "visibility", "edge": "edge", "projector_column": "projector column",
-          "disparity": "disparity"}
-UNITS = {"depth": "m", "projector_column": "projector px", "disparity": "camera px"}
-# One line under each column's title, for a reader who has not read docs/FORMAT.md.
-MEANINGS = {"ir": "what the sensor sees", "ambient": "projector off", "flood": "uniform projector",
-            "depth": "ground truth", "visibility": "white: dots seen", "edge": "white: depth edge",
-            "projector_column": "ground truth", "disparity": "ground truth"}
-GREY_CHANNELS = ("ir", "ambient", "flood")
+# The sheet's columns and how each is drawn: the channels' one declaration (dotsim.channels).
+COLUMNS = tuple(c.name for c in CHANNELS if c.display is not None)
+GREY_CHANNELS = tuple(c.name for c in CHANNELS if c.display in ("linear", "radiance"))
+COLOUR_MAPPED = tuple(c.name for c in CHANNELS if c.display == "colour")
 FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
             "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
             "their own 99th percentile. Masks: white = 1.")
-COLOUR_MAPPED = ("depth", "projector_column", "disparity")
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 TEXT_SCALE = 0.45
 LINE = 18  # text line height, px
@@ -93,8 +87,8 @@ def _grey_scale(frames: list[dict], name: str) -> float:
     """Display scale (the value shown white) of a grey pass: IR its full scale; ambient and flood
     each its own 99th percentile over the frames (its maximum where that is 0), so a dark pass is
     not shown black; 0 for a pass that is 0 everywhere."""
-    if name == "ir":
-        return full_scale(frames[0]["ir"])
+    if CHANNEL[name].display == "linear":
+        return full_scale(frames[0][name])
     values = np.concatenate([f[name][np.isfinite(f[name])].ravel() for f in frames]).astype(np.float64)
     if values.size == 0:
         return 0.0
@@ -106,12 +100,12 @@ def grey_for_display(image: np.ndarray, name: str) -> np.ndarray:
     """(H, W) uint8 of one grey pass as the sheet shows it, scaled by this image alone: IR linear on
     full scale, ambient and flood as the square root of value over their own 99th percentile."""
     scale = _grey_scale([{name: image}], name)
-    return _grey(image, scale or 1.0, root=name != "ir")[..., 0]
+    return _grey(image, scale or 1.0, root=CHANNEL[name].display == "radiance")[..., 0]
 
 
 def scale_caption(name: str, scale: float) -> str:
     """The scale written above a grey column: the value its white stands for."""
-    if name == "ir":
+    if CHANNEL[name].display == "linear":
         return "linear, white = full scale"
     if scale == 0:
         return "0 everywhere (no light)"
@@ -174,12 +168,12 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     tiles = {}
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
-        _text(sheet, TITLES[name], x, 2 * LINE - 4, width=tile_w)
-        _text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        _text(sheet, CHANNEL[name].title, x, 2 * LINE - 4, width=tile_w)
+        _text(sheet, CHANNEL[name].meaning, x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         if name in scales:
             caption = scale_caption(name, scales[name])
         elif name in ranges:
-            caption = f"{_fmt(ranges[name][0])}..{_fmt(ranges[name][1])} {UNITS[name]}"
+            caption = f"{_fmt(ranges[name][0])}..{_fmt(ranges[name][1])} {CHANNEL[name].unit}"
         else:
             caption = "mask 0 / 1"
         _text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
@@ -188,9 +182,9 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             image = frame[name]
             if name in COLOUR_MAPPED:
                 tile = colourise(image, *ranges[name])
-            elif name in ds.MASK_CHANNELS:
+            elif CHANNEL[name].display == "mask":
                 tile = _grey(image, 1.0)
-            elif name == "ir":
+            elif CHANNEL[name].display == "linear":
                 tile = _grey(image, scales[name])
             else:  # radiance falls off as 1 / r^2: a square root shows far walls beside near objects
                 tile = _grey(image, scales[name] or 1.0, root=True)
@@ -202,7 +196,7 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
 
     y = top + len(frames) * (tile_h + GAP) + LINE
     for name, (low, high) in ranges.items():
-        _text(sheet, f"{TITLES[name]} ({UNITS[name]}), black = none", LABEL_WIDTH, y)
+        _text(sheet, f"{CHANNEL[name].title} ({CHANNEL[name].unit}), black = none", LABEL_WIDTH, y)
         bar_w = min(grid_w - GAP, 512)
         ramp = np.linspace(low, high, bar_w)[None, :].repeat(BAR_HEIGHT, axis=0)
         sheet[y + 4:y + 4 + BAR_HEIGHT, LABEL_WIDTH:LABEL_WIDTH + bar_w] = colourise(ramp, low, high)

@@ -25,14 +25,16 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.channels import CHANNEL, CHANNELS
 from dotsim.file_io import temporary_name
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
 from dotsim.show import colourise, grey_for_display, scene_path_of
 
-# Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
-# range shows as a few bright objects on black.
-DISPLAYED_PASSES = ("ambient", "flood")
+# The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
+# as a depth image (the other colour-mapped channels are what the clouds show).
+VIEWED = tuple(c.name for c in CHANNELS
+               if c.display in ("linear", "radiance", "mask") or (c.display == "colour" and c.unit == "m"))
 ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
 FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
 
@@ -63,6 +65,20 @@ def _rgb(bgr: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
+def viewer_image(rr, image: np.ndarray, name: str):
+    """A channel as the viewer shows it: linear ones (IR) as stored; radiance as the contact sheet
+    draws it (its automatic range would show 1 / r^2 light as a few bright objects on black); masks
+    0 / 255; metres as a depth image (0 where nothing is hit)."""
+    display = CHANNEL[name].display
+    if display == "linear":
+        return rr.Image(image.astype(np.float32), color_model="L")
+    if display == "radiance":
+        return rr.Image(grey_for_display(image, name), color_model="L")
+    if display == "mask":
+        return rr.Image(image * np.uint8(255), color_model="L")
+    return rr.DepthImage(np.where(np.isfinite(image), image, 0), meter=1.0)
+
+
 def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
     """Static: the rig at pose K with its camera and projector frusta."""
     pose = np.eye(4) if pose is None else np.asarray(pose, np.float64)
@@ -80,8 +96,7 @@ def layout(rr, with_predictions: bool):
     """The viewer's opening layout: the 3D world large, the passes in a grid beside it."""
     import rerun.blueprint as rrb
 
-    passes = ["ir", "ambient", "flood", "depth", "visibility", "edge"]
-    passes += ["error"] if with_predictions else []
+    passes = list(VIEWED) + (["error"] if with_predictions else [])
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
                                                  else "ground truth") + " in the world (z up)"),
@@ -114,13 +129,8 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
     for k in frames:
         f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
         rec.set_time("frame", sequence=k)
-        rec.log("camera/ir", rr.Image(f["ir"].astype(np.float32), color_model="L"))
-        for name in DISPLAYED_PASSES:
-            if name in f:
-                rec.log(f"camera/{name}", rr.Image(grey_for_display(f[name], name), color_model="L"))
-        rec.log("camera/depth", rr.DepthImage(np.where(np.isfinite(f["depth"]), f["depth"], 0), meter=1.0))
-        for name in ds.MASK_CHANNELS:
-            rec.log(f"camera/{name}", rr.Image(f[name] * np.uint8(255), color_model="L"))
+        for name in (name for name in VIEWED if name in f):
+            rec.log(f"camera/{name}", viewer_image(rr, f[name], name))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
         points, colours = depth_points(f["depth"], rig.camera, grey)

@@ -5,7 +5,8 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   ambient    world + extra lights (projector off); depth  planar metres, inf where nothing is hit;
   projector_direct, flood_direct  the projector's and the flood's direct light alone (included in
   projector and flood).
-Stored channels (dotsim.dataset.FRAME_CHANNELS):
+Stored channels (dotsim.channels, the channels' one declaration: make_frame gives exactly the
+rendered ones it stores):
   ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
   projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
@@ -18,13 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from dotsim.channels import RENDERED_CHANNELS, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import Rig, depth_to_projector_column
+from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import apply_sensor_model, exposure_gain
-
-RAW_PASSES = ("projector", "flood", "ambient", "depth", "projector_direct", "flood_direct")
 
 
 def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
@@ -59,7 +60,7 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
         gain, sensor.read_noise, sensor.shot_noise,
         masks.visibility_margin, sensor.blur_sigma * sensor.pixel_scale,
     ) & np.isfinite(depth)
-    return {
+    made = {
         "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale, gain),
         "ambient": ambient,
         "flood": flood,
@@ -68,3 +69,4 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
         "edge": edge_mask(depth, masks.edge_threshold, masks.edge_dilation),
         "projector_column": depth_to_projector_column(gt_depth, rig),
     }
+    return {name: made[name] for name in stored_channels(RENDERED_CHANNELS)}

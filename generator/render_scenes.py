@@ -28,8 +28,9 @@ import numpy as np
 from dotsim import dataset
 from dotsim.file_io import DiskFullError, atomic_write_bytes, map_in_threads
 from dotsim.process_lifetime import exec_dies_with_parent
+from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import Config
-from generator.post_render import RAW_PASSES, make_frame
+from generator.post_render import make_frame
 from generator.resources import check_inputs
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
 from generator.scene_spec import AssetMesh, SceneSpec

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dotsim.channels import CHANNELS, DERIVED_CHANNELS, MASK_CHANNELS, RENDERED_CHANNELS, stored_channels
 from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_version
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
 from dotsim.rig import Rig, depth_to_disparity
@@ -29,27 +30,12 @@ VERSION_ATTRIBUTE = "dotsim_format_version"
 # Format 2.x: the rig (Rig.to_dict() as JSON) the derived channels are computed with.
 RIG_ATTRIBUTE = "dotsim_rig"
 
-# Dtype per channel as read (what read_frame returns). Why each was chosen: docs/FORMAT.md.
-# Masks are uint8 in memory and UINT (32-bit) in the EXR: EXR has no 8-bit pixel type.
-FRAME_CHANNELS: dict[str, np.dtype] = {
-    "ir": np.dtype(np.float16),
-    "ambient": np.dtype(np.float16),
-    "flood": np.dtype(np.float16),
-    "depth": np.dtype(np.float32),
-    "visibility": np.dtype(np.uint8),
-    "edge": np.dtype(np.uint8),
-    "projector_column": np.dtype(np.float32),
-    "disparity": np.dtype(np.float32),
-    # A real sensor's own depth (metres, nan = no reading), stored beside recordings: the sensor's
-    # estimate, never ground truth (which is "depth").
-    "device_depth": np.dtype(np.float32),
-}
-# What the generator renders: every channel but the sensor's own depth; the writer's default.
-RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
-MASK_CHANNELS = ("visibility", "edge")
-# Channels format 2.x computes on read from `depth` and the header's rig instead of storing them,
-# and how far (relative) a writer's own may lie from that: float32 rounding of depth and result.
-DERIVED_CHANNELS = ("disparity",)
+# Dtype per channel as read (what read_frame returns), from the one declaration of the channels
+# (dotsim.channels). Why each was chosen: docs/FORMAT.md. Masks are uint8 in memory and UINT
+# (32-bit) in the EXR: EXR has no 8-bit pixel type.
+FRAME_CHANNELS: dict[str, np.dtype] = {c.name: c.dtype for c in CHANNELS}
+# How far (relative) a writer's own derived channel may lie from what format 2.x computes on read
+# (DERIVED_CHANNELS): float32 rounding of depth and result.
 DERIVED_TOLERANCE = 1e-6
 
 
@@ -97,23 +83,23 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}: the
     stored channels of `channels`; a derived one the frame carries must match what the reader
     derives (so nothing given is lost unnoticed)."""
-    stored_channels = [c for c in channels if c not in DERIVED_CHANNELS]
-    missing = [c for c in stored_channels if c not in frame]
+    stored = stored_channels(channels)
+    missing = [c for c in stored if c not in frame]
     unknown = [c for c in frame if c not in FRAME_CHANNELS]
     if missing:
-        raise FormatError(f"{where}: missing channel(s) {missing}; required: {stored_channels}")
+        raise FormatError(f"{where}: missing channel(s) {missing}; required: {list(stored)}")
     if unknown:
         raise FormatError(f"{where}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
     extra = [c for c in frame if c not in channels]
     if extra:
         raise FormatError(f"{where}: channel(s) {extra} not in this scene's channel list {list(channels)}")
     pixels = {}
-    for name in stored_channels:
-        stored = _to_stored(name, frame[name], where)
-        if stored.shape != shape:
-            raise FormatError(f"{where}: channel {name!r} has shape {stored.shape}, the rig camera is "
+    for name in stored:
+        array = _to_stored(name, frame[name], where)
+        if array.shape != shape:
+            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the rig camera is "
                               f"{shape} (height, width)")
-        pixels[name] = np.ascontiguousarray(stored)
+        pixels[name] = np.ascontiguousarray(array)
     for name in (c for c in channels if c in DERIVED_CHANNELS):
         if "depth" not in channels or rig is None:
             raise FormatError(f"{where}: channel {name!r} is derived from 'depth' and the rig: the "

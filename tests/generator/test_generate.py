@@ -17,9 +17,10 @@ from dotsim.cli import main as dotsim_main
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file
+from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
-from generator.post_render import RAW_PASSES, make_frame
+from generator.post_render import make_frame
 from generator.run_request import RunRequest
 from generator.sample_scene import SceneResources, sample_scene_spec
 

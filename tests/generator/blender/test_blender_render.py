@@ -18,8 +18,8 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
 from generator.blender import demo_scenes as ds
-from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
-from generator.post_render import RAW_PASSES, make_frame
+from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
+from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
 
 bpy = pytest.importorskip("bpy")
