@@ -31,6 +31,7 @@ from generator.scene_spec import (
     SceneSpec,
     SensorModel,
     Texture,
+    camera_views,
 )
 
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
@@ -328,6 +329,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         world_strength=_log_uniform(rng, *li.world_strength),
         lights=lights,
         poses=_poses(rng, config, base_pose),
+        cameras=camera_views(rig),
         objects=tuple(objects),
         sensor=sensor_model(config),
         masks=config.masks,

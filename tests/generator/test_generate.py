@@ -23,6 +23,7 @@ from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
 from generator.post_render import make_frame
 from generator.run_request import RunRequest
 from generator.sample_scene import SceneResources, sample_scene_spec
+from generator.scene_spec import camera_views
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -38,7 +39,7 @@ def run_cli(*args: str) -> int:
 def spec_with_rig(rig, config):
     """A sampled spec of `config` whose rig is `rig` (make_frame reads its rig, sensor and masks)."""
     spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
-    return replace(spec, rig=rig)
+    return replace(spec, rig=rig, cameras=camera_views(rig))
 
 
 def test_make_frame_against_analytic_wall():
