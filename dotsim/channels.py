@@ -6,7 +6,7 @@ keeping lists of their own, so a new channel is one entry here and its descripti
 docs/FORMAT.md. The order of CHANNELS is the order frames are read and drawn in.
 
 >>> [c.name for c in CHANNELS if c.source == "derived"]
-['disparity']
+['disparity', 'stereo_disparity']
 >>> CHANNEL["ir"].dtype, CHANNEL["visibility"].dtype
 (dtype('float16'), dtype('uint8'))
 """
@@ -41,7 +41,9 @@ class Channel:
 
     dtype: as read_frame returns it; source: what makes it (SOURCES); display: how it is drawn
     (DISPLAYS, or None); title and meaning: the two lines `dotsim show` writes above its column;
-    unit: of a colour-mapped channel.
+    unit: of a colour-mapped channel; stereo: only frames rendered from the rig's stereo pair have
+    it; since: the format version that added it (a frame records the oldest version that has all
+    of its channels, dotsim.dataset.frames.frame_format_version).
     """
 
     name: str
@@ -51,6 +53,8 @@ class Channel:
     title: str
     meaning: str
     unit: str = ""
+    stereo: bool = False
+    since: str = "1.0"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dtype", np.dtype(self.dtype))
@@ -77,14 +81,28 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("disparity", np.float32, "derived", "colour", "disparity", "ground truth", "camera px"),
     # A real sensor's own depth, stored beside recordings: its estimate, never ground truth (which
     # is "depth").
-    Channel("device_depth", np.float32, "device", None, "device depth", "the sensor's estimate"),
+    Channel("device_depth", np.float32, "device", None, "device depth", "the sensor's estimate", since="1.1"),
+    # The rig's second IR camera (the right one of a rectified pair), and stereo ground truth on the
+    # left image.
+    Channel("ir_right", np.float16, "sensor model", "linear", "IR right", "the second camera", stereo=True,
+            since="2.1"),
+    Channel("stereo_visibility", np.uint8, "mask", "mask", "stereo visibility", "white: both see it, lit",
+            stereo=True, since="2.1"),
+    Channel("stereo_disparity", np.float32, "derived", "colour", "stereo disparity", "ground truth",
+            "camera px", stereo=True, since="2.1"),
 )
 CHANNEL: dict[str, Channel] = {c.name: c for c in CHANNELS}
 
-# What the generator writes: every channel but a device's own.
-RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if c.source != "device")
+# What the generator writes: every channel but a device's own, and for a stereo pair STEREO_CHANNELS too.
+RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if c.source != "device" and not c.stereo)
+STEREO_CHANNELS = tuple(c.name for c in CHANNELS if c.stereo)
 MASK_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "mask")
 DERIVED_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "derived")
+
+
+def rendered_channels(stereo: bool) -> tuple[str, ...]:
+    """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair."""
+    return RENDERED_CHANNELS + (STEREO_CHANNELS if stereo else ())
 
 
 def stored_channels(channels) -> tuple[str, ...]:

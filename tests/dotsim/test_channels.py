@@ -31,8 +31,12 @@ def test_a_bad_channel_is_refused_naming_it(kwargs, message):
 
 def test_every_reader_follows_the_declaration():
     assert ds.FRAME_CHANNELS == {c.name: c.dtype for c in CHANNELS}
-    assert ds.MASK_CHANNELS == ("visibility", "edge") and ds.DERIVED_CHANNELS == ("disparity",)
+    assert ds.MASK_CHANNELS == ("visibility", "edge", "stereo_visibility")
+    assert ds.DERIVED_CHANNELS == ("disparity", "stereo_disparity")
     assert ds.RENDERED_CHANNELS == ("ir", "ambient", "flood", "depth", "visibility", "edge",
                                     "projector_column", "disparity")
-    assert show.COLUMNS == ds.RENDERED_CHANNELS  # a device's own depth is not drawn
-    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge")
+    assert channels.rendered_channels(stereo=True) == ds.RENDERED_CHANNELS + (
+        "ir_right", "stereo_visibility", "stereo_disparity")
+    assert show.COLUMNS == channels.rendered_channels(stereo=True)  # a device's own depth is not drawn
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
+                           "stereo_visibility")
