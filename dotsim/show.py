@@ -1,12 +1,14 @@
 """`dotsim show`: a labelled contact sheet of every pass of every frame of a scene (PNG), an
 overview of the IR of many scenes, and a frame's ground-truth point cloud (PLY).
 
-Sheet: rows are frames, columns the stored passes (docs/FORMAT.md), each column on its own scale,
-written above it: IR linear on the sensor's full scale, ambient and flood each as the square root
+Sheet: rows are frames, columns the stored passes (docs/FORMAT.md; as dotsim.channels declares how
+each is shown), each column on its own scale, written above it: IR (and a stereo pair's right IR)
+linear on the sensor's full scale, ambient and flood each as the square root
 of value / its own 99th percentile (ambient is often 50x darker than flood, and radiance falls as
 1 / r^2, so a linear scale shows near objects only), depth, projector column and disparity
-colour-mapped (turbo) with a colour bar in their units under the grid, the visibility and edge
-masks white where set. Black in a colour-mapped tile means no value there (no hit / invalid).
+colour-mapped (turbo) with a colour bar in their units under the grid (and a stereo pair's stereo
+disparity), the visibility and edge masks (and a stereo pair's stereo visibility) white where set.
+Black in a colour-mapped tile means no value there (no hit / invalid).
 numpy + OpenCV only.
 """
 
@@ -373,7 +375,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "show", help="contact sheet of a scene's passes, an IR overview of many scenes, or a GT point cloud",
         description="Draw a labelled contact sheet: one row per frame, one column per stored pass "
-        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity), each on "
+        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity; of a stereo "
+        "pair also the right IR, the stereo visibility mask and the stereo disparity), each on "
         "its own scale written above it, colour bars in metres / pixels for the colour-mapped passes. "
         "PATH is a dataset directory (shows its first scene, or --scene N), a scene directory "
         "(shard_*/scene_*), or one frame EXR. --overview draws the IR of many scenes of a dataset in "

@@ -4,12 +4,16 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
 
 - `world/pose_K` (static): the rig at frame K's pose (world_from_camera), its IR camera frustum
   `world/pose_K/camera` and projector frustum `world/pose_K/projector` (placed by the rig's
-  projector_translation and projector_rotation); a capture without poses shows them at the origin;
+  projector_translation and projector_rotation), and for a scene of a stereo pair the right
+  camera's frustum `world/pose_K/camera_right` (at the rig's second_camera_translation); a capture
+  without poses shows them at the origin;
 - `world/pose_K/ground_truth`: the frame's ground-truth depth as points in the rig (camera) frame,
   shaded by the flood pass (as `camera/flood`; by the IR where a frame has no flood);
 - `camera/ir` (float values as stored), `camera/ambient`, `camera/flood` (uint8 as `dotsim show`
   draws them: square root of value over the frame's 99th percentile), `camera/depth` (metres),
-  `camera/visibility`, `camera/edge` (0 / 255): the frame's passes, the IR sequence over frames;
+  `camera/visibility`, `camera/edge` (0 / 255), and of a stereo pair `camera/ir_right` and
+  `camera/stereo_visibility`: the frame's channels (VIEWED, those the scene has), the IR sequence
+  over frames;
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr): the predicted
   cloud `world/pose_K/prediction` beside the truth (up to the rig's max_depth), coloured by its
   disparity error, and
@@ -79,12 +83,18 @@ def viewer_image(rr, image: np.ndarray, name: str):
     return rr.DepthImage(np.where(np.isfinite(image), image, 0), meter=1.0)
 
 
-def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
-    """Static: the rig at pose K with its camera and projector frusta."""
+def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False) -> None:
+    """Static: the rig at pose K with its camera and projector frusta, and with `stereo` its right
+    camera's."""
     pose = np.eye(4) if pose is None else np.asarray(pose, np.float64)
     base = f"world/pose_{k}"
     rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
-    for name, intr in (("camera", rig.camera), ("projector", rig.projector)):
+    frusta = [("camera", rig.camera), ("projector", rig.projector)]
+    if stereo:
+        rec.log(f"{base}/camera_right", rr.Transform3D(translation=rig.second_camera_translation),
+                static=True)
+        frusta.append(("camera_right", rig.camera))
+    for name, intr in frusta:
         if name == "projector":  # X_proj = R (X_cam - t): camera_from_projector = (R^T, t)
             rec.log(f"{base}/projector", rr.Transform3D(translation=rig.t, mat3x3=rig.R.T), static=True)
         rec.log(f"{base}/{name}", rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
@@ -92,11 +102,11 @@ def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
                                              image_plane_distance=FRUSTUM_DEPTH), static=True)
 
 
-def layout(rr, with_predictions: bool):
-    """The viewer's opening layout: the 3D world large, the passes in a grid beside it."""
+def layout(rr, passes: list[str], with_predictions: bool):
+    """The viewer's opening layout: the 3D world large, the scene's `passes` in a grid beside it."""
     import rerun.blueprint as rrb
 
-    passes = list(VIEWED) + (["error"] if with_predictions else [])
+    passes = passes + (["error"] if with_predictions else [])
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
                                                  else "ground truth") + " in the world (z up)"),
@@ -121,11 +131,12 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
         if missing:
             raise ViewError(f"{missing[0]}: missing; --predictions takes the folder `dotsim infer` wrote "
                             f"for this scene's frames")
-    rec.send_blueprint(layout(rr, predictions is not None))
+    passes = [name for name in VIEWED if name in meta["channels"]]
+    rec.send_blueprint(layout(rr, passes, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     sizes = {}
     for k in frames:
-        log_rig(rr, rec, k, meta["poses"][k], rig)
+        log_rig(rr, rec, k, meta["poses"][k], rig, stereo="ir_right" in meta["channels"])
     for k in frames:
         f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
         rec.set_time("frame", sequence=k)
@@ -200,9 +211,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "view", help="a scene in the Rerun 3D viewer: passes, GT point clouds, frusta, predictions",
         description="Show a scene in Rerun (pip install \"dotsim[view]\"): the IR sequence, ambient, flood, "
-        "depth, visibility and edge masks over the `frame` timeline; the ground-truth depth as a point cloud "
-        "in the rig frame at each of the scene's poses (world frame, z up); the camera and projector frusta "
-        "at every pose; with --predictions, the predicted cloud beside the truth and the disparity error "
+        "depth, visibility and edge masks (and of a stereo pair the right IR and its mask) over the `frame` "
+        "timeline; the ground-truth depth as a point cloud in the rig frame at each of the scene's poses "
+        "(world frame, z up); the camera and projector frusta at every pose (and the right camera's of a "
+        "stereo pair); with --predictions, the predicted cloud beside the truth and the disparity error "
         "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
         "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
     parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
