@@ -26,7 +26,8 @@ from assets_manifest.params import canonical_json, sample_params, spec_seed
 from assets_manifest.procedural_meshes import MESH_FAMILIES
 from assets_manifest.procedural_textures import TEXTURE_FAMILIES
 from assets_manifest.user_folders import load_image_file, load_mesh_file
-from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, sha256_bytes, sha256_file
+from dotsim.file_io import TMP_PREFIX, atomic_write_bytes, make_folder, sha256_bytes, sha256_file
+from dotsim.version import __version__
 
 CACHE_FORMAT = "dotsim-assets/1"
 # Bump when any builder's output for the same source spec changes: every asset is then rebuilt.
@@ -239,8 +240,6 @@ def _versions() -> dict:
     import trimesh
     import xatlas
 
-    from dotsim import __version__
-
     return {
         "dotsim": __version__,
         "numpy": np.__version__,
@@ -320,8 +319,8 @@ def build_asset_cache(
         raise ManifestError(f"{manifest.path} declares split {manifest.split!r}, not {split!r}")
     start = time.perf_counter()
     root = Path(cache_dir) / split
-    (root / "meshes").mkdir(parents=True, exist_ok=True)
-    (root / "textures").mkdir(parents=True, exist_ok=True)
+    make_folder(root / "meshes")
+    make_folder(root / "textures")
     for leftover in [*root.glob(TMP_PREFIX + "*"), *root.glob("*/" + TMP_PREFIX + "*")]:
         leftover.unlink()  # temporaries of a build that was killed mid-write
     previous = _previous_entries(root)

@@ -15,11 +15,14 @@ from assets_manifest.cache import (
 )
 from assets_manifest.manifest import ManifestError, find_overlaps, load_manifest
 from assets_manifest.mesh_arrays import MeshError, load_mesh_npz
+from dotsim.file_io import check_writable_folder
+from dotsim.option_types import integer
 
 SPLITS = ("train", "test")
 
 
 def _build(args) -> int:
+    check_writable_folder(args.cache, "--cache")  # before anything is built
     manifest_path = Path(args.manifest) if args.manifest else default_manifest_path(args.split)
     try:
         manifest = load_manifest(manifest_path)
@@ -158,7 +161,7 @@ def add_parser(subparsers) -> None:
     )
     build.add_argument(
         "--workers",
-        type=int,
+        type=integer(0),
         default=0,
         help="processes building assets in parallel (default 0: one per CPU core); the result does not "
         "depend on it",
@@ -192,5 +195,5 @@ def add_parser(subparsers) -> None:
         "--cache", default=DEFAULT_CACHE_DIR, help=f"cache directory (default: {DEFAULT_CACHE_DIR})"
     )
     preview.add_argument("-o", "--output", help="PNG to write (default: assets_<split>.png)")
-    preview.add_argument("--count", type=int, default=24, help="meshes and textures each (default 24)")
+    preview.add_argument("--count", type=integer(1), default=24, help="meshes and textures each (default 24)")
     preview.set_defaults(func=_preview)

@@ -124,8 +124,10 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
 
 def prepared(config, folder: Path):
     """The RenderJob of a train-split dataset in `folder` (seed 0), with either side's code."""
-    from generator.pipeline import prepare_run
-
+    try:
+        from generator.run_steps import prepare_run
+    except ImportError:  # before issue 37, generator.pipeline held it
+        from generator.pipeline import prepare_run
     try:
         from generator.run_request import RunRequest
     except ImportError:  # before issue 28, prepare_run took the run's values themselves
@@ -198,6 +200,13 @@ def unpack(revision: str, into: Path) -> Path:
     with tarfile.open(archive) as tar:
         tar.extractall(into / "tree", filter="data")
     return into / "tree"
+
+
+def dotsim_command(tree: Path) -> list[str]:
+    """The `dotsim` program of checkout `tree`, run by this interpreter (PYTHONPATH=tree): its entry
+    module is commands.cli, dotsim.cli in revisions before the commands had a folder of their own."""
+    module = "commands.cli" if (tree / "commands" / "cli.py").is_file() else "dotsim.cli"
+    return [sys.executable, "-m", module]
 
 
 def run_side(tree: Path, config_path: Path, width: int, scene: int, repeats: int,

@@ -41,6 +41,7 @@ import sys
 import time
 from pathlib import Path
 
+from bench.generate_stages import dotsim_command
 from dotsim.process_lifetime import process_status, process_tree
 
 REPO = Path(__file__).resolve().parents[1]
@@ -61,7 +62,7 @@ KILL_ATTEMPTS = 4
 
 def generate(code: Path, out: Path, scenes: int, *extra: str, **popen) -> subprocess.Popen:
     config = REPO / "dotsim" / "configs" / "tiny.toml"
-    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(config), "--out", str(out),
+    command = [*dotsim_command(code), "generate", "--config", str(config), "--out", str(out),
                "--split", "train", "--scenes", str(scenes), "--seed", "3", "--no-progress", *extra]
     return subprocess.Popen(command, cwd=code, env={**os.environ, "PYTHONPATH": str(code)},
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen)
@@ -86,7 +87,7 @@ def orphans(processes: dict[int, int], wait_s: float = ORPHAN_WAIT_S) -> int:
 def checked(code: Path, out: Path, total: int, reference: dict) -> tuple[dict, bool]:
     """(what a finished dataset shows, whether it is all it must be)."""
     after = opened(code, out)
-    verify = subprocess.run([sys.executable, "-m", "dotsim.cli", "verify", str(out)], cwd=code,
+    verify = subprocess.run([*dotsim_command(code), "verify", str(out)], cwd=code,
                             env={**os.environ, "PYTHONPATH": str(code)}, capture_output=True, text=True)
     ok = (after["ok"] and after["scenes"] == list(range(total)) and frame_sums(out) == reference
           and not list(out.rglob(".tmp-*")) and verify.returncode == 0)

@@ -23,7 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench.generate_stages import unpack
+from bench.generate_stages import dotsim_command, unpack
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def small_default(folder: Path) -> Path:
 
 def render(root: Path, config: str, out: Path, scenes: int) -> None:
     """`dotsim generate` with the code of checkout `root`."""
-    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", config, "--out", str(out),
+    command = [*dotsim_command(root), "generate", "--config", config, "--out", str(out),
                "--split", "train", "--scenes", str(scenes), "--seed", "3", "--workers", "1", "--no-progress"]
     subprocess.run(command, cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, check=True,
                    stdout=subprocess.DEVNULL)

@@ -25,9 +25,10 @@ import shutil
 import subprocess
 import sys
 import sysconfig
-import tomllib
 import zipfile
 from pathlib import Path
+
+from dotsim.version import __version__
 
 ADDON_DIR = Path(__file__).resolve().parent
 REPO = ADDON_DIR.parent
@@ -65,12 +66,6 @@ PIP_PLATFORMS = {
 
 class ExtensionBuildError(RuntimeError):
     """A build step failed; the message names the step, package or platform."""
-
-
-def project_version(pyproject: Path = REPO / "pyproject.toml") -> str:
-    """The version in pyproject.toml's [project] table."""
-    with open(pyproject, "rb") as f:
-        return tomllib.load(f)["project"]["version"]
 
 
 def this_platform() -> str:
@@ -167,7 +162,7 @@ def dotsim_wheel(out_dir: Path) -> Path:
     result = subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps",
                              "--no-build-isolation", "--wheel-dir", str(out_dir), str(REPO)],
                             capture_output=True, text=True)
-    wheel = _cached_wheel(out_dir, f"dotsim=={project_version()}")
+    wheel = _cached_wheel(out_dir, f"dotsim=={__version__}")
     if result.returncode != 0 or wheel is None:
         raise ExtensionBuildError(f"building dotsim's wheel failed: {result.stderr.strip()[-2000:]}")
     return wheel
@@ -213,7 +208,7 @@ def build_extension(out_dir: Path, platforms: list[str], from_venv: bool = False
     if from_venv and platforms != [this_platform()]:
         raise ExtensionBuildError(f"--from-venv builds only this machine's platform ({this_platform()}), "
                                   f"not {', '.join(platforms)}")
-    version = project_version()
+    version = __version__
     shutil.rmtree(staging, ignore_errors=True)
     (staging / "wheels").mkdir(parents=True)
     for module in addon_modules():

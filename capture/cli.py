@@ -19,11 +19,14 @@ from capture.import_frames import import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
+from dotsim.config_schema import bounds_of
 from dotsim.dataset import INDEX_FILE, FormatError
-from dotsim.file_io import atomic_write_bytes
+from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
+from dotsim.option_types import integer, number
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
-from dotsim.rig_files import RIG_FILE_SUFFIXES, CalibratedRig, RigFileError, configured_rig, load_rig_file
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig, get_preset
+from dotsim.rig_files import CalibratedRig, RigFileError, configured_rig, load_rig_file
+from generator.config import ConfigError, OutputConfig, load_config, rig_settings
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
@@ -36,21 +39,20 @@ def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
     with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
     """
     try:
-        if spec in PRESETS:
-            calibrated = CalibratedRig(get_preset(spec))
-        elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-            calibrated = load_rig_file(spec)
-        elif Path(spec).suffix.lower() == ".toml":
-            from generator.config import ConfigError, load_config
-
+        if Path(spec).suffix.lower() == ".toml":
             try:
                 config = load_config(spec)
             except ConfigError as error:
                 raise CaptureError(f"--rig {error}") from None
             calibrated = configured_rig(replace(config.rig, scale=1.0), f"{config.source}: [rig]")
         else:
-            raise CaptureError(f"--rig {spec!r}: neither a preset ({', '.join(sorted(PRESETS))}), a rig file "
-                               f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
+            try:
+                settings = rig_settings(spec, also=("a generator config (.toml)",))
+            except ConfigError as error:
+                raise CaptureError(str(error)) from None
+            # the preset's or file's rig as it is (its own max_depth), not a config's [rig]
+            calibrated = (load_rig_file(settings.file) if settings.file
+                          else CalibratedRig(get_preset(settings.preset)))
     except RigFileError as error:
         raise CaptureError(f"--rig {error}") from None
     if scale != 1.0:
@@ -70,7 +72,7 @@ def _rig_arguments(parser: argparse.ArgumentParser, default_note: str = "") -> N
                         "or a generator config whose [rig] gives it (camera_file with a preset's projector, "
                         "...); the frames must have its camera resolution, and a calibrated lens "
                         "(distortion) is rectified to the rig's pinhole camera")
-    parser.add_argument("--scale", type=float, default=1.0,
+    parser.add_argument("--scale", type=number(0.0, 1.0, low_open=True), default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")
 
@@ -79,16 +81,17 @@ def _dataset_arguments(parser: argparse.ArgumentParser) -> None:
     """What a real-capture dataset records beside its frames (import and record alike)."""
     parser.add_argument("--split", choices=("train", "test"), default="test",
                         help="split recorded for every scene (default test)")
-    parser.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+    parser.add_argument("--dot-window", type=integer(1), default=DEFAULT_DOT_WINDOW,
                         help="px; at least the widest gap between neighbouring dots in the image "
                         f"(default {DEFAULT_DOT_WINDOW})")
-    parser.add_argument("--visibility-threshold", type=float, default=DEFAULT_VISIBILITY_THRESHOLD,
+    parser.add_argument("--visibility-threshold", type=number(0.0), default=DEFAULT_VISIBILITY_THRESHOLD,
                         help="visible where the dots add more than this share of the 99th-percentile "
                         f"brightness (default {DEFAULT_VISIBILITY_THRESHOLD})")
     parser.add_argument("--pattern", type=Path,
                         help="the sensor's pattern image (e.g. from `dotsim capture pattern`), copied to "
                         "DATASET/pattern.png and referenced by every scene")
-    parser.add_argument("--scenes-per-shard", type=int, default=100, help="scenes per shard (default 100)")
+    parser.add_argument("--scenes-per-shard", type=integer(**bounds_of(OutputConfig, "scenes_per_shard")),
+                        default=100, help="scenes per shard (default 100)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -131,9 +134,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="with --bag: the recording's right IR frames (infrared 2) too, as ir_right")
     _rig_arguments(imp, "; with --bag: the recording's own calibration")
     imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
-    imp.add_argument("--frames-per-scene", type=int, default=4,
+    imp.add_argument("--frames-per-scene", type=integer(1), default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
-    imp.add_argument("--white-level", type=float,
+    imp.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: full scale of the files: 255, 65535, "
                      "or 1 for EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
     imp.add_argument("--settings", type=Path,
@@ -159,21 +162,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="projector-off captures of the same wall (averaged and subtracted), or a "
                      "recorded dataset (its ambient frames); leave out in a dark room")
     depth = pat.add_mutually_exclusive_group(required=True)
-    depth.add_argument("--distance", type=float, metavar="Z",
+    depth.add_argument("--distance", type=number(0.0, low_open=True), metavar="Z",
                        help="planar distance of the wall in metres (wall facing the camera squarely)")
     depth.add_argument("--depth-map", type=Path, metavar="FILE",
                        help="the wall's planar depth map at the camera resolution (PNG in millimetres or "
                        "EXR in metres; 0 = no reading), e.g. the sensor's own, for a tilted wall")
-    pat.add_argument("--depth-scale", type=float,
+    pat.add_argument("--depth-scale", type=number(0.0, low_open=True),
                      help="metres per depth-map unit (default 0.001 for PNG, 1 for EXR)")
     _rig_arguments(pat)
-    pat.add_argument("--dot-sigma", type=float,
+    pat.add_argument("--dot-sigma", type=number(0.0, low_open=True),
                      help="Gaussian std of the pattern's dots in projector px (default: measured "
                      "from the captures)")
-    pat.add_argument("--dot-window", type=int, default=DEFAULT_DOT_WINDOW,
+    pat.add_argument("--dot-window", type=integer(1), default=DEFAULT_DOT_WINDOW,
                      help="px; at least the widest gap between neighbouring dots in the image: sets "
                      f"the local brightness scale (default {DEFAULT_DOT_WINDOW})")
-    pat.add_argument("--detect-threshold", type=float, default=DEFAULT_DETECT_THRESHOLD,
+    pat.add_argument("--detect-threshold", type=number(0.0, 1.0), default=DEFAULT_DETECT_THRESHOLD,
                      help="keep local maxima above this share of the local dot brightness "
                      f"(default {DEFAULT_DETECT_THRESHOLD})")
     pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
@@ -193,19 +196,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     _device_arguments(rec)
     rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
-    rec.add_argument("--scenes", type=int, default=1, help="scenes to record (default 1)")
-    rec.add_argument("--frames", type=int, default=4, help="poses per scene (default 4)")
+    rec.add_argument("--scenes", type=integer(1), default=1, help="scenes to record (default 1)")
+    rec.add_argument("--frames", type=integer(1), default=4, help="poses per scene (default 4)")
     rec.add_argument("--rig", help="rig preset, rig file or generator config (as for import) for the frames "
                      "(default: the device's own calibration, as `capture info` writes it; required for "
                      "opencv devices); a calibrated lens is rectified to the rig's pinhole camera")
-    rec.add_argument("--exposure", type=float, help="fixed exposure in the device's units (default: as set)")
-    rec.add_argument("--gain", type=float, help="fixed gain in the device's units (default: as set)")
-    rec.add_argument("--settle", type=int, default=3,
+    rec.add_argument("--exposure", type=number(0.0, low_open=True),
+                     help="fixed exposure in the device's units (default: as set)")
+    rec.add_argument("--gain", type=number(0.0, low_open=True),
+                     help="fixed gain in the device's units (default: as set)")
+    rec.add_argument("--settle", type=integer(0), default=3,
                      help="frames dropped after switching the projector when the frames do not report its "
                      "state (default 3)")
-    rec.add_argument("--pause", type=float, default=0.0,
+    rec.add_argument("--pause", type=number(0.0), default=0.0,
                      help="seconds between poses, to move the sensor or the scene (default 0)")
-    rec.add_argument("--white-level", type=float,
+    rec.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
     rec.add_argument("--stereo", action="store_true",
@@ -225,7 +230,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(docs/CAPTURE.md says what each device gives).",
     )
     _device_arguments(info)
-    info.add_argument("--max-depth", type=float, default=20.0, help="max_depth of the rig, m (default 20)")
+    info.add_argument("--max-depth", type=number(**bounds_of(Rig, "max_depth")), default=DEFAULT_MAX_DEPTH,
+                      help=f"max_depth of the rig, m (default {DEFAULT_MAX_DEPTH:g})")
     info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
     info.set_defaults(func=_info)
 
@@ -242,7 +248,7 @@ def _device_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the sensor: {DEVICE_SYNTAX} (RealSense needs the extra dotsim[realsense], "
                         "OpenNI2 dotsim[openni2])")
     parser.add_argument("--size", type=_size, metavar="WxH", help="IR stream size (default: the device's)")
-    parser.add_argument("--fps", type=int, help="IR stream frame rate (default: the device's)")
+    parser.add_argument("--fps", type=integer(1), help="IR stream frame rate (default: the device's)")
     parser.add_argument("--ir-format", choices=("y8", "y16"), default="y8",
                         help="RealSense IR format (y16: full bit depth; default y8)")
 
@@ -269,6 +275,7 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 def _import(args: argparse.Namespace) -> int:
+    check_writable_folder(args.out, "--out")  # before any frame is read
     if args.bag is not None:
         return _import_recording(args)
     start = time.perf_counter()
@@ -353,6 +360,7 @@ def _load_wall_images(specs: list[str], what: str, channel: str) -> list:
 
 
 def _pattern(args: argparse.Namespace) -> int:
+    check_writable_folder(args.output.parent, "-o")  # before the captures are read
     start = time.perf_counter()
     try:
         if args.output.suffix.lower() != ".png":
@@ -393,6 +401,7 @@ def _pattern(args: argparse.Namespace) -> int:
         "settings": {"dot_window": args.dot_window, "detect_threshold": args.detect_threshold},
     }
     # the centres and the record first: the pattern file appearing means the set is complete
+    make_folder(args.output.parent)
     atomic_write_bytes(args.output.with_suffix(".csv"), csv.getvalue().encode())
     atomic_write_bytes(args.output.with_suffix(".json"), (json.dumps(record, indent=2) + "\n").encode())
     result.pattern.save_png(args.output)
@@ -411,6 +420,7 @@ def _pattern(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
+    check_writable_folder(args.out, "--out")  # before the device is opened
     start = time.perf_counter()
     try:
         pattern = load_pattern(args.pattern) if args.pattern else None
@@ -436,6 +446,7 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
+    check_writable_folder(args.output.parent, "-o")  # before the device is opened
     try:
         if args.output.suffix.lower() != ".json":
             raise CaptureError(f"-o {args.output}: the rig file is written as .json")
@@ -443,6 +454,7 @@ def _info(args: argparse.Namespace) -> int:
             rig, data = device_rig_file(device, args.max_depth)
     except (CaptureError, ValueError) as error:
         return _fail("info", error)
+    make_folder(args.output.parent)
     atomic_write_bytes(args.output, data)
     camera = rig.camera
     print(f"{device.name}: IR {camera.width}x{camera.height} px, fx {camera.fx:.2f} fy {camera.fy:.2f}, "

@@ -146,7 +146,7 @@ def scene_meta(sources: list[dict], rig: Rig, split: str, settings: dict,
     sensor's pattern is not known."""
     return {
         "split": split,
-        "source": "capture",
+        "source": dataset.CAPTURED,
         "has_ground_truth": False,
         "rig": rig.to_dict(),
         "pattern": pattern,
@@ -182,6 +182,13 @@ def _existing_checksums(dataset_dir: Path, scene_index: int, scenes_per_shard: i
         return _checksums(json.loads(path.read_text())["capture"]["frames"])
     except (KeyError, TypeError, ValueError):
         return None  # not a capture scene
+
+
+def refuse_rendered(dataset_dir: Path) -> None:
+    """CaptureError when `dataset_dir` holds rendered scenes: a dataset holds one kind of data."""
+    if dataset.holds_captures(dataset_dir) is False:
+        raise CaptureError(f"{dataset_dir}: holds rendered scenes (`dotsim generate`); a dataset holds one "
+                           "kind of data: choose an empty --out")
 
 
 def _stray_scenes(dataset_dir: Path, scene_count: int) -> list[Path]:
@@ -229,6 +236,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                            f"pairs or pass --frames-per-scene 1")
     out_dir = Path(out_dir)
     scenes = [pairs[k:k + frames_per_scene] for k in range(0, len(pairs), frames_per_scene)]
+    refuse_rendered(out_dir)
     if out_dir.exists():
         stray = _stray_scenes(out_dir, len(scenes))
         if stray:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import importlib
 import os
 
-__version__ = "0.1.0"
+from dotsim.version import __version__
 
 # name -> the module that defines it; imported by __getattr__ on first use.
 _PUBLIC = {

@@ -22,11 +22,14 @@ therefore read from their rows, cols and data entries here, number by number.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from dotsim.file_io import DuplicateKeyError, unique_keys
 
 CALIBRATION_SUFFIXES = (".json", ".yaml", ".yml", ".xml")
 
@@ -169,24 +172,41 @@ def read_tree(path: Path) -> dict:
         raise RigFileError(f"{path}: rig file not found") from None
     except (OSError, UnicodeDecodeError) as error:
         raise RigFileError(f"{path}: cannot read the rig file ({error})") from None
-    if suffix == ".json":
-        try:
-            tree = json.loads(text)
-        except ValueError as error:
-            raise RigFileError(f"{path}: not valid JSON ({error})") from None
-    elif suffix != ".xml" and not text.lstrip().startswith("%YAML"):
-        import yaml
-
-        try:
-            tree = yaml.safe_load(text)
-        except yaml.YAMLError as error:
-            reason = " ".join(str(error).split())
-            raise RigFileError(f"{path}: not valid YAML ({reason})") from None
-    else:
-        tree = _file_storage_tree(path, text)
+    try:
+        if suffix == ".json":
+            try:
+                tree = json.loads(text, object_pairs_hook=unique_keys)
+            except json.JSONDecodeError as error:
+                raise RigFileError(f"{path}: not valid JSON ({error})") from None
+        elif suffix != ".xml" and not text.lstrip().startswith("%YAML"):
+            tree = _plain_yaml_tree(path, text)
+        else:
+            tree = _file_storage_tree(path, text)
+    except DuplicateKeyError as duplicate:
+        raise RigFileError(f"{path}: key {duplicate.key!r} is given twice in one mapping; allowed: each key "
+                           "once (YAML readers keep the last, OpenCV's the first)") from None
     if not isinstance(tree, dict):
         raise RigFileError(f"{path}: holds a {type(tree).__name__}, not a mapping of calibration keys")
     return tree
+
+
+def _plain_yaml_tree(path: Path, text: str):
+    import yaml
+
+    class UniqueKeys(yaml.SafeLoader):
+        """PyYAML's safe loader, refusing a key given twice (it would keep the last silently)."""
+
+    def mapping(loader, node, deep=False):
+        loader.flatten_mapping(node)
+        return unique_keys((loader.construct_object(key, deep=deep),
+                            loader.construct_object(value, deep=deep)) for key, value in node.value)
+
+    UniqueKeys.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    try:
+        return yaml.load(text, Loader=UniqueKeys)  # noqa: S506 (a SafeLoader)
+    except yaml.YAMLError as error:
+        reason = " ".join(str(error).split())
+        raise RigFileError(f"{path}: not valid YAML ({reason})") from None
 
 
 def _file_storage_tree(path: Path, text: str) -> dict:
@@ -201,23 +221,49 @@ def _file_storage_tree(path: Path, text: str) -> dict:
     if not storage.isOpened():
         raise RigFileError(f"{path}: neither a dotsim rig nor an OpenCV FileStorage file")
     try:
-        return _node_value(storage.root())
+        return _node_value(storage.root(), path)
     finally:
         storage.release()
 
 
-def _node_value(node):
+def _node_value(node, where):
+    """The value of a FileStorage node; RigFileError naming the key of a value OpenCV parsed but
+    cannot give back (a 400-digit integer)."""
+    import cv2
+
     if node.isMap():
-        return {key: _node_value(node.getNode(key)) for key in node.keys()}
+        def value(key):
+            try:
+                return _node_value(node.getNode(key), f"{where}: {key}")
+            except cv2.error as error:
+                reason = str(error).strip().splitlines()[-1]
+                raise RigFileError(f"{where}: {key}: OpenCV cannot read its value ({reason})") from None
+
+        return unique_keys((key, value(key)) for key in node.keys())
     if node.isSeq():
-        return [_node_value(node.at(k)) for k in range(node.size())]
+        return [_node_value(node.at(k), where) for k in range(node.size())]
     if node.isInt():
-        return int(node.real())
+        value = node.real()
+        return int(value) if math.isfinite(value) else value
     if node.isReal():
         return node.real()
     if node.isString():
         return node.string()
     return None
+
+
+def _floats(value, where: str):
+    """A number, or nested lists of them, as floats; RigFileError for anything else (true and false
+    included) and for an integer too large for a float."""
+    if isinstance(value, list | tuple):
+        return [_floats(item, where) for item in value]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise RigFileError(f"{where} is not a matrix or a list of numbers ({value!r} in it)")
+    try:
+        return float(value)
+    except OverflowError:
+        raise RigFileError(f"{where} holds a {len(str(abs(value)))}-digit integer, beyond a 64-bit float; "
+                           "allowed: finite numbers") from None
 
 
 def numbers(value, where: str) -> np.ndarray:
@@ -227,16 +273,17 @@ def numbers(value, where: str) -> np.ndarray:
     if isinstance(value, dict) and "data" in value:
         shape = (value.get("rows"), value.get("cols"))
         value = value["data"]
+    floats = _floats(value, where)
     try:
-        array = np.asarray(value, np.float64)
-    except (TypeError, ValueError):
+        array = np.asarray(floats, np.float64)
+    except ValueError:  # lists of unequal lengths
         raise RigFileError(f"{where} is not a matrix or a list of numbers") from None
-    if array.dtype != np.float64 or array.size == 0:
+    if array.size == 0:
         raise RigFileError(f"{where} is not a matrix or a list of numbers")
     if not np.all(np.isfinite(array)):
         raise RigFileError(f"{where} holds non-finite values {array.ravel().tolist()}")
     if shape is not None:
-        if not all(isinstance(n, int) and n > 0 for n in shape) or shape[0] * shape[1] != array.size:
+        if not all(type(n) is int and n > 0 for n in shape) or shape[0] * shape[1] != array.size:
             raise RigFileError(f"{where}: rows {shape[0]} x cols {shape[1]} does not match its "
                                    f"{array.size} data values")
         array = array.reshape(shape)
@@ -363,7 +410,10 @@ def _name_and_depth(keys: _Keys) -> tuple[str | None, float | None]:
         raise RigFileError(f"{keys.where}: {name_key} = {name!r}; allowed: a string")
     depth_key, depth = keys.get(("max_depth",))
     if depth_key is not None:
-        depth = float(numbers(depth, f"{keys.where}: max_depth").ravel()[0])
+        values = numbers(depth, f"{keys.where}: max_depth")
+        if values.size != 1:
+            raise RigFileError(f"{keys.where}: max_depth = {values.tolist()}; allowed: one number (metres)")
+        depth = float(values.ravel()[0])
     return name or None, depth
 
 
@@ -407,6 +457,9 @@ def _kalibr(tree: dict, cams: list[str], path: Path, where: str) -> Calibration:
         projector, transform = _kalibr_camera(keys.get(("cam1",))[1], "cam1", where)
         if transform is None:
             raise RigFileError(f"{where}: cam1 has no T_cn_cnm1 (its pose from cam0)")
+        if transform[3].tolist() != [0.0, 0.0, 0.0, 1.0]:
+            raise RigFileError(f"{where}: cam1: T_cn_cnm1 bottom row {transform[3].tolist()}; allowed: a "
+                               "homogeneous rigid transform, bottom row [0, 0, 0, 1]")
         rotation, translation = transform[:3, :3], transform[:3, 3]
     calibration = Calibration(path, camera, projector, rotation, translation, *_name_and_depth(keys))
     keys.refuse_unknown()

@@ -65,6 +65,21 @@ def setting(default: Any, help: str, *, low: float | None = None, high: float | 
                                                           path, min_items))
 
 
+def bounds_of(owner: type, name: str) -> dict:
+    """The bounds of `owner`'s setting `name` (low, high and whether each is open), for another field
+    that must allow exactly the same numbers: `setting(default, help, **bounds_of(Rig, "max_depth"))`.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class Lamp(Checked):
+    ...     power: float = setting(1.0, "W", low=0.0, high=10.0, low_open=True)
+    >>> bounds_of(Lamp, "power")
+    {'low': 0.0, 'high': 10.0, 'low_open': True, 'high_open': False}
+    """
+    rule = owner.__dataclass_fields__[name].metadata
+    return {key: rule[key] for key in ("low", "high", "low_open", "high_open")}
+
+
 def _rule(help: str = "", low: float | None = None, high: float | None = None, low_open: bool = False,
           high_open: bool = False, choices: tuple | None = None, path: bool = False,
           min_items: int = 0) -> dict:

@@ -123,14 +123,13 @@ WRITE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Encode an 8/16-bit grey or BGR image by the file suffix (.png, .jpg) and write it atomically
-    (dotsim.file_io.atomic_write_bytes), so a reader never sees half an image."""
+    (dotsim.file_io.atomic_write_bytes, which names a missing or read-only folder), so a reader never
+    sees half an image."""
     import cv2
 
     path = Path(path)
     if path.suffix.lower() not in WRITE_SUFFIXES:
         raise ImageError(f"{path}: suffix {path.suffix!r} is not one of {list(WRITE_SUFFIXES)}")
-    if not path.parent.is_dir():
-        raise ImageError(f"{path}: folder {path.parent} does not exist")
     ok, data = cv2.imencode(path.suffix, image)
     if not ok:
         raise ImageError(f"{path}: OpenCV could not encode a {image.dtype} image of shape {image.shape}")

@@ -19,9 +19,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from dotsim import __version__
-from dotsim.file_io import sha256_bytes
+from dotsim.file_io import make_folder, sha256_bytes
 from dotsim.images import ImageError, read_grey_image, write_image
+from dotsim.version import __version__
 
 _LEVELS = 65535
 # Dots per pattern pixel when neither n_dots nor density is given. 0.02 puts about 189k dots in the
@@ -81,11 +81,12 @@ class DotPattern:
         return sha256_bytes(np.ascontiguousarray(_quantise(self.image)).tobytes())
 
     def save_png(self, path: str | os.PathLike) -> Path:
-        """Write the image as a 16-bit greyscale PNG, atomically (temporary file, then rename)."""
+        """Write the image as a 16-bit greyscale PNG, atomically (temporary file, then rename), into
+        its folder, made when missing."""
         path = Path(path)
         if path.suffix.lower() != ".png":
             raise PatternError(f"{path}: pattern files are written as .png, got suffix {path.suffix!r}")
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_folder(path.parent)
         return write_image(path, _quantise(self.image))
 
 

@@ -29,6 +29,8 @@ Vector3 = tuple[float, float, float]
 Matrix3 = tuple[Vector3, Vector3, Vector3]
 
 IDENTITY: Matrix3 = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+# A rig's max_depth when its source gives none (a calibration file, `dotsim capture info`), m.
+DEFAULT_MAX_DEPTH = 20.0
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,9 @@ class Rig(Checked):
                                           "a rectified rig")
     second_camera_translation: Vector3 | None = setting(None, "second IR camera centre in the camera "
                                                         "frame, m (same orientation), or None")
-    max_depth: float = setting(20.0, "farthest depth used for training and ground truth, m", low=0.0,
-                               low_open=True)
+    # The one declaration of max_depth's bounds: the config's [rig] max_depth takes them (bounds_of).
+    max_depth: float = setting(DEFAULT_MAX_DEPTH, "farthest depth used for training and ground truth, m",
+                               low=0.5, high=1000.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()

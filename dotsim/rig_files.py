@@ -26,7 +26,15 @@ from dotsim.calibration_files import (
     RigFileError,
     read_calibration,
 )
-from dotsim.rig import Intrinsics, Rig, check_square_pixels, get_preset, project_to_projector, rotation_matrix
+from dotsim.rig import (
+    DEFAULT_MAX_DEPTH,
+    Intrinsics,
+    Rig,
+    check_square_pixels,
+    get_preset,
+    project_to_projector,
+    rotation_matrix,
+)
 
 RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
 PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
@@ -35,6 +43,8 @@ PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
 # the rig's max_depth.
 _COVERAGE_NEAR = 0.3
 _COVERAGE_GRID = 17
+# The [rig] keys <role>_<key> that give a camera or projector explicitly, in Intrinsics' order.
+_INTRINSICS_KEYS = ("width", "height", "fx", "fy", "cx", "cy")
 
 
 @dataclass(frozen=True)
@@ -125,7 +135,7 @@ def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
         translation = None if rotation is None else -rotation.T @ calibration.translation
         parts = _Parts(calibration.camera, calibration.projector, rotation, translation,
                        calibration.name or path.stem,
-                       calibration.max_depth if calibration.max_depth is not None else 20.0)
+                       calibration.max_depth if calibration.max_depth is not None else DEFAULT_MAX_DEPTH)
         if calibration.projector is not None and calibration.projector.distorted:
             raise RigFileError(f"{calibration.projector.where}: projector distortion "
                                f"{list(calibration.projector.distortion)} is not zero; dotsim's projector is "
@@ -195,19 +205,24 @@ def configured_rig(settings, where: str) -> CalibratedRig:
     rotation. Raises RigFileError naming `where` and the key.
     """
     parts = None
-    for key, roles in (("file", ("camera", "projector")), ("camera_file", ("camera",)),
-                       ("projector_file", ("projector",))):
-        if getattr(settings, key):
+    for key, path, roles in (("file", settings.file, ("camera", "projector")),
+                             ("camera_file", settings.camera_file, ("camera",)),
+                             ("projector_file", settings.projector_file, ("projector",))):
+        if path:
             try:
                 base = None if key == "file" else parts or _rig_parts(get_preset(settings.preset),
                                                                     settings.preset)
-                parts = _file_parts(getattr(settings, key), roles, base)
+                parts = _file_parts(path, roles, base)
             except RigFileError as error:
                 raise RigFileError(f"{where} {key}: {error}") from None
     parts = parts or _rig_parts(get_preset(settings.preset), settings.preset)
-    sizes = tuple((getattr(settings, f"{role}_width"), getattr(settings, f"{role}_height"))
-                  if getattr(settings, f"{role}_width") and not getattr(settings, f"{role}_fx") else None
-                  for role in ("camera", "projector"))
+    # <role>_width, _height, _fx, _fy, _cx, _cy (_INTRINSICS_KEYS) of each role
+    explicit = {"camera": (settings.camera_width, settings.camera_height, settings.camera_fx,
+                           settings.camera_fy, settings.camera_cx, settings.camera_cy),
+                "projector": (settings.projector_width, settings.projector_height, settings.projector_fx,
+                              settings.projector_fy, settings.projector_cx, settings.projector_cy)}
+    # width and height without a focal length: the size of a file's camera that gives none
+    sizes = tuple(values[:2] if values[0] and not values[2] else None for values in explicit.values())
     try:
         calibrated = _calibrated(parts, where, sizes)
     except RigFileError as error:
@@ -218,10 +233,10 @@ def configured_rig(settings, where: str) -> CalibratedRig:
                        base.projector_translation, strict=True)]
     angles = (settings.projector_rotation_x, settings.projector_rotation_y, settings.projector_rotation_z)
     rotation = rotation_matrix(*np.radians(angles)) if any(angles) else base.projector_rotation
-    camera = _explicit_intrinsics(settings, "camera", None, where)
+    camera = _explicit_intrinsics("camera", explicit["camera"], where)
     try:
-        rig = replace(base, camera=camera or base.camera,
-                      projector=_explicit_intrinsics(settings, "projector", None, where) or base.projector,
+        projector = _explicit_intrinsics("projector", explicit["projector"], where)
+        rig = replace(base, camera=camera or base.camera, projector=projector or base.projector,
                       projector_translation=tuple(translation), projector_rotation=rotation,
                       max_depth=settings.max_depth)
     except ValueError as error:
@@ -235,13 +250,13 @@ def configured_rig(settings, where: str) -> CalibratedRig:
     return calibrated.scaled(settings.scale) if settings.scale != 1.0 else calibrated
 
 
-def _explicit_intrinsics(settings, role: str, kept, where: str) -> Intrinsics | None:
-    """<role>_width ... <role>_cy of the settings as Intrinsics, or `kept` when no focal length is
-    set (width and height alone give the size of a file's camera that lacks one)."""
-    keys = ("width", "height", "fx", "fy", "cx", "cy")
-    values = {key: getattr(settings, f"{role}_{key}") for key in keys}
+def _explicit_intrinsics(role: str, given: tuple, where: str) -> Intrinsics | None:
+    """The [rig] <role>_width ... <role>_cy values `given` (in _INTRINSICS_KEYS' order) as Intrinsics,
+    or None when no focal length or principal point is set (width and height alone give the size of
+    a file's camera that lacks one)."""
+    values = dict(zip(_INTRINSICS_KEYS, given, strict=True))
     if not any(values[key] for key in ("fx", "fy", "cx", "cy")):
-        return kept
+        return None
     if missing := [f"{role}_{key}" for key in ("width", "height", "fx") if not values[key]]:
         raise RigFileError(f"{where}: an explicit {role} needs {', '.join(missing)} as well (set "
                            f"{role}_width, {role}_height and {role}_fx, or none of the {role}_* keys)")
@@ -253,7 +268,7 @@ def _explicit_intrinsics(settings, role: str, kept, where: str) -> Intrinsics | 
 
 
 def device_rig(name: str, camera: Intrinsics, projector_translation, second_camera_translation=None,
-               max_depth: float = 20.0) -> Rig:
+               max_depth: float = DEFAULT_MAX_DEPTH) -> Rig:
     """The rig of a sensor that reports its IR camera but not its projector's optics (RealSense,
     OpenNI2): the projector is drawn as the presets' are (2 projector px per camera px, a field 25%
     wider than the camera's, centred) at `projector_translation` (m, camera frame), unrotated.

@@ -13,11 +13,13 @@ Modules (one idea each; only generator/blender/ imports bpy):
   render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
                  carrying the rig and the pattern
-  executor       the Executor protocol (prepare, render, seal) and the engine modules that implement it
-  pipeline       run(request): prepare_run, resume, progress, sealing; generate() for python callers;
-                 seal_run for clusters
+  executor       the Executor protocol (prepare, render, seal) that every engine implements
+  run_steps      the steps every engine takes on the dataset folder: prepare_run, render_missing
+                 (resume, progress), sealing; seal_run for clusters
+  pipeline       run(request): the request's executor through prepare, render and seal; generate()
+                 for python callers
   local_pool     LocalExecutor: spawned render processes on this machine (`--workers`, the default)
   ray_cluster    RayExecutor: the scenes as Ray tasks (`--ray`; docs/SCALE.md)
   slurm          SlurmExecutor: a job array and its sealing job (`--slurm`; docs/SCALE.md)
-  cli            `dotsim generate`
+  cli            `dotsim generate`, and the engine modules it offers (ENGINES)
 """

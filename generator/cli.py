@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import signal
 import sys
+from types import ModuleType
 
 from dotsim.dataset import FormatError
+from dotsim.option_types import integer
 from generator.config import ConfigError
-from generator.executor import engine_modules, executor_from_args
+from generator.executor import Executor
 from generator.scene_spec import SPLITS
 
 DESCRIPTION = """\
@@ -52,17 +55,25 @@ Config keys: docs/CONFIG.md.
 """
 
 
-def integer_at_least(low: int):
-    """An argparse type: an integer >= low; anything else is refused naming the value and the range."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low:
-            raise argparse.ArgumentTypeError(f"{text!r}: allowed: an integer >= {low}")
-        return value
-    return parse
+# The engine modules `dotsim generate` offers besides the local pool, in --help order (each defines
+# add_options and from_args: generator/executor.py).
+ENGINES = ("generator.ray_cluster", "generator.slurm")
+
+
+def engine_modules() -> list[ModuleType]:
+    """The modules of ENGINES."""
+    return [importlib.import_module(name) for name in ENGINES]
+
+
+def executor_from_args(args: argparse.Namespace) -> Executor:
+    """The executor the parsed `dotsim generate` options ask for: an engine of ENGINES, or the
+    local pool of --workers processes. ConfigError when they ask for more than one engine."""
+    from generator.local_pool import LocalExecutor
+
+    chosen = [executor for executor in (module.from_args(args) for module in engine_modules()) if executor]
+    if len(chosen) > 1:
+        raise ConfigError(f"{' and '.join(executor.option for executor in chosen)}: choose one")
+    return chosen[0] if chosen else LocalExecutor(args.workers or 1)
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -72,8 +83,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", required=True, metavar="NAME_OR_TOML",
                         help="generator config: a built-in one's name (default, structure_core, kinect, "
-                             "tiny, bench_accuracy; `dotsim config show NAME` prints it) or a TOML file "
-                             "(keys: docs/CONFIG.md)")
+                             "tiny, bench_accuracy; `dotsim config show NAME` prints it), a TOML file "
+                             "(keys: docs/CONFIG.md) or a config saved as JSON "
+                             "(generator.config.config_json: what a --slurm run's tasks read)")
     parser.add_argument("--rig", metavar="PRESET_OR_FILE", default=None,
                         help="the rig instead of the config's [rig] preset / file: a preset (structure_core, "
                              "kinect_v1, realsense_d415) or a rig file (dotsim rig JSON, OpenCV, ROS "
@@ -82,17 +94,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
     parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
-    parser.add_argument("--scenes", required=True, type=integer_at_least(1), metavar="N",
+    parser.add_argument("--scenes", required=True, type=integer(1), metavar="N",
                         help="number of scenes")
-    parser.add_argument("--start", type=integer_at_least(0), default=0, metavar="K",
+    parser.add_argument("--start", type=integer(0), default=0, metavar="K",
                         help="index of the first scene (default 0); scene indices are global, so "
                              "ranges rendered on several machines merge into one dataset")
-    parser.add_argument("--workers", type=integer_at_least(1), default=None, metavar="W",
+    parser.add_argument("--workers", type=integer(1), default=None, metavar="W",
                         help="render processes on this machine (default 1); each holds one Blender "
                              "scene for all its scenes. Set [render] threads so W x threads fits the cores. "
                              "With --ray: at most W tasks at once (--ray local: a cluster of W x threads "
                              "CPUs; default: the whole cluster)")
-    parser.add_argument("--seed", type=integer_at_least(0), default=0, metavar="S",
+    parser.add_argument("--seed", type=integer(0), default=0, metavar="S",
                         help="base seed (default 0): scene k uses SeedSequence((S, k))")
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
@@ -108,7 +120,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                       help="render nothing: remove half-written scenes (no writer may be running), list the "
                            "scenes of the range still missing, and seal DIR (the Slurm sealing job)")
     cluster = parser.add_argument_group("clusters (docs/SCALE.md)")
-    for engine in engine_modules():  # each engine module adds its own options (generator/executor.py)
+    for engine in engine_modules():  # each engine module adds its own options
         engine.add_options(cluster)
     # A bad config or argument exits 2; a dataset on disk that does not fit (e.g. a damaged scene
     # outside this run's range) exits 1.
@@ -117,7 +129,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from generator import pipeline
+    from generator import pipeline, run_steps
     from generator.config import load_config, with_rig
     from generator.run_request import RunRequest
 
@@ -131,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
     if note:
         print(note, file=sys.stderr)
     if args.seal_only:
-        summary = pipeline.seal_run(request)
+        summary = run_steps.seal_run(request)
         missing = summary.failed
         text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
                 f"{args.scenes} scenes complete")

@@ -15,23 +15,36 @@ Relative paths in a config file are resolved against the directory of that file;
 
 from __future__ import annotations
 
+import json
 import os
-import tempfile
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from dotsim import config_schema
-from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, setting
+from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
-from dotsim.rig import PRESETS
+from dotsim.file_io import WriteError, check_writable_folder, json_bytes
+from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
 from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
 from dotsim.stereo import stereo_baseline
-from generator.scene_spec import PRIMITIVE_SHAPES, MaskParams, RenderConfig, SensorConfig
+from generator.scene_spec import (
+    PRIMITIVE_SHAPES,
+    MaskParams,
+    Material,
+    PointLight,
+    RenderConfig,
+    SceneSpec,
+    SensorConfig,
+    SensorModel,
+    Texture,
+)
 
 if TYPE_CHECKING:
     from dotsim.rig_files import CalibratedRig
+
+SAVED_SUFFIX = ".json"  # a config saved by config_json; any other file is TOML
 
 
 @dataclass(frozen=True)
@@ -50,7 +63,7 @@ class RigConfig(Checked):
                                   "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
                                   path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
-                           "width and height, same field of view)", low=0.02, high=1.0)
+                           "width and height, same field of view)", **bounds_of(SensorModel, "pixel_scale"))
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
                               "file's)",
                               low=-0.5, high=0.5)
@@ -63,8 +76,8 @@ class RigConfig(Checked):
                                           "the preset's or file's rotation)", low=-30.0, high=30.0)
     projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
-    max_depth: float = setting(20.0, "largest depth in metres treated as valid ground truth", low=0.5,
-                               high=1000.0)
+    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
+                               **bounds_of(Rig, "max_depth"))
     stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
                            "stereo_visibility and stereo_disparity beside the channels of the rig's own "
                            "camera (docs/FORMAT.md); needs a rig whose second camera sits on the camera's x "
@@ -136,37 +149,39 @@ class SceneConfig(Checked):
                                       choices=PRIMITIVE_SHAPES, min_items=1)
     room_size: FloatRange = setting((4.0, 14.0), "room width and depth, m", low=0.5, high=200.0)
     room_height: FloatRange = setting((2.4, 4.0), "room height, m", low=0.5, high=50.0)
-    albedo: FloatRange = setting((0.05, 0.95), "infrared reflectance", low=0.0, high=1.0)
+    albedo: FloatRange = setting((0.05, 0.95), "infrared reflectance", **bounds_of(Material, "albedo"))
     textured_share: float = setting(0.8, "share of surfaces with a reflectance texture", low=0.0, high=1.0)
     texture_scale: FloatRange = setting((0.5, 4.0), "texture tiles per metre of surface (built-in "
                                         "textures; cached ones carry their own tile size)", low=0.01,
                                         high=1000.0)
     texture_contrast: FloatRange = setting((0.2, 1.0), "texture contrast (0 = flat albedo)",
-                                           low=0.0, high=1.0)
-    roughness: FloatRange = setting((0.3, 1.0), "roughness of ordinary surfaces", low=0.0,
-                                    high=1.0)
-    specular: FloatRange = setting((0.0, 0.5), "specular level of ordinary surfaces", low=0.0,
-                                   high=1.0)
+                                           **bounds_of(Texture, "contrast"))
+    roughness: FloatRange = setting((0.3, 1.0), "roughness of ordinary surfaces",
+                                    **bounds_of(Material, "roughness"))
+    specular: FloatRange = setting((0.0, 0.5), "specular level of ordinary surfaces",
+                                   **bounds_of(Material, "specular"))
     glossy_share: float = setting(0.15, "share of glossy objects (roughness and specular from the glossy"
                                   " ranges)", low=0.0, high=1.0)
-    glossy_roughness: FloatRange = setting((0.02, 0.2), "roughness of glossy objects", low=0.0,
-                                           high=1.0)
+    glossy_roughness: FloatRange = setting((0.02, 0.2), "roughness of glossy objects",
+                                           **bounds_of(Material, "roughness"))
     glossy_specular: FloatRange = setting((0.5, 1.0), "specular level of glossy objects",
-                                          low=0.0, high=1.0)
+                                          **bounds_of(Material, "specular"))
 
 
 @dataclass(frozen=True)
 class LightingConfig(Checked):
     world_strength: FloatRange = setting((0.001, 0.3), "constant ambient (world) strength, "
                                          "log-uniform: dark rooms to bright ambient light",
-                                         low=0.0, high=100.0)
+                                         **bounds_of(SceneSpec, "world_strength"))
     extra_lights: IntRange = setting((0, 3), "number of extra point lights", low=0, high=100)
     light_power: FloatRange = setting((5.0, 200.0), "power of an extra point light, W "
-                                      "(log-uniform)", low=0.0, high=1e6)
+                                      "(log-uniform)", **bounds_of(PointLight, "power"))
     light_radius: FloatRange = setting((0.02, 0.3), "radius of an extra point light, m",
-                                       low=0.0, high=10.0)
+                                       **bounds_of(PointLight, "radius"))
+    # A scene's spec may switch its projector off; a config's scenes always have one (0 left out).
     projector_power: FloatRange = setting((60.0, 200.0), "projector power, W for a fully white "
-                                          "pattern pixel", low=0.0, high=1e6, low_open=True)
+                                          "pattern pixel",
+                                          **{**bounds_of(SceneSpec, "projector_power"), "low_open": True})
     flood_ratio: float = setting(1.0, "flood rectangle power as a multiple of the projector power",
                                  low=0.0, high=100.0, low_open=True)
 
@@ -263,23 +278,55 @@ def _check_cross_fields(config: Config) -> None:
 
 
 def load_config(path: str | os.PathLike) -> Config:
-    """Read and validate a TOML config file, or a built-in config by name (dotsim.configs). Raises
-    ConfigError (naming the file) on any problem."""
+    """Read and validate a TOML config file, a built-in config by name (dotsim.configs), or a config
+    saved as JSON by `config_json` (the file a Slurm run's array tasks read). Raises ConfigError
+    (naming the file) on any problem."""
     path = config_path(path)
+    if path.suffix.lower() == SAVED_SUFFIX:
+        data = _read_saved(path)
+        return config_from_dict(data, source=data.pop("source"), base_dir=path.parent)
     return config_from_dict(config_schema.read_toml(path), source=str(path), base_dir=relative_base(path))
 
 
-def with_rig(config: Config, spec: str) -> Config:
-    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file: a preset
-    name, or a rig file (any layout dotsim.rig_files reads). Raises ConfigError naming --rig."""
+def config_json(config: Config) -> bytes:
+    """The config as JSON (Config.to_dict: every value resolved, paths absolute, its `source`), for
+    `load_config` to read back as an equal Config wherever the same paths exist: how a config built
+    in python reaches processes on other machines (a Slurm run's array tasks)."""
+    return json_bytes(config.to_dict())
+
+
+def _read_saved(path: Path) -> dict:
+    """The dict of a config saved by config_json; ConfigError naming the file."""
+    try:
+        data = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file ({exc.strerror})") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("source"), str):
+        raise ConfigError(f"{path}: not a saved config (a JSON object with a \"source\" string and the "
+                          f"config's tables, as generator.config.config_json writes it)")
+    return data
+
+
+def rig_settings(spec: str, rig: RigConfig = RigConfig(), also: tuple[str, ...] = ()) -> RigConfig:
+    """[rig] settings `rig` with `--rig SPEC` in place of their preset / file: SPEC is a preset name,
+    or a rig file (any layout dotsim.rig_files reads; made absolute). Raises ConfigError naming
+    --rig and what it allows (`also`: what the caller allows besides, named in that message)."""
     if spec in PRESETS:
-        rig = replace(config.rig, preset=spec, file="")
-    elif Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-        rig = replace(config.rig, file=str(Path(spec).resolve()))
-    else:
-        raise ConfigError(f"--rig {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a rig file "
-                          f"({', '.join(RIG_FILE_SUFFIXES)})")
-    config = replace(config, rig=rig)
+        return replace(rig, preset=spec, file="")
+    if Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
+        return replace(rig, file=str(Path(spec).resolve()))
+    allowed = [f"a preset ({', '.join(PRESETS)})", f"a rig file ({', '.join(RIG_FILE_SUFFIXES)})", *also]
+    raise ConfigError(f"--rig {spec!r}: neither {', '.join(allowed[:-1])} nor {allowed[-1]}")
+
+
+def with_rig(config: Config, spec: str) -> Config:
+    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file
+    (rig_settings); its other [rig] keys still apply. Raises ConfigError naming --rig."""
+    config = replace(config, rig=rig_settings(spec, config.rig))
     _resolve_rig(config, f"--rig {spec}: with ")
     return config
 
@@ -299,26 +346,13 @@ def _resolve_rig(config: Config, prefix: str = "") -> None:
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
-    """Make sure `out` is (or can become) a writable directory, without leaving anything behind.
-
-    Probes the nearest existing ancestor by creating and deleting a temporary file (permission bits
-    alone say nothing for root or read-only mounts). Returns the absolute path; raises ConfigError
-    naming the directory and the problem.
-    """
-    out = Path(out).absolute()
-    existing = out
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ConfigError(f"{source} {out}: {existing} is a file, not a directory; allowed: a writable "
-                          "directory")
+    """`out` made absolute once it is known to be (or able to become) a writable directory
+    (dotsim.file_io.check_writable_folder: nothing is left behind); ConfigError naming `source`, the
+    directory and the problem."""
     try:
-        with tempfile.TemporaryFile(dir=existing, prefix=".dotsim-write-test-"):
-            pass
-    except OSError as exc:
-        raise ConfigError(f"{source} {out}: {existing} is not writable ({exc.strerror}); allowed: a "
-                          "writable directory") from None
-    return out
+        return check_writable_folder(out, source)
+    except WriteError as error:
+        raise ConfigError(str(error)) from None
 
 
 def config_reference_markdown() -> str:

@@ -33,9 +33,9 @@ from dotsim.process_lifetime import kill_tree_when_gone
 from generator.config import ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.pipeline import RunSummary
     from generator.render_scenes import RenderJob, SceneResult
     from generator.run_request import RunRequest
+    from generator.run_steps import RunSummary
 
 INSTALL_HINT = 'pip install "dotsim[ray]" (or `make ray`)'
 # Scenes per task: a retry after a node failure redoes at most this many (seconds each at full
@@ -80,8 +80,8 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
-    from generator.pipeline import RUN_FILE
     from generator.render_scenes import render_scenes
+    from generator.run_steps import RUN_FILE
 
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
         raise RuntimeError(f"{job.out} is not visible on {socket.gethostname()}: put --out on a "
@@ -199,7 +199,7 @@ class RayExecutor:
         self.check_visible(request.out)
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob:
-        from generator.pipeline import prepare_writer
+        from generator.run_steps import prepare_writer
 
         return prepare_writer(request, hold, engine_check=lambda: self._start(request))
 
@@ -211,7 +211,7 @@ class RayExecutor:
 
     def render(self, request: RunRequest, job: RenderJob) -> RunSummary:
         from dotsim import dataset
-        from generator.pipeline import render_missing
+        from generator.run_steps import render_missing
 
         summary = render_missing(request, job, self._render_todo)
         if summary.skipped < request.scenes:
@@ -221,7 +221,7 @@ class RayExecutor:
         return summary
 
     def seal(self, request: RunRequest, job: RenderJob, summary: RunSummary) -> None:
-        from generator.pipeline import seal_written
+        from generator.run_steps import seal_written
 
         seal_written(request, job, summary)
 

@@ -38,14 +38,6 @@ def check_blender(blender: str | None) -> str | None:
     return str(Path(found).resolve())
 
 
-def local_pool(workers: int = 1) -> Executor:
-    """The default executor: `workers` render processes on this machine (generator/local_pool.py)."""
-    # Imported here: the pool's module builds on generator.pipeline, which builds on this one.
-    from generator.local_pool import LocalExecutor
-
-    return LocalExecutor(workers)
-
-
 @dataclass(frozen=True)
 class RunRequest:
     """Render scenes start .. start+scenes-1 of `split` (base seed `seed`) of `config` into the

@@ -7,11 +7,13 @@ add-on previews it. `SceneSpec.to_dict()` is its JSON form (what `run_in_blender
 `SceneSpec.from_dict()` reads it back. Every record checks its fields on construction
 (dotsim.config_schema, the validator of the config too), so a spec the sampler builds is held to
 the same bounds as one read from a file; errors are one line naming the field and the value, e.g.
-"scene spec: objects[3].material.albedo = -1: out of range; allowed: a number, 0 <= x". Code
+"scene spec: objects[3].material.albedo = -1: out of range; allowed: a number, 0 <= x <= 1". Code
 holding a SceneSpec never looks a field up by string key again.
 
 The spec's Cycles, sensor-model and mask records are the config's [render], [sensor] and [masks]
-tables (declared here, read by generator/config.py), so the two cannot disagree on a bound.
+tables (declared here, read by generator/config.py), and the config's keys that give a spec's
+values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
+(config_schema.bounds_of), so the two cannot disagree on a bound.
 
 Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig, so Blender's own
 Python can import it.
@@ -72,10 +74,6 @@ class RenderSettings(RenderConfig):
     `direct_light` read as "separate")."""
     seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
-    def to_dict(self) -> dict:
-        return {"samples": self.samples, "seed": self.seed, "max_bounces": self.max_bounces,
-                "device": self.device, "threads": self.threads, "direct_light": self.direct_light}
-
     @classmethod
     def from_dict(cls, d: Any, where: str) -> RenderSettings:
         return record_from_dict(cls, d, where, optional=("direct_light",))
@@ -109,8 +107,8 @@ class SensorConfig(Checked):
 class SensorModel(SensorConfig):
     """One scene's sensor model: the config's [sensor] at the render scale."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
-                                 "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.0,
-                                 low_open=True)
+                                 "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.02,
+                                 high=1.0)
 
 
 @dataclass(frozen=True)
@@ -140,7 +138,7 @@ class Texture(Checked):
     """A reflectance texture on a surface."""
     path: str = setting(REQUIRED, "the texture PNG", min_items=1)
     scale: float = setting(REQUIRED, "tiles across the object's UV range")
-    contrast: float = setting(REQUIRED, "0: flat albedo, 1: the texture's full range", low=0.0)
+    contrast: float = setting(REQUIRED, "0: flat albedo, 1: the texture's full range", low=0.0, high=1.0)
 
 
 def _texture_from_dict(d: Any, where: str) -> Texture | None:
@@ -150,9 +148,9 @@ def _texture_from_dict(d: Any, where: str) -> Texture | None:
 @dataclass(frozen=True)
 class Material(Checked):
     """A grey surface, optionally textured."""
-    albedo: float = setting(REQUIRED, "infrared reflectance", low=0.0)
-    roughness: float = setting(REQUIRED, "roughness", low=0.0)
-    specular: float = setting(REQUIRED, "specular level", low=0.0)
+    albedo: float = setting(REQUIRED, "infrared reflectance", low=0.0, high=1.0)
+    roughness: float = setting(REQUIRED, "roughness", low=0.0, high=1.0)
+    specular: float = setting(REQUIRED, "specular level", low=0.0, high=1.0)
     texture: Texture | None = None
 
     def to_dict(self) -> dict:
@@ -228,8 +226,8 @@ class SceneObject(Checked):
 class PointLight(Checked):
     """An extra point light (ambient light, rendered in the ambient pass)."""
     location: Vector3 = setting(REQUIRED, "position, m")
-    power: float = setting(REQUIRED, "power, W", low=0.0)
-    radius: float = setting(REQUIRED, "radius, m (soft shadows)", low=0.0)
+    power: float = setting(REQUIRED, "power, W", low=0.0, high=1e6)
+    radius: float = setting(REQUIRED, "radius, m (soft shadows)", low=0.0, high=10.0)
 
     def to_dict(self) -> dict:
         return {"type": "POINT", "location": list(self.location), "power": self.power,
@@ -344,9 +342,12 @@ class SceneSpec(Checked):
     render: RenderSettings
     rig: Rig
     pattern: PatternRef
-    projector_power: float = setting(REQUIRED, "projector power, W for a fully white pattern pixel", low=0.0)
+    # 0 switches a light source off (tests that render the passes one at a time); the config's scenes
+    # always have a projector (its [lighting] projector_power leaves 0 out).
+    projector_power: float = setting(REQUIRED, "projector power, W for a fully white pattern pixel", low=0.0,
+                                     high=1e6)
     flood_power: float = setting(REQUIRED, "flood rectangle power, W", low=0.0)
-    world_strength: float = setting(REQUIRED, "constant ambient light", low=0.0)
+    world_strength: float = setting(REQUIRED, "constant ambient light", low=0.0, high=100.0)
     lights: tuple[Light, ...]
     poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera (the rig's, its left camera's) per frame
     cameras: tuple[CameraView, ...]  # the rig's cameras each frame is rendered from

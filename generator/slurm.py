@@ -3,11 +3,13 @@ dataset when every task has ended (`dotsim generate --slurm`; the Executor proto
 generator/executor.py).
 
 The driver (SlurmExecutor) checks everything and writes what all scenes share (as a local run
-does), then writes two sbatch scripts under DATASET/slurm/TAG/ and submits them: the array (its
+does), then writes the run's config (DATASET/slurm/TAG/config.json: generator.config.config_json,
+so a config built or changed in python, `--rig` included, reaches the tasks as it is) and two
+sbatch scripts beside it, and submits them: the array (its
 `render`), and the sealing job with `--dependency=afterany:ARRAY_JOB` (its `seal`). Array task i
 runs the ordinary idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a
 requeued or failed task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
-(generator.pipeline.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
+(generator.run_steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
 Plain sbatch scripts (not submitit): no extra package on the login node, nothing pickled, and the
 scripts are what `--slurm-dry-run` prints and what a user can read, edit and resubmit.
 """
@@ -26,14 +28,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from generator.config import Config, ConfigError
+from dotsim.option_types import integer
+from generator.config import Config, ConfigError, config_json
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.pipeline import RunSummary
     from generator.render_scenes import RenderJob
     from generator.run_request import RunRequest
+    from generator.run_steps import RunSummary
 
 SLURM_DIR = "slurm"
+CONFIG_FILE = "config.json"
 VISIBLE_FILE = "visible"
 # sbatch's own default MaxArraySize (slurm.conf); a cluster may set another, read from scontrol.
 DEFAULT_MAX_ARRAY_SIZE = 1001
@@ -54,15 +58,17 @@ class SlurmOptions:
 
 @dataclass(frozen=True)
 class SlurmPlan:
-    """The scripts of one submission and the command lines that submit them."""
+    """The config and scripts of one submission and the command lines that submit them."""
     folder: Path
+    config: bytes  # folder/CONFIG_FILE, the config every task reads
     array_script: str
     seal_script: str
     tasks: int
 
     def dry_run_text(self) -> str:
         array, seal = self.folder / "generate.sbatch", self.folder / "seal.sbatch"
-        return (f"# {array}\n{self.array_script}\n# {seal}\n{self.seal_script}\n"
+        return (f"# {self.folder / CONFIG_FILE}\n{self.config.decode()}"
+                f"# {array}\n{self.array_script}\n# {seal}\n{self.seal_script}\n"
                 f"# submitted as:\n#   sbatch --parsable {array}\n"
                 f"#   sbatch --parsable --dependency=afterany:ARRAY_JOB_ID {seal}\n")
 
@@ -83,9 +89,10 @@ def _cpus(options: SlurmOptions, config: Config) -> int:
     return options.cpus or max(1, config.render.threads)
 
 
-def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, start: int, seed: int,
+def plan(config: Config, out: Path, split: str, scenes: int, start: int, seed: int,
          options: SlurmOptions, tag: str, blender: str | None = None) -> SlurmPlan:
-    """The array and sealing scripts for scenes start .. start+scenes-1 (pure: writes nothing).
+    """The config file, array and sealing scripts for scenes start .. start+scenes-1 (pure: writes
+    nothing).
 
     Each array task runs cpus // threads local render workers (one when threads is 0: Cycles then
     takes the task's cores itself).
@@ -95,7 +102,7 @@ def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, 
     tasks = -(-scenes // per_task)
     cpus = _cpus(options, config)
     workers = max(1, cpus // config.render.threads) if config.render.threads else 1
-    dotsim = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(config_path),
+    dotsim = [sys.executable, "-m", "commands.cli", "generate", "--config", str(folder / CONFIG_FILE),
               "--out", str(out), "--split", split, "--seed", str(seed), "--no-progress"]
     if blender:
         dotsim += ["--blender", blender]
@@ -127,7 +134,7 @@ def plan(config: Config, config_path: Path, out: Path, split: str, scenes: int, 
               " ".join(map(q, dotsim)) + f' --workers {workers} --start "$first" --scenes "$count" --no-seal']
     seal = header("dotsim-seal", "seal_%j.log", 1, 0)
     seal.append(" ".join(map(q, dotsim)) + f" --start {start} --scenes {scenes} --seal-only")
-    return SlurmPlan(folder, "\n".join(array) + "\n", "\n".join(seal) + "\n", tasks)
+    return SlurmPlan(folder, config_json(config), "\n".join(array) + "\n", "\n".join(seal) + "\n", tasks)
 
 
 def check_sbatch() -> str:
@@ -174,25 +181,23 @@ def new_tag() -> str:
 
 def add_options(group: argparse._ArgumentGroup) -> None:
     """`dotsim generate`'s --slurm options."""
-    from generator.cli import integer_at_least
-
     group.add_argument("--slurm", action="store_true",
                        help="submit a Slurm job array (one task per range of scenes) and a sealing job "
                             "that runs when the array has ended; needs sbatch on PATH")
     group.add_argument("--slurm-dry-run", action="store_true",
                        help="print the sbatch scripts --slurm would submit and write nothing")
-    group.add_argument("--slurm-scenes-per-task", type=integer_at_least(1), default=0, metavar="R",
+    group.add_argument("--slurm-scenes-per-task", type=integer(1), default=0, metavar="R",
                        help="scenes per array task (default: [output] scenes_per_shard); with R and "
                             "--start multiples of scenes_per_shard each task seals its own shards")
-    group.add_argument("--slurm-cpus", type=integer_at_least(0), default=0, metavar="C",
+    group.add_argument("--slurm-cpus", type=integer(0), default=0, metavar="C",
                        help="CPUs per array task (default: [render] threads); the task runs "
                             "C / threads render workers")
-    group.add_argument("--slurm-gpus", type=integer_at_least(0), default=0, metavar="G",
+    group.add_argument("--slurm-gpus", type=integer(0), default=0, metavar="G",
                        help="GPUs per array task (--gres=gpu:G; set [render] device = \"GPU\")")
     group.add_argument("--slurm-partition", default="", metavar="P", help="Slurm partition")
     group.add_argument("--slurm-time", default="04:00:00", metavar="T",
                        help="time limit per array task (default 04:00:00)")
-    group.add_argument("--slurm-throttle", type=integer_at_least(0), default=0, metavar="N",
+    group.add_argument("--slurm-throttle", type=integer(0), default=0, metavar="N",
                        help="at most N array tasks running at once (default: no limit)")
     group.add_argument("--slurm-sbatch", action="append", default=[], metavar="ARG",
                        help="one more sbatch option for both jobs, e.g. --slurm-sbatch=--account=lab "
@@ -207,9 +212,6 @@ def from_args(args: argparse.Namespace) -> SlurmExecutor | None:
     if args.no_seal or args.seal_only or args.workers:
         raise ConfigError("--slurm: leave out --workers, --no-seal and --seal-only (each array task runs "
                           "--slurm-cpus / threads workers with --no-seal; the sealing job runs --seal-only)")
-    if args.rig:
-        raise ConfigError("--rig with --slurm: each array task reads the config file alone; put the rig "
-                          "into it ([rig] preset or file) and leave --rig out")
     options = SlurmOptions(scenes_per_task=args.slurm_scenes_per_task, cpus=args.slurm_cpus,
                            gpus=args.slurm_gpus, partition=args.slurm_partition, time=args.slurm_time,
                            throttle=args.slurm_throttle, sbatch_args=tuple(args.slurm_sbatch))
@@ -233,11 +235,10 @@ class SlurmExecutor:
         self.array_id = ""
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob | None:
-        from generator.pipeline import prepare_run
+        from generator.run_steps import prepare_run
 
-        self.slurm_plan = plan(request.config, Path(request.config.source).resolve(), request.out,
-                               request.split, request.scenes, request.start, request.seed, self.options,
-                               new_tag(), request.blender)
+        self.slurm_plan = plan(request.config, request.out, request.split, request.scenes, request.start,
+                               request.seed, self.options, new_tag(), request.blender)
         if self.dry_run:
             return None
         check_sbatch()
@@ -247,14 +248,16 @@ class SlurmExecutor:
         return prepare_run(request, own=range(0))
 
     def render(self, request: RunRequest, job: RenderJob | None) -> RunSummary:
-        """Write the scripts and the visibility marker and submit the array (dry run: nothing)."""
+        """Write the config, the scripts and the visibility marker and submit the array (dry run:
+        nothing)."""
         from dotsim.file_io import atomic_write_bytes
-        from generator.pipeline import RunSummary
+        from generator.run_steps import RunSummary
 
         if self.dry_run:
             return RunSummary(out=request.out, submitted=self.slurm_plan.dry_run_text())
         folder = self.slurm_plan.folder
         folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(folder / CONFIG_FILE, self.slurm_plan.config)
         array_path = atomic_write_bytes(folder / "generate.sbatch", self.slurm_plan.array_script.encode())
         atomic_write_bytes(folder / "seal.sbatch", self.slurm_plan.seal_script.encode())
         atomic_write_bytes(folder / VISIBLE_FILE, b"written by the driver; array tasks check it\n")

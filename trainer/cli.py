@@ -6,10 +6,12 @@ import argparse
 from functools import partial
 
 from dotsim.dataset import FormatError
+from dotsim.file_io import check_writable_folder
+from dotsim.option_types import integer, number
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
-# The trainer's expected errors: one line and exit status 1 (dotsim.cli.main prints them).
+# The trainer's expected errors: one line and exit status 1 (commands.cli.main prints them).
 EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointError: 1}
 
 
@@ -17,11 +19,8 @@ def _train(args: argparse.Namespace) -> None:
     from trainer.distributed import run_on_ranks
     from trainer.train import disk_full_in, train
 
-    if args.nproc < 1:
-        raise DataError(f"--nproc {args.nproc}: need at least 1 process")
+    check_writable_folder(args.out, "--out")  # before the data is read or a rank started
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
-    if args.minutes < 0:
-        raise DataError(f"--minutes {args.minutes}: need 0 (no time limit) or more")
     with disk_full_in(args.out):
         run(load_config(args.config), args.data, args.out, resume=args.resume, device=args.device,
             split=args.split, max_seconds=args.minutes * 60)
@@ -30,6 +29,7 @@ def _train(args: argparse.Namespace) -> None:
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
+    check_writable_folder(args.out, "--out")
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
              max_frames=args.max_frames, images=args.images, precision=args.precision,
              val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames)
@@ -38,6 +38,7 @@ def _eval(args: argparse.Namespace) -> None:
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
+    check_writable_folder(args.out, "--out")
     infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision)
 
 
@@ -57,7 +58,7 @@ def add_parser(subparsers) -> None:
         "column) on the scenes of --split in DATA. Writes RUN/checkpoint.pt (model, optimiser, schedule, "
         "step, config, rig, RNG states; saved every [train].checkpoint_every steps and at the end) and "
         "TensorBoard logs in RUN/tb (tensorboard --logdir RUN/tb). A CPU run with the same config, data "
-        "and seed is deterministic. --nproc N (or torchrun --nproc_per_node N -m dotsim.cli train ...) "
+        "and seed is deterministic. --nproc N (or torchrun --nproc_per_node N -m commands.cli train ...) "
         "trains with N data-parallel processes (DDP: gloo on CPU, NCCL on CUDA with one GPU each); "
         "[train].batch_size is the global batch, shared out among them, so N processes train as one does.")
     p.add_argument("--config", required=True, metavar="TOML",
@@ -75,10 +76,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
                    help="cpu (default) or cuda; [train].amp sets the precision on either")
     p.add_argument("--split", default="train", help="scene split to train on: train (default), test or all")
-    p.add_argument("--nproc", type=int, default=1, metavar="N",
+    p.add_argument("--nproc", type=integer(1), default=1, metavar="N",
                    help="data-parallel processes on this machine (default 1); each takes batch_size / N "
                    "samples of every batch and the CPU threads are shared out; rank 0 writes and prints")
-    p.add_argument("--minutes", type=float, default=0.0, metavar="M",
+    p.add_argument("--minutes", type=number(0.0), default=0.0, metavar="M",
                    help="stop (with a checkpoint) after the first step that ends past M minutes of training "
                    "(default 0: run the config's epochs / max_steps)")
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
@@ -97,14 +98,16 @@ def add_parser(subparsers) -> None:
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
-    p.add_argument("--max-frames", type=int, default=0, metavar="N", help="evaluate the first N frames only")
-    p.add_argument("--images", type=int, default=8, metavar="N", help="error images for the first N frames")
+    p.add_argument("--max-frames", type=integer(0), default=0, metavar="N",
+                   help="evaluate the first N frames only (default 0: all)")
+    p.add_argument("--images", type=integer(0), default=8, metavar="N",
+                   help="error images for the first N frames")
     p.add_argument("--val-data", default=None, metavar="DIR",
                    help="dataset whose --val-split frames choose SGBM's preprocessing (plain or LCN) "
                    "by o(0.5), e.g. the training data (SGBM learns nothing from it), never the evaluated "
                    "frames. Default: none (SGBM plain)")
     p.add_argument("--val-split", default="train", help="split of --val-data (default train)")
-    p.add_argument("--val-frames", type=int, default=8, metavar="N",
+    p.add_argument("--val-frames", type=integer(0), default=8, metavar="N",
                    help="validation frames, spread over the split (default 8; 0 = all)")
     _add_inference_device(p)
     p.set_defaults(func=_eval, errors=EXPECTED_ERRORS)

@@ -17,11 +17,11 @@ import numpy as np
 from tqdm import tqdm
 
 from dotsim.dataset import FormatError, read_frame
-from dotsim.file_io import atomic_write_bytes
+from dotsim.false_colour import colourise, with_legend
+from dotsim.file_io import atomic_write_bytes, make_folder
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
-from dotsim.show import colourise, with_legend
 from trainer.data import DataError
 from trainer.evaluate import load_model, predict_disparity
 
@@ -73,8 +73,7 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     names = [_output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = make_folder(out_dir)
     written = []
     todo = list(zip(names, irs, strict=True))
     for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):

@@ -20,7 +20,7 @@ import torch
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
-from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full
+from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
 from dotsim.rig import Rig
 from trainer.config import Config, config_from_dict, resolution_mismatch
 from trainer.data import DataError, FrameDataset, list_frames, make_loader
@@ -259,7 +259,7 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     if ranks.world > 1:  # BatchNorm statistics are global already (GlobalBatchNorm2d): no buffers to send
         loss_of = DistributedDataParallel(loss_of, forward_sync_buffers=False)
     if ranks.main:
-        out_dir.mkdir(parents=True, exist_ok=True)
+        make_folder(out_dir)
         writer = SummaryWriter(str(out_dir / "tb"), purge_step=step)
 
     def save() -> None:

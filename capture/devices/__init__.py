@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from capture.frames import CaptureError
-from dotsim.rig import Intrinsics, Rig
+from dotsim.rig import DEFAULT_MAX_DEPTH, Intrinsics, Rig
 
 DEVICE_KINDS = ("realsense", "openni2", "opencv")
 DEVICE_SYNTAX = "realsense[:SERIAL], openni2[:URI], opencv:INDEX or opencv:PATH"
@@ -92,7 +92,7 @@ class Device:
         self.close()
 
 
-def device_rig_file(device: Device, max_depth: float = 20.0) -> tuple[Rig, bytes]:
+def device_rig_file(device: Device, max_depth: float = DEFAULT_MAX_DEPTH) -> tuple[Rig, bytes]:
     """The device's rig with this max_depth, checked (dotsim.rig_files.check_rig), and the bytes of its
     rig file: {"rig": ..., "device": info, settings, white level, capabilities} (`capture info`)."""
     from dotsim.rig_files import check_rig, rig_file_json

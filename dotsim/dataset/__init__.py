@@ -67,7 +67,14 @@ from dotsim.dataset.reader import (
     read_scene,
     read_scene_meta,
 )
-from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size, parse_scene_meta
+from dotsim.dataset.scene_meta import (
+    CAPTURED,
+    REQUIRED_META_KEYS,
+    WRITER_META_KEYS,
+    camera_size,
+    holds_captures,
+    parse_scene_meta,
+)
 from dotsim.dataset.seal import DatasetChangingError, SealResult, seal_dataset
 from dotsim.dataset.verify import Problem, RepairResult, VerifyReport, repair_dataset, verify_dataset
 from dotsim.dataset.writer import (
@@ -85,15 +92,16 @@ from dotsim.dataset.writer import (
 from dotsim.file_io import TMP_PREFIX
 
 __all__ = [
-    "DEFAULT_SCENES_PER_SHARD", "DERIVED_CHANNELS", "EXR_COMPRESSION", "FORMAT_VERSION", "FRAME_CHANNELS",
+    "CAPTURED", "DEFAULT_SCENES_PER_SHARD", "DERIVED_CHANNELS", "EXR_COMPRESSION", "FORMAT_VERSION",
+    "FRAME_CHANNELS",
     "INDEX_FILE",
     "LAYOUT_FILE", "RENDERED_CHANNELS", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE",
     "SHARD_FILE",
     "TMP_PREFIX", "WRITER_META_KEYS", "Dataset", "DatasetChangingError", "FormatError", "Problem",
     "RepairResult", "Scene", "SceneRef", "SealResult", "VerifyReport", "camera_size",
     "check_format_version", "complete_scenes", "dataset_summary", "decode_frame", "encode_frame",
-    "frame_name", "ground_truth_disparity", "is_scene_complete", "leftovers", "open_dataset",
-    "parse_scene_meta",
+    "frame_name", "ground_truth_disparity", "holds_captures", "is_scene_complete", "leftovers",
+    "open_dataset", "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
     "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
     "seal_dataset", "shard_name", "verify_dataset", "write_dataset_file",

@@ -11,8 +11,8 @@ import os
 import re
 from pathlib import Path
 
-from dotsim import __version__ as DOTSIM_VERSION
-from dotsim.file_io import atomic_write_json
+from dotsim.file_io import DuplicateKeyError, atomic_write_json, unique_keys
+from dotsim.version import __version__ as DOTSIM_VERSION
 
 # What this writer writes into dataset.json, shard.json and index.json; a frame and its scene.json
 # record the oldest version that has their channels (dotsim.dataset.frames.frame_format_version).
@@ -28,6 +28,7 @@ SCENE_FILE = "scene.json"
 PATTERN_FILE = "pattern.png"
 _SCENE_DIR_RE = re.compile(r"^scene_(\d{7,})$")
 _SHARD_DIR_RE = re.compile(r"^shard_(\d{5,})$")
+_SHA256_RE = re.compile(r"[0-9a-f]{64}")
 
 
 class FormatError(ValueError):
@@ -73,14 +74,80 @@ def load_json(path: Path, data: bytes | None = None) -> dict:
     try:
         if data is None:
             data = path.read_bytes()
-        obj = json.loads(data)
+        obj = json.loads(data, object_pairs_hook=unique_keys)
     except FileNotFoundError:
         raise FormatError(f"{path}: missing") from None
+    except OSError as e:  # a folder where the file should be, no permission, ...
+        raise FormatError(f"{path}: cannot read it ({e.strerror})") from None
+    except DuplicateKeyError as e:
+        raise FormatError(f"{path}: {e}; allowed: each key once") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise FormatError(f"{path}: not valid JSON ({e})") from None
     if not isinstance(obj, dict):
         raise FormatError(f"{path}: expected a JSON object, found {type(obj).__name__}")
     return obj
+
+
+def _is_sha256(value) -> bool:
+    return isinstance(value, str) and _SHA256_RE.fullmatch(value) is not None
+
+
+def _is_count(value) -> bool:
+    return type(value) is int and value >= 0
+
+
+def _is_checksums(value) -> bool:
+    """{file name: sha256}, every name a plain name (no folder, no "..")."""
+    return isinstance(value, dict) and all(
+        isinstance(name, str) and name == Path(name).name and name not in ("", ".", "..") and _is_sha256(sha)
+        for name, sha in value.items())
+
+
+def _names(pattern: re.Pattern):
+    return lambda value: isinstance(value, str) and pattern.fullmatch(value) is not None
+
+
+def _entries(obj: dict, key: str, path: Path, fields: dict, what: str) -> list[dict]:
+    """obj[key], a list of mappings each holding `fields` (name -> check); FormatError naming the
+    first entry that does not, and what an entry is."""
+    entries = require(obj, key, list, path)
+    for k, entry in enumerate(entries):
+        if not isinstance(entry, dict) or not all(name in entry and check(entry[name])
+                                                  for name, check in fields.items()):
+            text = json.dumps(entry)
+            raise FormatError(f"{path}: {key}[{k}] = {text if len(text) <= 80 else text[:77] + '...'}; "
+                              f"allowed: {what}")
+    return entries
+
+
+def parse_index(path: Path, data: bytes | None = None) -> dict:
+    """index.json, checked before anything uses it: a dataset's (not an export's), a version this
+    reader reads, `files` naming plain top-level files with their sha256, `shards` naming shard
+    folders with theirs; FormatError naming the file and the key."""
+    index = load_json(path, data)
+    if "format" in index:  # an export (`dotsim export`) names its format; a dataset's index.json does not
+        raise FormatError(f"{path}: format {index['format']!r} is not a dotsim dataset's index.json; "
+                          "a folder of `dotsim export` shards is read by dotsim.data and `dotsim train "
+                          "--data`")
+    check_format_version(index.get("format_version"), path)
+    if not _is_checksums(index.get("files", {})):
+        raise FormatError(f"{path}: 'files' must map top-level file names to sha256 hex digests")
+    _entries(index, "shards", path, {"name": _names(_SHARD_DIR_RE), "sha256": _is_sha256,
+                                     "scene_count": _is_count},
+             "{name: shard_NNNNN, sha256: 64 hex digits, scene_count: an integer >= 0}")
+    return index
+
+
+def parse_shard(path: Path, data: bytes | None = None) -> dict:
+    """shard.json, checked before anything uses it: a version this reader reads, `scenes` each
+    naming a scene folder, its index, frame count and {file name: sha256}; FormatError naming the
+    file and the key."""
+    shard = load_json(path, data)
+    check_format_version(shard.get("format_version"), path)
+    _entries(shard, "scenes", path, {"name": _names(_SCENE_DIR_RE), "scene_index": _is_count,
+                                     "frame_count": _is_count, "files": _is_checksums},
+             "{name: scene_NNNNNNN, scene_index and frame_count: integers >= 0, files: {file name: sha256}}")
+    return shard
 
 
 def require(obj: dict, key: str, kind, where) -> object:

@@ -16,9 +16,9 @@ import contextlib
 import errno
 import os
 from collections.abc import Iterator
-from pathlib import Path
 
 from dotsim.dataset.layout import FormatError
+from dotsim.file_io import disk_full_error, is_disk_full, make_folder, write_error
 
 try:
     import fcntl
@@ -36,14 +36,16 @@ class DatasetBusyError(FormatError):
 def writer_lock(dataset_dir: str | os.PathLike, what: str) -> Iterator[None]:
     """Hold DATASET's writer lock for the `with` block (creating DATASET when needed); `what` names
     the holder in the message a second writer gets. Raises DatasetBusyError when it is held."""
-    root = Path(dataset_dir)
-    root.mkdir(parents=True, exist_ok=True)
+    root = make_folder(dataset_dir)
     if fcntl is None:
         yield
         return
     path = root / LOCK_FILE
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:  # a read-only or full filesystem: the one line every command prints
+            raise (disk_full_error(path, None) if is_disk_full(error) else write_error(path, error)) from None
         try:
             fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             error = None

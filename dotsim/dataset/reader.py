@@ -19,10 +19,9 @@ from dotsim.dataset.layout import (
     SCENE_FILE,
     SHARD_FILE,
     FormatError,
-    check_format_version,
     frame_name,
-    load_json,
-    require,
+    parse_index,
+    parse_shard,
     shard_dirs,
 )
 from dotsim.dataset.scene_meta import camera_size, parse_scene_meta
@@ -85,8 +84,7 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
         hint = ("it has scene shards: seal it with `dotsim seal DIR` (or run the generator to "
                 "completion)" if any(shard_dirs(root)) else "the directory holds no dotsim dataset")
         raise FormatError(f"{index_path}: missing; {hint}")
-    index = load_json(index_path)
-    check_format_version(index.get("format_version"), index_path)
+    index = parse_index(index_path)
     if verify:
         for name, sha in index.get("files", {}).items():
             path = root / name
@@ -96,7 +94,7 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
                 raise FormatError(f"{path}: sha256 differs from the one in {index_path} (file changed "
                                   f"or corrupt; `dotsim verify DIR` lists what is wrong)")
     refs = []
-    for entry in require(index, "shards", list, index_path):
+    for entry in index["shards"]:
         shard_path = root / entry["name"] / SHARD_FILE
         try:
             data = shard_path.read_bytes()
@@ -105,9 +103,8 @@ def open_dataset(dataset_dir: str | os.PathLike, verify: bool = True) -> Dataset
         if sha256_bytes(data) != entry["sha256"]:
             raise FormatError(f"{shard_path}: sha256 differs from the one in {index_path} (a seal was "
                               f"interrupted or the file changed; `dotsim verify DIR --repair` mends it)")
-        shard = load_json(shard_path, data)
-        check_format_version(shard.get("format_version"), shard_path)
-        for s in require(shard, "scenes", list, shard_path):
+        shard = parse_shard(shard_path, data)
+        for s in shard["scenes"]:
             refs.append(SceneRef(scene_index=s["scene_index"], split=s.get("split"),
                                  path=root / entry["name"] / s["name"], frame_count=s["frame_count"],
                                  files=s["files"]))
@@ -129,8 +126,8 @@ def _shard_checksum(scene_path: Path, file_name: str) -> str | None:
 def _shard_files(shard_path: Path, mtime_ns: int, size: int) -> dict[str, dict[str, str]]:
     """scene name -> {file: sha256} from a shard.json; cached per (path, mtime, size) because a
     trainer reads frames one by one and would otherwise parse the shard's JSON for each."""
-    shard = load_json(shard_path)
-    return {s["name"]: s["files"] for s in shard.get("scenes", [])}
+    shard = parse_shard(shard_path)
+    return {s["name"]: s["files"] for s in shard["scenes"]}
 
 
 def read_scene_meta(scene_path: str | os.PathLike, verify: bool = True) -> dict:

@@ -2,15 +2,41 @@
 
 from __future__ import annotations
 
+import json
+import os
 from pathlib import Path
 
 from dotsim.dataset.frames import FRAME_CHANNELS
-from dotsim.dataset.layout import FormatError, check_format_version, load_json, require
+from dotsim.dataset.layout import (
+    SCENE_FILE,
+    FormatError,
+    check_format_version,
+    complete_scenes,
+    load_json,
+    require,
+)
 
 # Scene meta keys the writer requires from the caller; the writer adds format_version,
 # dotsim_version, scene_index, frame_count, channels and frames itself.
 REQUIRED_META_KEYS = ("split", "rig", "pattern", "poses")
 WRITER_META_KEYS = ("format_version", "dotsim_version", "scene_index", "frame_count", "channels", "frames")
+# scene.json's "source" in scenes of real sensors (capture/); rendered scenes have no "source".
+CAPTURED = "capture"
+
+
+def holds_captures(dataset_dir: str | os.PathLike) -> bool | None:
+    """True when the dataset holds real captures, False when it holds rendered scenes, None when it
+    holds no (readable) scene yet: its first readable scene.json tells. A dataset holds one kind of
+    data (`dotsim generate` and `dotsim capture` refuse a folder of the other kind), so one scene is
+    enough."""
+    for _, path in complete_scenes(dataset_dir):
+        try:
+            meta = json.loads((path / SCENE_FILE).read_bytes())
+        except (OSError, ValueError):
+            continue  # a damaged scene: the next one tells
+        if isinstance(meta, dict):
+            return meta.get("source") == CAPTURED
+    return None
 
 
 def camera_size(meta: dict, where="scene meta") -> tuple[int, int]:
@@ -39,8 +65,9 @@ def parse_scene_meta(path: Path, data: bytes) -> dict:
         raise FormatError(f"{path}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
     frames = require(meta, "frames", list, path)
     if len(frames) != require(meta, "frame_count", int, path) or not all(
-            isinstance(e, dict) and isinstance(e.get("file"), str) and isinstance(e.get("sha256"), str)
-            for e in frames):
-        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file, sha256}}")
+            isinstance(e, dict) and isinstance(e.get("file"), str) and e["file"] == Path(e["file"]).name
+            and e["file"] not in ("", ".", "..") and isinstance(e.get("sha256"), str) for e in frames):
+        raise FormatError(f"{path}: 'frames' must list frame_count entries {{file: a file name in the "
+                          f"scene folder, sha256}}")
     camera_size(meta, path)
     return meta

@@ -24,8 +24,8 @@ from dotsim.dataset.layout import (
     SCENE_FILE,
     SHARD_FILE,
     FormatError,
-    check_format_version,
-    load_json,
+    parse_index,
+    parse_shard,
     read_layout,
     scene_dirs,
     shard_dirs,
@@ -39,8 +39,8 @@ from dotsim.file_io import sha256_bytes, sha256_file
 # Kinds of problem: a damaged scene (repair removes it; the generator writes it again), a seal
 # that is not true to the disk (repair seals again), a shard.json that index.json does not vouch
 # for or that disagrees with its scenes (repair removes it; the seal derives it again from the
-# intact scenes), a dataset-level file that no longer matches index.json (repair cannot know the
-# right bytes; sealing would bless the wrong ones).
+# intact scenes), a dataset-level file that no longer matches index.json or that it does not list
+# (repair cannot know the right bytes; sealing would bless the wrong ones or an unknown file).
 SCENE, SEAL, SHARD, FILE = "scene", "seal", "shard", "file"
 
 
@@ -163,8 +163,7 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
     shards, its summary fields and the dataset-level files."""
     index_path = root / INDEX_FILE
     try:
-        index = load_json(index_path)
-        check_format_version(index.get("format_version"), index_path)
+        index = parse_index(index_path)
     except FormatError as error:
         hint = "" if index_path.exists() else " (the dataset is not sealed)"
         report.add(index_path, str(error).removeprefix(f"{index_path}: ") + hint)
@@ -180,7 +179,9 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
     for path in sorted(root.iterdir()):
         if path.is_file() and path.name not in files and path.name != INDEX_FILE \
                 and not path.name.startswith("."):
-            report.add(path, f"not listed in {INDEX_FILE} (written after the seal)")
+            report.add(path, f"not listed in {INDEX_FILE} (written after the seal); repair does not seal "
+                             f"over it: move it out of the dataset, or delete it if `dotsim generate` "
+                             f"writes it", FILE)
     sealed: dict[str, tuple[dict[str, dict] | None, bool]] = {}
     vouched_all: list[tuple[dict, str]] = []
     for entry in index.get("shards", []):
@@ -196,11 +197,11 @@ def _sealed_shards(report: VerifyReport, root: Path, scenes_per_shard: int
             report.add(path, f"sha256 differs from the one in {INDEX_FILE} (a seal was interrupted, "
                              f"or the file changed); repair derives it again from the intact scenes", SHARD)
         try:
-            shard = load_json(path, data)
-            sealed[entry["name"]] = ({s["name"]: s for s in shard["scenes"]}, vouched)
-        except (FormatError, KeyError, TypeError):
-            report.add(path, "not a valid shard.json", SHARD)
+            shard = parse_shard(path, data)
+        except FormatError as error:
+            report.add(path, f"not a valid shard.json ({str(error).removeprefix(f'{path}: ')})", SHARD)
             continue
+        sealed[entry["name"]] = ({s["name"]: s for s in shard["scenes"]}, vouched)
         if vouched:
             vouched_all.append((shard, entry["sha256"]))
     if len(vouched_all) == len(index.get("shards", [])):
@@ -264,7 +265,8 @@ def repair_dataset(report: VerifyReport) -> RepairResult:
     scenes: the damaged scenes, the shard.json files index.json does not vouch for or whose
     entries disagree with their scenes (the seal derives them again from the scenes' own
     checksums) and the leftovers of crashed writers. A changed file is never hashed into the seal.
-    A dataset-level file that no longer matches index.json stops the seal."""
+    A dataset-level file that no longer matches index.json, or that index.json does not list,
+    stops the seal: verify flagged it, so the seal must not vouch for it."""
     root = report.root
     scenes_per_shard = read_layout(root)
     removed = [index for index in report.damaged_scenes if remove_scene(root, index, scenes_per_shard)]

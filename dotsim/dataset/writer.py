@@ -36,6 +36,7 @@ from dotsim.file_io import (
     disk_full_error,
     is_disk_full,
     json_bytes,
+    make_folder,
     map_in_threads,
     sha256_bytes,
     temporary_name,
@@ -51,8 +52,7 @@ def write_dataset_file(dataset_dir: str | os.PathLike, name: str, data: bytes) -
     if "/" in name or name.startswith(".") or name in (INDEX_FILE, LAYOUT_FILE):
         raise FormatError(f"dataset-level file name {name!r} is not allowed (plain name, not "
                           f"hidden, not {INDEX_FILE} or {LAYOUT_FILE})")
-    Path(dataset_dir).mkdir(parents=True, exist_ok=True)
-    return atomic_write_bytes(Path(dataset_dir) / name, data)
+    return atomic_write_bytes(make_folder(dataset_dir) / name, data)
 
 
 def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, frames: list[dict],
@@ -115,12 +115,12 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     except (TypeError, ValueError) as e:
         raise FormatError(f"{where}: meta is not JSON-safe ({e})") from None
 
-    final.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(final.parent)
     record_layout(dataset_dir, scenes_per_shard)
     tmp = final.parent / temporary_name(final.name)
     if tmp.exists():
         shutil.rmtree(tmp)
-    tmp.mkdir()
+    make_folder(tmp)
     try:
         for k, data in enumerate(encoded):
             atomic_write_bytes(tmp / frame_name(k), data)

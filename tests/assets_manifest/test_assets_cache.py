@@ -15,6 +15,7 @@ from assets_manifest import cli
 from assets_manifest.cache import AssetCacheError, build_asset_cache, load_asset_cache
 from assets_manifest.manifest import load_manifest
 from assets_manifest.mesh_arrays import load_mesh_npz
+from tests.output_folders import assert_one_line_error, leftovers
 
 SMALL = """
 [split]
@@ -261,3 +262,18 @@ def test_cli_build_and_check(tmp_path, capsys):
     # A manifest that declares another split is refused.
     assert run("assets", "build", "--split", "test", "--manifest", str(train), "--cache", cache) == 2
     assert "declares split 'train', not 'test'" in capsys.readouterr().err
+
+
+def test_cli_build_into_a_read_only_or_full_cache_is_one_line(tmp_path, read_only_folder, no_space, capsys):
+    """(issue 37, item 1) A read-only --cache is refused before anything is built; a full one stops
+    at the first file, naming it, with nothing half-written."""
+    from commands.cli import main
+
+    manifest = write_manifest(tmp_path, SMALL)
+    argv = ["assets", "build", "--split", "train", "--manifest", str(manifest), "--no-progress", "--cache"]
+    assert main([*argv, str(read_only_folder / "cache")]) == 1
+    assert_one_line_error(capsys.readouterr().err, f"--cache {read_only_folder / 'cache'}", "not writable")
+    assert not any(read_only_folder.iterdir())
+    assert main([*argv, str(tmp_path / "cache"), "--workers", "1"]) == 1  # (no_space: in this process)
+    assert_one_line_error(capsys.readouterr().err, tmp_path / "cache", "no space left on device")
+    assert not leftovers(tmp_path)

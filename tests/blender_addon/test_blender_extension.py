@@ -31,9 +31,9 @@ from blender_addon.build_extension import (
     download_wheels,
     main,
     pinned_requirements,
-    project_version,
     this_platform,
 )
+from dotsim.version import __version__
 from tests.blender_addon.generated_scene import BASE_SEED, CONFIG, SCENE_INDEX, SPLIT
 
 pytest.importorskip("bpy")
@@ -124,12 +124,12 @@ def session(tmp_path_factory, extension_zip, dataset_scene):
 
 
 def test_manifest_names_version_platform_and_every_wheel(extension_zip):
-    assert extension_zip.name == f"dotsim-{project_version()}-{this_platform().replace('-', '_')}.zip"
+    assert extension_zip.name == f"dotsim-{__version__}-{this_platform().replace('-', '_')}.zip"
     with zipfile.ZipFile(extension_zip) as archive:
         names = set(archive.namelist())
         manifest = tomllib.loads(archive.read("blender_manifest.toml").decode())
     assert manifest["id"] == "dotsim" and manifest["type"] == "add-on"
-    assert manifest["version"] == project_version()
+    assert manifest["version"] == __version__
     assert manifest["blender_version_min"] == "4.2.0"
     assert manifest["license"] == ["SPDX:MIT"] and "files" in manifest["permissions"]
     assert manifest["platforms"] == manifest["build"]["generated"]["platforms"] == [this_platform()]
@@ -137,6 +137,8 @@ def test_manifest_names_version_platform_and_every_wheel(extension_zip):
     assert wheels == {n for n in names if n.endswith(".whl")}
     wheel_keys = {_distribution_key(Path(w).name.split("-")[0]) for w in wheels}
     assert wheel_keys == {"dotsim", *map(_distribution_key, PREVIEW_DISTRIBUTIONS)}
+    # setuptools read the version from dotsim/version.py (pyproject.toml's dynamic version)
+    assert any(Path(w).name.startswith(f"dotsim-{__version__}-") for w in wheels)
     assert "numpy" not in wheel_keys  # Blender bundles it
     # The add-on's modules sit at the top; the build script and template stay out.
     addon = {p.name for p in (REPO / "blender_addon").glob("*.py")} - {"build_extension.py"}

@@ -15,8 +15,8 @@ import time
 import numpy as np
 import pytest
 
+from commands.cli import main
 from dotsim import dataset
-from dotsim.cli import main
 from dotsim.rig import get_preset
 
 rs = pytest.importorskip("pyrealsense2")

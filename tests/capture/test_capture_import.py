@@ -22,6 +22,7 @@ from dotsim.dataset import open_dataset
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
+from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")
@@ -260,3 +261,15 @@ def test_import_of_a_stereo_pair_stores_the_right_ir(tmp_path, rig):
             import_frames(str(tmp_path / "on"), str(tmp_path / "off"), chosen, tmp_path / "new",
                           progress=False, right_spec=str(right_spec))
         assert not (tmp_path / "new").exists()
+
+
+def test_import_refuses_a_dataset_of_rendered_scenes(tmp_path, rig, capsys):
+    """A dataset holds one kind of data (issue 37, item 4); the folder stays as it was."""
+    data = make_dataset(tmp_path / "rendered", scenes=1, frames_per_scene=1)
+    before = {p: p.read_bytes() for p in data.rglob("*") if p.is_file()}
+    write_frames(tmp_path / "on", random_frames(rig, 2, np.uint16, 1))
+    write_frames(tmp_path / "off", random_frames(rig, 2, np.uint16, 2))
+    with pytest.raises(CaptureError, match=f"{data}: holds rendered scenes"):
+        import_frames(str(tmp_path / "on"), str(tmp_path / "off"), rig, data, frames_per_scene=2,
+                      progress=False)
+    assert {p: p.read_bytes() for p in data.rglob("*") if p.is_file()} == before

@@ -19,8 +19,8 @@ import pytest
 
 from capture.devices import device_rig_file
 from capture.record import record
+from commands.cli import main
 from dotsim import dataset
-from dotsim.cli import main
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import detect_dots, generate_dot_pattern, load_pattern
 from dotsim.rig import get_preset

@@ -200,7 +200,7 @@ def test_opencv_backend_on_a_lossless_video(rendered, tmp_path):
 
 
 def cli_main(argv):
-    from dotsim.cli import main
+    from commands.cli import main
 
     return main(argv)
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from capture.rectify import Rectifier
-from dotsim.cli import main
+from commands.cli import main
 from dotsim.dataset import open_dataset, read_scene
 from dotsim.rig import Intrinsics
 from dotsim.rig_files import Lens

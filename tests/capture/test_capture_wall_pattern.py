@@ -179,7 +179,7 @@ def test_bad_inputs_are_refused(rig, pattern):
 
 
 def run_cli(argv):
-    """Run `dotsim capture ...` through the subcommand's own parser (as dotsim.cli does)."""
+    """Run `dotsim capture ...` through the subcommand's own parser (as commands.cli does)."""
     import argparse
 
     from capture import cli

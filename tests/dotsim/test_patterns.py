@@ -9,7 +9,7 @@ import OpenEXR
 import pytest
 from scipy.spatial.distance import pdist
 
-from dotsim import pattern_cli
+from commands import pattern as pattern_command
 from dotsim.patterns import (
     DotPattern,
     PatternError,
@@ -203,7 +203,7 @@ def test_dot_pattern_refuses_nan_and_non_2d():
 
 def _cli(argv):
     parser = argparse.ArgumentParser(prog="dotsim")
-    pattern_cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    pattern_command.add_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     return args.func(args)
 

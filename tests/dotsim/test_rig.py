@@ -97,7 +97,9 @@ def test_rig_dict_round_trip_through_json_is_exact():
          r"rig.projector_translation = \[0.1, 0.0\]: wrong type \(expected a three-element array\)"),
         (lambda d: d.update(projector_rotation=[[2, 0, 0], [0, 1, 0], [0, 0, 1]]), "proper rotation"),
         (lambda d: d.update(max_depth=float("nan")), "rig.max_depth = nan: not finite; allowed: a number, "
-         "0 < x"),
+         "0.5 <= x <= 1000"),
+        (lambda d: d.update(max_depth=0.4), r"rig.max_depth = 0.4: out of range; allowed: a number, "
+         r"0.5 <= x <= 1000"),
     ],
 )
 def test_rig_from_dict_rejects_bad_fields(mutate, message):

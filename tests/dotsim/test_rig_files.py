@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from dotsim.calibration_files import read_calibration
 from dotsim.rig import PRESET_DIR, PRESETS, Intrinsics, Rig, project_to_projector, rotation_matrix
 from dotsim.rig_files import RigFileError, check_rig, configured_rig, load_rig_file, rig_file_json
-from generator.config import ConfigError, config_from_dict, load_config
+from generator.config import ConfigError, RigConfig, config_from_dict, load_config
 from generator.sample_scene import build_rig
 
 # A calibrated-looking rig: off-centre principal points, projector slightly rotated and offset.
@@ -70,6 +71,30 @@ def test_sizes_as_separate_width_and_height_keys(tmp_path):
     storage.release()
     rig = load_rig_file(path).rig
     assert rig.name == "bench_rig" and rig.max_depth == 6.5 and rig.is_rectified and rig.baseline == 0.05
+
+
+@pytest.mark.parametrize("max_depth", [None, 0.5, 1000.0, 0.49, 1000.5])
+def test_max_depth_of_a_rig_file_has_the_configs_bounds_and_default(tmp_path, max_depth):
+    """One bound for max_depth: a calibration file's is held to the config's [rig] max_depth range,
+    and a file without one gets the config's default."""
+    path = tmp_path / "calib.yaml"
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("K1", K1), ("K2", K2), ("R", np.eye(3)), ("T", np.array([[-0.05], [0.0], [0.0]])),
+                       ("image_size", np.array([[640, 480]])), ("projector_size", np.array([[1600, 1200]]))):
+        storage.write(key, value)
+    if max_depth is not None:
+        storage.write("max_depth", max_depth)
+    storage.release()
+    config_rule = RigConfig.__dataclass_fields__["max_depth"]
+    if max_depth is None or 0.5 <= max_depth <= 1000.0:
+        expected = config_rule.default if max_depth is None else max_depth
+        assert load_rig_file(path).rig.max_depth == expected
+        config_from_dict({"rig": {"max_depth": expected}})  # the config takes it too
+    else:
+        with pytest.raises(RigFileError, match=r"max_depth = .*allowed: a number, 0.5 <= x <= 1000"):
+            load_rig_file(path)
+        with pytest.raises(ConfigError, match=r"max_depth = .*allowed: a number, 0.5 <= x <= 1000"):
+            config_from_dict({"rig": {"max_depth": max_depth}})
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
@@ -408,3 +433,91 @@ def test_square_undistorted_calibration_needs_no_lens(tmp_path):
     calibrated = load_rig_file(write_storage(tmp_path / "calib.yaml", K1=CAMERA_K))  # fx != fy, no distortion
     assert calibrated.lens.distortion == () and calibrated.rig.camera.fx == calibrated.rig.camera.fy == 600.5
     assert "fx != fy" in calibrated.rectification_note("x")
+
+
+# ----------------------------------------------------------------------------- files of bad shape
+# (issue 37, item 3) Written as text, as a person or another tool would: each is refused with one
+# line naming the file and the key, whichever reader reads it.
+
+K_DATA = "[600, 0, 319.5, 0, 600, 239.5, 0, 0, 1]"
+HUGE = "1" + "0" * 400  # a 401-digit integer
+OPENCV_YAML = """%YAML:1.0
+---
+camera_matrix: !!opencv-matrix
+   rows: {rows}
+   cols: 3
+   dt: d
+   data: {data}
+image_width: 640
+image_height: 480
+"""
+PLAIN_YAML = """camera_matrix:
+  rows: {rows}
+  cols: 3
+  data: {data}
+image_width: 640
+image_height: 480
+"""
+JSON = ('{{"camera_matrix": {{"rows": {rows}, "cols": 3, "data": {data}}}, "image_width": 640, '
+        '"image_height": 480}}')
+LAYOUTS = {"opencv.yaml": OPENCV_YAML, "plain.yaml": PLAIN_YAML, "calib.json": JSON}
+ANY_LAYOUT, NOT_OPENCV = tuple(LAYOUTS), ("plain.yaml", "calib.json")  # OpenCV's YAML has no booleans
+
+
+@pytest.mark.parametrize("name, rows, data, message", [
+    *((name, "3", K_DATA.replace("600", HUGE, 1),
+       r"camera_matrix(: data)?(: OpenCV cannot read its value| holds a 401-digit integer)")
+      for name in ANY_LAYOUT),
+    *((name, "3.5", K_DATA, r"camera_matrix: rows 3.5 x cols 3 does not match") for name in ANY_LAYOUT),
+    *((name, "true", K_DATA, r"camera_matrix: rows True x cols 3 does not match") for name in NOT_OPENCV),
+    *((name, "3", K_DATA.replace("600", "true", 1), r"camera_matrix is not a matrix or a list of numbers")
+      for name in NOT_OPENCV),
+])
+def test_matrix_of_bad_numbers_or_shape(tmp_path, name, rows, data, message):
+    path = tmp_path / name
+    path.write_text(LAYOUTS[name].format(rows=rows, data=data))
+    with pytest.raises(RigFileError, match=rf"^{path}: ({message})") as caught:
+        load_rig_file(path)
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("name, text", [
+    ("plain.yaml", PLAIN_YAML.format(rows=3, data=K_DATA) + "image_width: 320\n"),
+    ("opencv.yaml", OPENCV_YAML.format(rows=3, data=K_DATA) + "image_width: 320\n"),
+    ("calib.xml", '<?xml version="1.0"?>\n<opencv_storage>\n<camera_matrix type_id="opencv-matrix"><rows>3'
+     '</rows><cols>3</cols><dt>d</dt><data>600 0 319.5 0 600 239.5 0 0 1</data></camera_matrix>\n'
+     "<image_width>640</image_width><image_width>320</image_width><image_height>480</image_height>\n"
+     "</opencv_storage>\n"),
+    ("calib.json", JSON.format(rows=3, data=K_DATA)[:-1] + ', "image_width": 320}'),
+    ("nested.yaml", PLAIN_YAML.format(rows=3, data=K_DATA).replace("  cols: 3\n", "  cols: 3\n  cols: 3\n")),
+])
+def test_a_key_given_twice_is_refused_by_every_reader(tmp_path, name, text):
+    """YAML readers keep the last of two, OpenCV's FileStorage the first: neither may decide."""
+    path = tmp_path / name
+    path.write_text(text)
+    key = "cols" if name.startswith("nested") else "image_width"
+    with pytest.raises(RigFileError, match=rf"^{path}: key '{key}' is given twice"):
+        load_rig_file(path)
+
+
+def test_kalibr_transform_must_be_homogeneous(tmp_path):
+    R = np.array(ROTATION)
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = R, -R @ TRANSLATION
+    transform[3, 3] = 2.0
+    path = kalibr_camchain(tmp_path / "camchain.yaml", T_cn_cnm1=[row.tolist() for row in transform])
+    with pytest.raises(RigFileError, match=rf"^{path}: cam1: T_cn_cnm1 bottom row \[0.0, 0.0, 0.0, 2.0\]; "
+                                           r"allowed: a homogeneous rigid transform"):
+        load_rig_file(path)
+
+
+@pytest.mark.parametrize("max_depth, message", [
+    ("{rows: 1, cols: 2, data: [5, 7]}", r"max_depth = \[\[5.0, 7.0\]\]; allowed: one number"),
+    ("[5, 7]", r"max_depth = \[5.0, 7.0\]; allowed: one number"),
+    ("fifty", r"max_depth is not a matrix or a list of numbers"),
+])
+def test_max_depth_is_one_number(tmp_path, max_depth, message):
+    path = tmp_path / "calib.yaml"
+    path.write_text(PLAIN_YAML.format(rows=3, data=K_DATA) + f"max_depth: {max_depth}\n")
+    with pytest.raises(RigFileError, match=rf"^{path}: {message}"):
+        read_calibration(path)

@@ -5,16 +5,19 @@ sealing job end to end; skipped, with the reason, where Slurm cannot start."""
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
+from dataclasses import replace
 
 import pytest
 
 from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
-from generator.config import load_config
-from generator.pipeline import generate, seal_run
+from generator.config import config_from_dict, load_config, with_rig
+from generator.pipeline import generate
 from generator.run_request import RunRequest
-from generator.slurm import SlurmOptions, plan
+from generator.run_steps import seal_run
+from generator.slurm import CONFIG_FILE, SlurmOptions, plan
 from tests.generator.test_cluster_ray import tree_bytes
 from tests.generator.test_generate import TINY, run_cli
 
@@ -37,7 +40,7 @@ def task_ranges(script: str, tasks: int) -> list[range]:
 def test_array_tasks_cover_the_range_once(tmp_path, scenes, per_task):
     options = SlurmOptions(scenes_per_task=per_task, throttle=3, partition="gpu", gpus=1, cpus=4,
                            sbatch_args=("--account=lab",))
-    p = plan(load_config(TINY), TINY, tmp_path / "d", "train", scenes, 10, SEED, options, "tag")
+    p = plan(load_config(TINY), tmp_path / "d", "train", scenes, 10, SEED, options, "tag")
     assert p.tasks == -(-scenes // (per_task or 2))  # default: one shard (tiny.toml: 2 scenes) per task
     covered = [i for r in task_ranges(p.array_script, p.tasks) for i in r]
     assert covered == list(range(10, 10 + scenes))
@@ -58,6 +61,39 @@ def test_dry_run_prints_the_scripts_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("made", ["dict", "changed", "rig"])
+def test_a_config_built_in_python_reaches_the_array_tasks_as_it_is(tmp_path, made):
+    """The tasks read the driver's config file, not the file the config came from (a config made
+    from a dict has none; a changed or --rig one differs from its file)."""
+    if made == "dict":
+        config = config_from_dict({"rig": {"scale": 0.1}, "render": {"samples": 3},
+                                   "scene": {"object_count": [2, 4]}})
+    elif made == "changed":
+        tiny = load_config(TINY)
+        config = replace(tiny, render=replace(tiny.render, samples=tiny.render.samples + 1))
+    else:
+        config = with_rig(load_config(TINY), "kinect_v1")
+    p = plan(config, tmp_path / "d", "train", 3, 0, SEED, SlurmOptions(), "tag")
+    command = shlex.split(p.array_script.strip().splitlines()[-1])
+    saved = tmp_path / "d" / "slurm" / "tag" / CONFIG_FILE
+    assert command[command.index("--config") + 1] == str(saved)
+    assert f"--config {saved} " in p.seal_script
+    saved.parent.mkdir(parents=True)
+    saved.write_bytes(p.config)
+    loaded = load_config(saved)
+    assert loaded == config and loaded.source == config.source
+    assert loaded.calibrated_rig.rig == config.calibrated_rig.rig
+
+
+def test_dry_run_with_rig_prints_the_config_the_tasks_read(tmp_path, capsys):
+    out = tmp_path / "d"
+    assert run_cli("--config", str(TINY), "--rig", "kinect_v1", "--out", str(out), "--split", "train",
+                   "--scenes", "2", "--slurm-dry-run") == 0
+    text = capsys.readouterr().out
+    assert "/slurm/" in text and f"/{CONFIG_FILE}\n" in text and '"preset": "kinect_v1"' in text
+    assert not out.exists()
+
+
 def test_no_sbatch_on_path_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
     out = tmp_path / "d"
@@ -71,7 +107,7 @@ def test_no_sbatch_on_path_is_one_line_and_writes_nothing(tmp_path, capsys, monk
 def test_a_node_that_cannot_see_the_output_stops_before_writing(tmp_path):
     """The array script run where the driver's marker is absent (another filesystem at --out)."""
     out = tmp_path / "d"
-    p = plan(load_config(TINY), TINY, out, "train", 2, 0, SEED, SlurmOptions(), "tag")
+    p = plan(load_config(TINY), out, "train", 2, 0, SEED, SlurmOptions(), "tag")
     script = tmp_path / "generate.sbatch"
     script.write_text(p.array_script)
     proc = subprocess.run(["bash", str(script)], env={**os.environ, "SLURM_ARRAY_TASK_ID": "0"},

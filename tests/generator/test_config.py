@@ -4,6 +4,7 @@ runs; errors name file, key, value and what is allowed; the reference docs match
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,11 +13,11 @@ import pytest
 
 import generator.config as generator_config
 import trainer.config as trainer_config
+from commands.cli import main as cli_main
 from dotsim import config_schema
-from dotsim.cli import main as cli_main
 from dotsim.config_schema import FloatRange, setting
 from dotsim.configs import BUILTIN_DIR, builtin_names
-from generator.config import ConfigError, check_output_dir, load_config
+from generator.config import ConfigError, check_output_dir, config_json, load_config
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
@@ -98,6 +99,30 @@ def test_builtin_configs_by_name_and_config_show(tmp_path, capsys):
     assert load_config(tmp_path / "mine.toml").rig == load_config("tiny").rig
     with pytest.raises(ConfigError, match="nothere.toml: config file not found"):
         load_config("nothere.toml")
+
+
+@pytest.mark.parametrize("name", GENERATOR_CONFIGS)
+def test_a_saved_config_loads_back_equal(name, tmp_path):
+    """config_json -> load_config is the identity on every shipped config, `source` included; the
+    saved file's own folder plays no part (its paths are absolute)."""
+    config = load_config(BUILTIN_DIR / name)
+    saved = tmp_path / "elsewhere" / "saved.json"
+    saved.parent.mkdir()
+    saved.write_bytes(config_json(config))
+    loaded = load_config(saved)
+    assert loaded == config and loaded.to_dict() == config.to_dict()
+    assert json.loads(saved.read_bytes())["source"] == str(BUILTIN_DIR / name)
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("{not json", "not valid JSON"), ("[1, 2]", "not a saved config"), ('{"rig": {}}', "not a saved config"),
+    ('{"source": "x", "rig": {"scale": 7}}', r"x: \[rig\] scale = 7")])
+def test_a_bad_saved_config_is_one_error_naming_it(tmp_path, text, problem):
+    path = tmp_path / "saved.json"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=problem) as info:
+        load_config(path)
+    assert "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("name", TRAINER_CONFIGS)

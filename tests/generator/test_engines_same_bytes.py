@@ -11,9 +11,11 @@ from pathlib import Path
 import pytest
 
 from generator.config import load_config
-from generator.pipeline import RUN_FILE, run
+from generator.local_pool import LocalExecutor
+from generator.pipeline import run
 from generator.ray_cluster import RayExecutor
-from generator.run_request import RunRequest, local_pool
+from generator.run_request import RunRequest
+from generator.run_steps import RUN_FILE
 
 TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 SCENES = 3  # tiny.toml: two scenes per shard, so the run spans two shards
@@ -37,14 +39,14 @@ def render(out: Path, executor) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def one_worker(tmp_path_factory) -> dict[str, str]:
-    hashes = render(tmp_path_factory.mktemp("engines") / "one", local_pool(1))
+    hashes = render(tmp_path_factory.mktemp("engines") / "one", LocalExecutor(1))
     frames = [name for name in hashes if name.endswith(".exr")]
     assert len(frames) == SCENES * 4 and RUN_FILE in hashes, sorted(hashes)
     return hashes
 
 
 def test_two_local_workers_write_the_bytes_of_one(one_worker, tmp_path):
-    assert render(tmp_path / "two", local_pool(2)) == one_worker
+    assert render(tmp_path / "two", LocalExecutor(2)) == one_worker
 
 
 def test_ray_writes_the_bytes_of_the_local_pool(one_worker, tmp_path, monkeypatch):

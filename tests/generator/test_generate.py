@@ -13,17 +13,19 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from commands.cli import main as dotsim_main
 from dotsim import config_schema, dataset
 from dotsim.channels import rendered_channels
-from dotsim.cli import main as dotsim_main
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
-from generator.pipeline import LOG_DIR, RUN_FILE, generate, prepare_run
+from generator.pipeline import generate
 from generator.post_render import make_frame
+from generator.render_scenes import LOG_DIR
 from generator.run_request import RunRequest
+from generator.run_steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
 from generator.scene_spec import camera_views
 
@@ -497,3 +499,25 @@ def test_a_pair_asked_of_a_rig_without_one_stops_before_writing(tmp_path, capsys
     assert error.count("\n") == 1 and "[rig] stereo = true" in error and message in error, error
     assert "allowed: a rig whose second_camera_translation is [B, 0, 0] with B > 0" in error
     assert not out.exists()
+
+
+def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):
+    """A dataset holds one kind of data (issue 37, item 4): `generate` into a folder `capture import`
+    made is one line, and the folder stays as it was."""
+    rig = get_preset("structure_core").scaled(0.1)
+    rng = np.random.default_rng(0)
+    for name in ("on", "off"):
+        (tmp_path / name).mkdir()
+        for k in range(2):
+            cv2.imwrite(str(tmp_path / name / f"f_{k}.png"),
+                        rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    out = tmp_path / "real"
+    assert dotsim_main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
+                        "--scale", "0.1", "--frames-per-scene", "2", "--scenes-per-shard", "2",
+                        "--out", str(out)]) == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert run_cli("--config", str(TINY), "--out", str(out), "--split", "test", "--scenes", "2") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out}: holds scenes of a real sensor" in err, err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

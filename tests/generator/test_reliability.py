@@ -20,14 +20,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from commands.cli import main as dotsim_main
 from dotsim import dataset, file_io
-from dotsim.cli import main as dotsim_main
 from dotsim.dataset.layout import record_layout
 from dotsim.dataset.seal import seal_shard
 from generator.config import load_config
 from generator.pipeline import generate
 from generator.render_scenes import LOG_DIR
 from generator.resources import TEXTURE_DIR
+from tests.output_folders import leftovers
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -38,10 +39,6 @@ def frame_sums(root: Path) -> dict[str, str]:
     """sha256 of every frame file, by path relative to the dataset (computed with hashlib)."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(root.glob("shard_*/scene_*/frame_*.exr"))}
-
-
-def leftovers(root: Path) -> list[Path]:
-    return sorted(root.rglob(".tmp-*"))
 
 
 @pytest.fixture(scope="module")
@@ -192,7 +189,7 @@ def descendants(pid: int) -> set[int]:
 def start_generate(out: Path, workers: int = 2) -> subprocess.Popen:
     """`dotsim generate` of SCENES tiny scenes in a process of its own, from this checkout, with its
     stdout a pipe (as `dotsim generate ... | tee log` has it)."""
-    command = [sys.executable, "-m", "dotsim.cli", "generate", "--config", str(TINY), "--out", str(out),
+    command = [sys.executable, "-m", "commands.cli", "generate", "--config", str(TINY), "--out", str(out),
                "--split", "train", "--scenes", str(SCENES), "--seed", "3", "--workers", str(workers),
                "--no-progress"]
     return subprocess.Popen(command, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
@@ -252,7 +249,7 @@ def run_of(command: list[str], ready, signum: int, seconds: float = 10.0) -> tup
     """Start `command` (a dotsim command line) from this checkout, wait until ready(proc) is true,
     send `signum` to its main process and check by pid that none of its processes is left after
     `seconds`; (exit status, output)."""
-    proc = subprocess.Popen([sys.executable, "-m", "dotsim.cli", *command], cwd=REPO, text=True,
+    proc = subprocess.Popen([sys.executable, "-m", "commands.cli", *command], cwd=REPO, text=True,
                             env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 300
@@ -484,9 +481,9 @@ def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_p
 
 def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
                                                                                       capsys):
-    from generator.pipeline import prepare_run
     from generator.render_scenes import _sample, render_scenes
     from generator.run_request import RunRequest
+    from generator.run_steps import prepare_run
 
     cache, config = copied_cache(asset_cache, tmp_path)
     texture = sorted((cache / "test" / "textures").glob("*.png"))[0]

@@ -11,14 +11,14 @@ import pytest
 
 import generator.config
 import generator.run_request
-from dotsim.cli import build_parser
+from commands.cli import build_parser
+from generator.cli import executor_from_args
 from generator.config import ConfigError, load_config
-from generator.executor import executor_from_args
 from generator.local_pool import LocalExecutor
-from generator.pipeline import prepare_run
 from generator.ray_cluster import RayExecutor
 from generator.render_scenes import _sample
 from generator.run_request import RunRequest
+from generator.run_steps import prepare_run
 from generator.slurm import SlurmExecutor
 
 TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"

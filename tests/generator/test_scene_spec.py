@@ -13,12 +13,13 @@ import pytest
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError
-from generator.config import Config, config_from_dict
+from generator.config import Config, LightingConfig, RigConfig, SceneConfig, config_from_dict
 from generator.post_render import make_frame
 from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
     MaskParams,
+    Material,
     PointLight,
     PrimitiveMesh,
     RenderSettings,
@@ -235,3 +236,45 @@ def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():
                           cwd=Path(__file__).resolve().parents[2])
     third_party = {name for name in ast.literal_eval(proc.stdout) if not name.startswith("_")}
     assert third_party <= {"numpy", "dotsim", "generator", "cython_runtime"}, third_party
+
+
+# (config record, key, spec record, field): the config keys whose values a sampled spec carries.
+CONFIG_TO_SPEC = [
+    (SceneConfig, "albedo", Material, "albedo"),
+    (SceneConfig, "roughness", Material, "roughness"),
+    (SceneConfig, "glossy_roughness", Material, "roughness"),
+    (SceneConfig, "specular", Material, "specular"),
+    (SceneConfig, "glossy_specular", Material, "specular"),
+    (SceneConfig, "texture_contrast", Texture, "contrast"),
+    (LightingConfig, "world_strength", SceneSpec, "world_strength"),
+    (LightingConfig, "light_power", PointLight, "power"),
+    (LightingConfig, "light_radius", PointLight, "radius"),
+    (LightingConfig, "projector_power", SceneSpec, "projector_power"),
+    (RigConfig, "scale", SensorModel, "pixel_scale"),
+]
+PROBES = (-1.0, -1e-9, 0.0, 1e-9, 0.0199, 0.02, 0.5, 1.0, 1.000001, 10.0, 10.00001, 100.0, 100.0001, 1e6,
+          1.000001e6)
+
+
+def _allowed(owner, name, value) -> bool:
+    try:
+        config_schema.check_field(owner, name, value, "probe")
+    except ConfigError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("config_record, key, spec_record, field", CONFIG_TO_SPEC)
+def test_a_spec_allows_exactly_the_values_its_config_allows(config_record, key, spec_record, field):
+    """A spec read from a file (the add-on, run_in_blender.py) is held to the config's bounds: every
+    probe the config refuses, the spec refuses, and the other way round (a spec may switch its
+    projector off: power 0, which a config never asks for)."""
+    ranged = dataclasses.fields(config_record)[[f.name for f in dataclasses.fields(config_record)].index(key)]
+    for value in PROBES:
+        given = [value, value] if ranged.type == "FloatRange" else value
+        config_ok = _allowed(config_record, key, given)
+        spec_ok = _allowed(spec_record, field, value)
+        if field == "projector_power" and value == 0.0:
+            assert spec_ok and not config_ok
+        else:
+            assert config_ok == spec_ok, (key, value, config_ok, spec_ok)

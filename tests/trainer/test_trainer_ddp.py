@@ -12,7 +12,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from dotsim.cli import main
+from commands.cli import main
 from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import EpochSampler
@@ -152,7 +152,7 @@ def test_torchrun_two_processes_rank_zero_alone_prints_and_writes(data, tmp_path
     run = tmp_path / "run"
     proc = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-         "-m", "dotsim.cli", "train", "--config", str(cfg), "--data", str(data), "--out", str(run)],
+         "-m", "commands.cli", "train", "--config", str(cfg), "--data", str(data), "--out", str(run)],
         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=300,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]

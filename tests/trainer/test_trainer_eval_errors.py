@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from dotsim.cli import main as dotsim_main
+from commands.cli import main as dotsim_main
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset, reference_image
+from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.config import config_from_dict, load_config
 from trainer.data import DataError
@@ -182,3 +183,33 @@ def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
     with pytest.raises(DataError, match="overlap the evaluated frames"):
         evaluate(run["ckpt"], run["data"], tmp_path / "o", progress=False, val_data=run["data"],
                  val_split="test")
+
+
+def _command(command: str, run: dict, out: Path) -> list[str]:
+    """`dotsim COMMAND ... --out out` on the module's run and data."""
+    frame = next(Path(run["data"]).glob("shard_*/scene_0000001/frame_0.exr"))
+    return {"train": ["train", "--config", "dotsim/configs/train_tiny.toml", "--data", str(run["data"]),
+                      "--out", str(out)],
+            "eval": ["eval", "--checkpoint", str(run["ckpt"]), "--data", str(run["data"]), "--out", str(out),
+                     "--images", "1"],
+            "infer": ["infer", "--checkpoint", str(run["ckpt"]), str(frame), "--out", str(out)]}[command]
+
+
+@pytest.mark.parametrize("command", ["train", "eval", "infer"])
+@pytest.mark.parametrize("inside", [False, True])
+def test_a_read_only_output_folder_is_one_line_and_nothing_written(command, inside, run, read_only_folder,
+                                                                   capsys):
+    """--out the read-only folder itself, or a new folder inside it (issue 37, item 1)."""
+    out = read_only_folder / "run" if inside else read_only_folder
+    assert dotsim_main(_command(command, run, out)) == 1
+    assert_one_line_error(capsys.readouterr().err, f"--out {out}: {read_only_folder} is not writable")
+    assert not any(read_only_folder.iterdir())
+
+
+@pytest.mark.parametrize("command", ["eval", "infer"])
+def test_a_full_output_folder_is_one_line_and_nothing_half_written(command, run, tmp_path, no_space,
+                                                                   capsys):
+    """(A full disk during training: tests/generator/test_reliability.py.)"""
+    assert dotsim_main(_command(command, run, tmp_path / "out")) == 1
+    assert_one_line_error(capsys.readouterr().err, tmp_path / "out", "no space left on device")
+    assert not leftovers(tmp_path)

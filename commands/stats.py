@@ -27,6 +27,7 @@ import numpy as np
 from dotsim import dataset as ds
 from dotsim.file_io import atomic_write_json
 from dotsim.images import write_image
+from dotsim.option_types import integer
 from dotsim.rig import Rig, backproject, project_to_projector
 
 STATS_CHANNELS = ("depth", "visibility", "edge")
@@ -332,6 +333,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("-o", "--output", default="stats.png", help="PNG to draw (default: stats.png)")
     parser.add_argument("--json", default=None, metavar="FILE",
                         help="JSON to write (default: the PNG's name with .json)")
-    parser.add_argument("--max-frames", type=int, default=0, metavar="N", help="the first N frames only")
+    parser.add_argument("--max-frames", type=integer(0), default=0, metavar="N",
+                        help="the first N frames only (default 0: all)")
     parser.set_defaults(func=run, errors={ds.FormatError: 1})
     return parser

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim.cli import main as dotsim_main
+from commands.cli import main as dotsim_main
+from commands.stats import dataset_stats
 from dotsim.dataset import seal_dataset, write_scene
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
-from dotsim.stats import dataset_stats
 from tests.trainer_fixtures import synthetic_frame
 
 NEAR, FAR = 0.5, 3.0
@@ -44,7 +44,7 @@ def dataset(tmp_path_factory):
             "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
                         "height": rig.projector.height, "params": dots.params},
             "poses": [np.eye(4).tolist()] * 2,
-            "render": {"kind": "known content (tests/dotsim/test_stats.py)"}}
+            "render": {"kind": "known content (tests/commands/test_stats.py)"}}
     write_scene(root, 0, meta, [frame, frame], scenes_per_shard=2)
     seal_dataset(root)
     return root, rig

@@ -23,7 +23,17 @@ import numpy as np
 
 from dotsim import dataset as ds
 from dotsim.channels import CHANNEL, CHANNELS
+from dotsim.false_colour import (
+    BACKGROUND,
+    FONT,
+    LINE,
+    TEXT_SCALE,
+    colourise,
+    put_text,
+    short_number,
+)
 from dotsim.images import write_image
+from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.rig import Rig
 
@@ -34,16 +44,9 @@ COLOUR_MAPPED = tuple(c.name for c in CHANNELS if c.display == "colour")
 FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
             "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
             "their own 99th percentile. Masks: white = 1.")
-FONT = cv2.FONT_HERSHEY_SIMPLEX
-TEXT_SCALE = 0.45
-LINE = 18  # text line height, px
 GAP = 6  # between tiles, px
 LABEL_WIDTH = 70  # left column with the frame labels, px
 BAR_HEIGHT = 14
-LEGEND_BAR_WIDTH = 160  # the colour bar of legend_strip, px
-SWATCH = 12  # a legend swatch's side, px
-BACKGROUND = (40, 40, 40)
-TEXT_COLOUR = (235, 235, 235)
 SUBTLE_COLOUR = (170, 200, 230)
 
 
@@ -60,16 +63,6 @@ def _grey(image: np.ndarray, scale: float, root: bool = False) -> np.ndarray:
     black."""
     x = np.clip(np.where(np.isfinite(image), image.astype(np.float64) / scale, 0.0), 0, 1)
     return np.repeat(np.rint((np.sqrt(x) if root else x) * 255).astype(np.uint8)[..., None], 3, axis=2)
-
-
-def colourise(image: np.ndarray, low: float, high: float) -> np.ndarray:
-    """Turbo colour map of image over [low, high] (BGR uint8); non-finite pixels black."""
-    finite = np.isfinite(image)
-    span = high - low if high > low else 1.0
-    x = np.where(finite, (image.astype(np.float64) - low) / span, 0.0)
-    bgr = cv2.applyColorMap(np.rint(np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    bgr[~finite] = 0
-    return bgr
 
 
 def _finite_range(arrays: list[np.ndarray]) -> tuple[float, float]:
@@ -111,14 +104,7 @@ def scale_caption(name: str, scale: float) -> str:
         return "linear, white = full scale"
     if scale == 0:
         return "0 everywhere (no light)"
-    return f"sqrt, white = {_fmt(scale)}"
-
-
-def _text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE, width: int | None = None):
-    """Draw text at (x, y); with `width`, in a smaller font where it would be wider than that."""
-    if width is not None:
-        scale = min(scale, scale * width / max(cv2.getTextSize(text, FONT, scale, 1)[0][0], 1))
-    cv2.putText(img, text, (int(x), int(y)), FONT, scale, colour, 1, cv2.LINE_AA)
+    return f"sqrt, white = {short_number(scale)}"
 
 
 def _wrap(text: str, width: int) -> list[str]:
@@ -131,10 +117,6 @@ def _wrap(text: str, width: int) -> list[str]:
         else:
             lines[-1] = candidate
     return lines
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.4g}"
 
 
 def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: int = 320,
@@ -165,20 +147,21 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     legend_h = (LINE + BAR_HEIGHT + LINE) * len(ranges) + (len(footnote) + 1) * LINE + GAP
     sheet_h = top + len(frames) * (tile_h + GAP) + legend_h
     sheet = np.full((sheet_h, sheet_w, 3), BACKGROUND, np.uint8)
-    _text(sheet, title, GAP, LINE - 4)
+    put_text(sheet, title, GAP, LINE - 4)
 
     tiles = {}
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
-        _text(sheet, CHANNEL[name].title, x, 2 * LINE - 4, width=tile_w)
-        _text(sheet, CHANNEL[name].meaning, x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        put_text(sheet, CHANNEL[name].title, x, 2 * LINE - 4, width=tile_w)
+        put_text(sheet, CHANNEL[name].meaning, x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         if name in scales:
             caption = scale_caption(name, scales[name])
         elif name in ranges:
-            caption = f"{_fmt(ranges[name][0])}..{_fmt(ranges[name][1])} {CHANNEL[name].unit}"
+            low, high = ranges[name]
+            caption = f"{short_number(low)}..{short_number(high)} {CHANNEL[name].unit}"
         else:
             caption = "mask 0 / 1"
-        _text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        put_text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         for k, frame in enumerate(frames):
             y = top + k * (tile_h + GAP)
             image = frame[name]
@@ -194,50 +177,23 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             sheet[y:y + tile_h, x:x + tile_w] = tile
             tiles[(k, name)] = (x, y, tile_w, tile_h)
     for k, label in enumerate(labels):
-        _text(sheet, label, GAP, top + k * (tile_h + GAP) + tile_h // 2)
+        put_text(sheet, label, GAP, top + k * (tile_h + GAP) + tile_h // 2)
 
     y = top + len(frames) * (tile_h + GAP) + LINE
     for name, (low, high) in ranges.items():
-        _text(sheet, f"{CHANNEL[name].title} ({CHANNEL[name].unit}), black = none", LABEL_WIDTH, y)
+        put_text(sheet, f"{CHANNEL[name].title} ({CHANNEL[name].unit}), black = none", LABEL_WIDTH, y)
         bar_w = min(grid_w - GAP, 512)
         ramp = np.linspace(low, high, bar_w)[None, :].repeat(BAR_HEIGHT, axis=0)
         sheet[y + 4:y + 4 + BAR_HEIGHT, LABEL_WIDTH:LABEL_WIDTH + bar_w] = colourise(ramp, low, high)
         for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
             tx = LABEL_WIDTH + int(frac * (bar_w - 1))
-            _text(sheet, _fmt(low + frac * (high - low)), min(tx, sheet_w - 50), y + BAR_HEIGHT + LINE)
+            put_text(sheet, short_number(low + frac * (high - low)), min(tx, sheet_w - 50),
+                     y + BAR_HEIGHT + LINE)
         y += LINE + BAR_HEIGHT + LINE
     for line in footnote:
-        _text(sheet, line, GAP, y)
+        put_text(sheet, line, GAP, y)
         y += LINE
     return sheet, SheetLayout(tiles=tiles, tile_size=(tile_w, tile_h))
-
-
-def legend_strip(width: int, low: float, high: float, unit: str,
-                 swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
-    """A BGR strip `width` px wide to stack under a colourise()d image, so that a reader sees what
-    every colour means without the docs: 'low [bar] high unit' on the first row, then one row per
-    (BGR colour, meaning) swatch (e.g. black = no estimate)."""
-    strip = np.full(((1 + len(swatches)) * LINE + 4, width, 3), BACKGROUND, np.uint8)
-    label = _fmt(low)
-    _text(strip, label, 4, LINE - 5)
-    x = 8 + cv2.getTextSize(label, FONT, TEXT_SCALE, 1)[0][0]
-    bar_w = max(16, min(LEGEND_BAR_WIDTH, width - x - 120))
-    if x + bar_w <= width:
-        strip[3:LINE - 3, x:x + bar_w] = colourise(np.linspace(low, high, bar_w)[None].repeat(LINE - 6, 0),
-                                                   low, high)
-    _text(strip, f"{_fmt(high)} {unit}", x + bar_w + 4, LINE - 5, width=width - x - bar_w - 8)
-    for k, (colour, meaning) in enumerate(swatches, start=1):
-        y = k * LINE
-        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), colour, -1)
-        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), TEXT_COLOUR, 1)
-        _text(strip, meaning, 8 + SWATCH, y + LINE - 5, width=width - 12 - SWATCH)  # smaller where narrow
-    return strip
-
-
-def with_legend(image: np.ndarray, low: float, high: float, unit: str,
-                swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
-    """image (H, W, 3) BGR with legend_strip(...) stacked under it."""
-    return np.concatenate([image, legend_strip(image.shape[1], low, high, unit, swatches)], axis=0)
 
 
 def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:
@@ -297,8 +253,8 @@ def overview_sheet(tiles: list[tuple[str, np.ndarray]], title: str, tile_width: 
     top = 2 * LINE + GAP
     cell_h = tile_h + LINE + GAP
     sheet = np.full((top + rows * cell_h + GAP, GAP + columns * (tile_w + GAP), 3), BACKGROUND, np.uint8)
-    _text(sheet, title, GAP, LINE - 4)
-    _text(sheet, "IR (projector on, as the sensor sees it); white = the sensor's full scale", GAP,
+    put_text(sheet, title, GAP, LINE - 4)
+    put_text(sheet, "IR (projector on, as the sensor sees it); white = the sensor's full scale", GAP,
           2 * LINE - 4, SUBTLE_COLOUR)
     where = {}
     for n, (label, ir) in enumerate(tiles):
@@ -306,7 +262,7 @@ def overview_sheet(tiles: list[tuple[str, np.ndarray]], title: str, tile_width: 
         y = top + (n // columns) * cell_h
         tile = cv2.resize(_grey(ir, full_scale(ir)), (tile_w, tile_h), interpolation=cv2.INTER_AREA)
         sheet[y:y + tile_h, x:x + tile_w] = tile
-        _text(sheet, label, x, y + tile_h + LINE - 4)
+        put_text(sheet, label, x, y + tile_h + LINE - 4)
         where[label] = (x, y, tile_w, tile_h)
     return sheet, where
 
@@ -384,18 +340,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
     parser.add_argument("-o", "--output", default="contact_sheet.png",
                         help="image to write, .png or .jpg (default: contact_sheet.png)")
-    parser.add_argument("--scene", type=int, default=None, metavar="N",
+    parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
-    parser.add_argument("--frame", type=int, default=0, metavar="K",
+    parser.add_argument("--frame", type=integer(0), default=0, metavar="K",
                         help="the frame --overview and --ply use (default: 0)")
     parser.add_argument("--overview", action="store_true",
                         help="a grid of the IR of the first --scenes scenes of the dataset PATH")
-    parser.add_argument("--scenes", type=int, default=24, metavar="N",
+    parser.add_argument("--scenes", type=integer(1), default=24, metavar="N",
                         help="how many scenes --overview shows (default: 24)")
     parser.add_argument("--ply", default=None, metavar="OUT.ply",
                         help="write the ground-truth point cloud of --frame (metres, OpenCV camera frame, "
                         "IR grey colours; through trimesh) instead of a sheet")
-    parser.add_argument("--tile-width", type=int, default=320, metavar="PX",
+    parser.add_argument("--tile-width", type=integer(16), default=320, metavar="PX",
                         help="width of each tile in pixels (default: 320)")
     parser.add_argument("--no-verify", action="store_true",
                         help="skip sha256 verification of the files read (faster; see docs/FORMAT.md)")

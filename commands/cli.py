@@ -4,9 +4,9 @@ import argparse
 import importlib
 import sys
 
-from dotsim import __version__
-from dotsim.file_io import DiskFullError
+from dotsim.file_io import DiskFullError, WriteError
 from dotsim.process_lifetime import Stopped, stop_signals
+from dotsim.version import __version__
 
 # Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int` and may
 # set `errors`, {error type: exit status}: the errors its command expects (bad input named in the
@@ -14,13 +14,13 @@ from dotsim.process_lifetime import Stopped, stop_signals
 SUBCOMMAND_MODULES = [
     "generator.cli",
     "assets_manifest.cli",
-    "dotsim.show",
-    "dotsim.view",
-    "dotsim.export",
-    "dotsim.pattern_cli",
-    "dotsim.dataset_cli",
-    "dotsim.config_cli",
-    "dotsim.stats",
+    "commands.show",
+    "commands.view",
+    "commands.export",
+    "commands.pattern",
+    "commands.dataset",
+    "commands.config",
+    "commands.stats",
     "trainer.cli",
     "capture.cli",
 ]
@@ -41,9 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    # Any stage can run out of space: the message names the file and the space it needed, and the
-    # atomic writer left nothing half-written behind.
-    errors = {DiskFullError: 1, **getattr(args, "errors", {})}
+    # Any stage can run out of space or find its output folder unwritable: the message names the
+    # file (and the space it needed), and the atomic writer left nothing half-written behind.
+    errors = {DiskFullError: 1, WriteError: 1, **getattr(args, "errors", {})}
     try:
         # SIGTERM and SIGHUP stop a command as Ctrl-C does: its workers are stopped, never orphaned.
         with stop_signals():

@@ -8,7 +8,9 @@ import sys
 import time
 from pathlib import Path
 
+from dotsim.config_schema import bounds_of
 from dotsim.file_io import atomic_write_json
+from dotsim.option_types import integer, number
 from dotsim.patterns import (
     DEFAULT_DENSITY,
     PatternError,
@@ -17,6 +19,7 @@ from dotsim.patterns import (
     pattern_statistics,
 )
 from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
+from generator.config import PatternConfig
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -37,16 +40,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     make.add_argument("--rig", default=DEFAULT_PRESET, choices=sorted(PRESETS),
                       help="rig preset whose projector resolution the pattern gets "
                       f"(default {DEFAULT_PRESET})")
-    make.add_argument("--scale", type=float, default=1.0,
+    make.add_argument("--scale", type=number(0.0, 1.0, low_open=True), default=1.0,
                       help="scale the rig first (as Rig.scaled, e.g. 0.25 for tiny test renders; default 1)")
-    make.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    make.add_argument("--seed", type=integer(0), default=0, help="random seed (default 0)")
     amount = make.add_mutually_exclusive_group()
-    amount.add_argument("--density", type=float,
+    amount.add_argument("--density", type=number(**bounds_of(PatternConfig, "density")),
                         help=f"dots per pattern pixel (default {DEFAULT_DENSITY})")
-    amount.add_argument("--n-dots", type=int, help="number of dots (instead of --density)")
-    make.add_argument("--min-spacing", type=float, default=3.0,
+    amount.add_argument("--n-dots", type=integer(1), help="number of dots (instead of --density)")
+    make.add_argument("--min-spacing", type=number(**bounds_of(PatternConfig, "min_spacing")), default=3.0,
                       help="least distance between dot centres in pattern px (default 3)")
-    make.add_argument("--sigma", type=float, default=0.8,
+    make.add_argument("--sigma", type=number(**bounds_of(PatternConfig, "dot_sigma")), default=0.8,
                       help="Gaussian dot standard deviation in pattern px (default 0.8)")
     make.add_argument("-o", "--output", required=True, type=Path, help="output .png path")
     make.set_defaults(func=_make)
@@ -59,12 +62,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "NCC against every other window within the search range is below the threshold.",
     )
     stats.add_argument("pattern", type=Path, help="pattern image (8/16-bit PNG or EXR)")
-    stats.add_argument("--window", type=int, default=9, help="window side in px (default 9)")
-    stats.add_argument("--search", type=int, default=128, help="horizontal search range in px (default 128)")
+    stats.add_argument("--window", type=integer(1), default=9, help="window side in px (default 9)")
+    stats.add_argument("--search", type=integer(1), default=128,
+                       help="horizontal search range in px (default 128)")
     stats.add_argument("--rig", choices=sorted(PRESETS),
                        help="read --window and --search as camera px of this rig (converted with its "
                        "projector/camera focal ratio); without it they are pattern px")
-    stats.add_argument("--ncc-threshold", type=float, default=0.9,
+    stats.add_argument("--ncc-threshold", type=number(-1.0, 1.0), default=0.9,
                        help="a window is unique when its best NCC is below this (default 0.9)")
     stats.add_argument("--json", action="store_true", help="print the statistics as JSON")
     stats.set_defaults(func=_stats)

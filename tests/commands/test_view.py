@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from dotsim import cli
+from commands import cli, view
 from dotsim import dataset as ds
 from dotsim.channels import rendered_channels
 from dotsim.patterns import generate_dot_pattern
@@ -127,6 +127,11 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     assert cli.main(["view", str(path), "--predictions", str(preds), "--save", str(out)]) == 1
     assert cli.main(["view", str(path), "--save", str(tmp_path / "x.png")]) == 1
     assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
+                           "stereo_visibility")
 
 
 def test_a_stereo_pair_adds_the_right_ir_its_mask_and_the_right_frustum(scene, tmp_path):

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim import cli, show
+from commands import cli, show
 from dotsim import dataset as ds
 from dotsim.channels import rendered_channels
 from dotsim.rig import get_preset
@@ -60,6 +60,10 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     # Depth 2, 3, 4 m over frames: turbo's low end is blue, high end red (BGR).
     near, far = tile(0, "depth")[-1, -1], tile(2, "depth")[-1, -1]
     assert near[0] > near[2] and far[2] > far[0]
+
+
+def test_the_columns_are_the_declared_channels_but_a_devices_depth():
+    assert show.COLUMNS == rendered_channels(stereo=True)
 
 
 def test_a_stereo_pair_adds_its_three_columns(tmp_path):

@@ -23,17 +23,18 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 import numpy as np
 
+from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
 from dotsim.channels import CHANNEL, CHANNELS
-from dotsim.file_io import temporary_name
+from dotsim.false_colour import colourise
+from dotsim.file_io import atomic_write_bytes
+from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.rig import Rig
-from dotsim.show import colourise, grey_for_display, scene_path_of
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
 # as a depth image (the other colour-mapped channels are what the clouds show).
@@ -168,7 +169,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
 
 def view(path, scene_index: int | None = None, frame: int | None = None, predictions=None,
          save: str | Path | None = None, verify: bool = True) -> dict[str, int]:
-    """Log the scene PATH names (dotsim.show.scene_path_of) and write it to `save` (.rrd,
+    """Log the scene PATH names (commands.show.scene_path_of) and write it to `save` (.rrd,
     atomically) or, without `save`, spawn the Rerun viewer on it."""
     rr = _rerun()
     if Path(path).is_file():
@@ -176,26 +177,19 @@ def view(path, scene_index: int | None = None, frame: int | None = None, predict
     scene_path = scene_path_of(path, scene_index)
     if predictions is not None and not Path(predictions).is_dir():
         raise ViewError(f"{predictions}: no such folder (--predictions takes `dotsim infer`'s --out)")
+    if save is not None and Path(save).suffix != ".rrd":
+        raise ViewError(f"{save}: a recording is written as .rrd")
     rec = rr.RecordingStream("dotsim", recording_id=str(scene_path.resolve()))
-    tmp = None
-    if save is not None:
-        save = Path(save)
-        if save.suffix != ".rrd":
-            raise ViewError(f"{save}: a recording is written as .rrd")
-        tmp = save.with_name(temporary_name(save.name))
-        rec.save(tmp)
-    else:
+    # A recording to save is kept in memory and written by the atomic writer, which names a full
+    # disk or an unusable folder (Rerun's own file sink leaves a truncated file and says nothing).
+    recording = rec.memory_recording() if save is not None else None
+    if recording is None:
         rec.spawn()
-    try:
-        sizes = log_scene(rec, scene_path, None if frame is None else [frame],
-                          None if predictions is None else Path(predictions), verify)
-        rec.flush(blocking=True)
-        if tmp is not None:
-            rec.disconnect()
-            os.replace(tmp, save)
-    finally:
-        if tmp is not None:
-            tmp.unlink(missing_ok=True)
+    sizes = log_scene(rec, scene_path, None if frame is None else [frame],
+                      None if predictions is None else Path(predictions), verify)
+    rec.flush(blocking=True)
+    if recording is not None:
+        atomic_write_bytes(save, recording.drain_as_bytes())
     return sizes
 
 
@@ -218,8 +212,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
         "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
     parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
-    parser.add_argument("--scene", type=int, default=None, metavar="N", help="scene index in a dataset")
-    parser.add_argument("--frame", type=int, default=None, metavar="K", help="only frame K (default: all)")
+    parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
+                        help="scene index in a dataset")
+    parser.add_argument("--frame", type=integer(0), default=None, metavar="K",
+                        help="only frame K (default: all)")
     parser.add_argument("--predictions", default=None, metavar="EVAL_DIR",
                         help="folder of `dotsim infer` outputs for the scene's frames "
                         "(scene_SSSSSSS_frame_K.exr)")

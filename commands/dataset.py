@@ -22,8 +22,9 @@ scenes (a frame missing or corrupt, scene.json missing, invalid or changed after
 shard.json files index.json does not vouch for (derived again from the scenes' own checksums)
 and the leftovers of crashed writers, so that rerunning the same `dotsim generate` command
 renders exactly the removed scenes. It never hashes a changed file into the seal. A dataset-level
-file that no longer matches index.json is not repaired (restore it; pattern.png and generate.json
-may be deleted instead, `dotsim generate` writes them again from its config).
+file that no longer matches index.json, or one index.json does not list, stops the seal (restore
+or remove it; pattern.png and generate.json may be deleted instead, `dotsim generate` writes them
+again from its config): the seal never vouches for a file verify flagged.
 """
 
 SEAL_DESCRIPTION = """\
@@ -80,8 +81,8 @@ def _verify_and_repair(args: argparse.Namespace) -> int:
     print(f"repair: removed {len(repair.removed_scenes)} damaged scene(s){shard_files} and "
           f"{len(repair.removed_leftovers)} leftover(s)")
     if repair.seal is None:
-        print("repair: not sealed, a dataset-level file no longer matches index.json (listed above); "
-              "restore it and run `dotsim verify` again", file=sys.stderr)
+        print("repair: not sealed, a dataset-level file no longer matches index.json or is not listed in it "
+              "(above); restore or remove it and run `dotsim verify` again", file=sys.stderr)
         return 1
     print(f"repair: {repair.seal.line()}")
     if redo:

@@ -1,0 +1,76 @@
+"""False colour that a reader can read without the docs: a value range as the turbo colour map, and
+the legend strip stacked under such an image ('low [bar] high unit', then what special colours
+mean). `dotsim show`'s sheets, `dotsim view`'s error images, `dotsim eval`'s error strips and `dotsim
+infer`'s disparity images all draw with these, in one text style (the constants below).
+numpy + OpenCV only.
+
+>>> import numpy as np
+>>> image = colourise(np.array([[0.0, 5.0, np.nan]]), 0.0, 5.0)
+>>> image.shape, image.dtype, image[0, 2].tolist()  # BGR; no value -> black
+((1, 3, 3), dtype('uint8'), [0, 0, 0])
+>>> with_legend(image, 0.0, 5.0, "px").shape[:2] == (1 + LINE + 4, 3)
+True
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+TEXT_SCALE = 0.45
+LINE = 18  # text line height, px
+LEGEND_BAR_WIDTH = 160  # the colour bar of legend_strip, px
+SWATCH = 12  # a legend swatch's side, px
+BACKGROUND = (40, 40, 40)
+TEXT_COLOUR = (235, 235, 235)
+
+
+def colourise(image: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Turbo colour map of image over [low, high] (BGR uint8); non-finite pixels black."""
+    finite = np.isfinite(image)
+    span = high - low if high > low else 1.0
+    x = np.where(finite, (image.astype(np.float64) - low) / span, 0.0)
+    bgr = cv2.applyColorMap(np.rint(np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    bgr[~finite] = 0
+    return bgr
+
+
+def put_text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE, width: int | None = None):
+    """Draw text at (x, y); with `width`, in a smaller font where it would be wider than that."""
+    if width is not None:
+        scale = min(scale, scale * width / max(cv2.getTextSize(text, FONT, scale, 1)[0][0], 1))
+    cv2.putText(img, text, (int(x), int(y)), FONT, scale, colour, 1, cv2.LINE_AA)
+
+
+def short_number(v: float) -> str:
+    """A value as legends write it: four significant digits."""
+    return f"{v:.4g}"
+
+
+def legend_strip(width: int, low: float, high: float, unit: str,
+                 swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
+    """A BGR strip `width` px wide to stack under a colourise()d image, so that a reader sees what
+    every colour means without the docs: 'low [bar] high unit' on the first row, then one row per
+    (BGR colour, meaning) swatch (e.g. black = no estimate)."""
+    strip = np.full(((1 + len(swatches)) * LINE + 4, width, 3), BACKGROUND, np.uint8)
+    label = short_number(low)
+    put_text(strip, label, 4, LINE - 5)
+    x = 8 + cv2.getTextSize(label, FONT, TEXT_SCALE, 1)[0][0]
+    bar_w = max(16, min(LEGEND_BAR_WIDTH, width - x - 120))
+    if x + bar_w <= width:
+        strip[3:LINE - 3, x:x + bar_w] = colourise(np.linspace(low, high, bar_w)[None].repeat(LINE - 6, 0),
+                                                   low, high)
+    put_text(strip, f"{short_number(high)} {unit}", x + bar_w + 4, LINE - 5, width=width - x - bar_w - 8)
+    for k, (colour, meaning) in enumerate(swatches, start=1):
+        y = k * LINE
+        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), colour, -1)
+        cv2.rectangle(strip, (4, y + 3), (4 + SWATCH, y + 3 + SWATCH), TEXT_COLOUR, 1)
+        put_text(strip, meaning, 8 + SWATCH, y + LINE - 5, width=width - 12 - SWATCH)  # smaller where narrow
+    return strip
+
+
+def with_legend(image: np.ndarray, low: float, high: float, unit: str,
+                swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
+    """image (H, W, 3) BGR with legend_strip(...) stacked under it."""
+    return np.concatenate([image, legend_strip(image.shape[1], low, high, unit, swatches)], axis=0)
