@@ -129,7 +129,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--out are refused. Or read a RealSense recording (--bag): its left IR frames paired on/off by "
         "the emitter state each frame recorded (every frame as ir when only one state was recorded), "
         "its depth as device_depth, and by default the rig of its recorded calibration, as `capture "
-        "record` stores a live sensor.",
+        "record` stores a live sensor; --stereo also its right IR frames (infrared 2) as ir_right. "
+        "With --on, --right adds the right IR camera's projector-on frames of a stereo pair as ir_right.",
     )
     source = imp.add_mutually_exclusive_group(required=True)
     source.add_argument("--on", metavar="DIR_OR_GLOB",
@@ -138,6 +139,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="a RealSense recording: .bag (RealSense Viewer, SDK up to 2.55) or .db3 (SDK "
                         "2.56 on); needs dotsim[realsense]")
     imp.add_argument("--off", metavar="DIR_OR_GLOB", help="projector-off frames, likewise (with --on)")
+    imp.add_argument("--right", metavar="DIR_OR_GLOB",
+                     help="the right IR camera's projector-on frames of a stereo pair, likewise (with --on; "
+                     "paired with --on in the same order, the same count), stored as ir_right; the rig's "
+                     "second camera must be the right one (realsense_d415, realsense_d435, structure_core, "
+                     "or a rig file with second_camera_translation = [B, 0, 0])")
+    imp.add_argument("--stereo", action="store_true",
+                     help="with --bag: the recording's right IR frames (infrared 2) too, as ir_right")
     _rig_arguments(imp, "; with --bag: the recording's own calibration")
     add_output(imp, "dataset folder to write", metavar="DATASET", type=Path)
     imp.add_argument("--frames-per-scene", type=integer(1), default=4,
@@ -224,6 +232,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
+    rec.add_argument("--stereo", action="store_true",
+                     help="RealSense: record the right IR stream (infrared 2) too, as ir_right, with its "
+                     "extrinsics; the rig's second camera must be the right one (the device's own rig is)")
     _dataset_arguments(rec)
     rec.add_argument("--no-preview", action="store_true", help="no live preview window")
     add_no_progress(rec)
@@ -290,6 +301,8 @@ def _import(args: argparse.Namespace) -> int:
     try:
         if args.off is None:
             raise CaptureError("--on needs --off (the projector-off frames), or import a recording: --bag")
+        if args.stereo:
+            raise CaptureError("--stereo is for --bag; with --on, give the right camera's frames: --right")
         calibrated = load_rig(args.rig, args.scale, args.camera_file)
         say_rig(calibrated)
         rig = calibrated.rig
@@ -301,7 +314,7 @@ def _import(args: argparse.Namespace) -> int:
                                 split=args.split, white_level=args.white_level, dot_window=args.dot_window,
                                 visibility_threshold=args.visibility_threshold, capture_settings=settings,
                                 pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress, right_spec=args.right)
     except (CaptureError, PatternError, FormatError, ValueError) as error:
         return _fail("import", error)
     print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "
@@ -316,11 +329,12 @@ def _import_recording(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     try:
-        if args.off is not None or args.settings is not None:
-            raise CaptureError("--bag: leave out --off and --settings (the recording's emitter states pair "
-                               "its frames, and its options are stored from the file)")
+        if args.off is not None or args.settings is not None or args.right is not None:
+            raise CaptureError("--bag: leave out --off, --right and --settings (the recording's emitter "
+                               "states pair its frames, --stereo adds its right IR frames, and its options "
+                               "are stored from the file)")
         pattern = load_pattern(args.pattern) if args.pattern else None
-        with RealSenseRecording(args.bag) as device:
+        with RealSenseRecording(args.bag, stereo=args.stereo) as device:
             calibrated = device_or_given_rig(args, device)
             say_rig(calibrated)
             if device.poses == 0:
@@ -432,7 +446,7 @@ def _record(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         pattern = load_pattern(args.pattern) if args.pattern else None
-        with _open(args, exposure=args.exposure, gain=args.gain) as device:
+        with _open(args, exposure=args.exposure, gain=args.gain, stereo=args.stereo) as device:
             calibrated = device_or_given_rig(args, device)
             say_rig(calibrated)
             summary = record(device, calibrated.rig, args.out, lens=calibrated.lens, scenes=args.scenes,

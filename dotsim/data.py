@@ -44,9 +44,10 @@ import torch
 from torch.utils.data._utils.collate import default_collate_fn_map
 
 from dotsim import dataset as ds
+from dotsim.dataset.frames import DERIVATIONS, derivable_channels
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
-from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth
+from dotsim.rig import Rig, projector_column_to_depth
 from dotsim.shard_format import (
     INDEX_NAME,
     PATTERN_NAME,
@@ -218,9 +219,9 @@ def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str =
     """A frame dict from a sample's files (any export format version); channels: keep only these.
 
     `metas` (scene index -> scene.json dict) supplies the metadata of a 2.x sample that does not carry
-    it (it is stored once per scene and shard) and learns it from one that does. `disparity` is
-    derived on read as from a dataset folder: from depth, or, when the sample has no depth, from the
-    projector column (at its stored precision)."""
+    it (it is stored once per scene and shard) and learns it from one that does. The derived channels
+    (`disparity`, `stereo_disparity`) come on read as from a dataset folder: from depth, or, when the
+    sample has no depth, from the depth its projector column gives (at the column's stored precision)."""
     where = f"{where}: sample {key}"
     metas = {} if metas is None else metas
     scene = _scene_of(key, where)
@@ -265,8 +266,7 @@ def _decode_frame(key: str, files: dict[str, bytes], channels, where: str, meta:
     info = json.loads(files["frame.json"])
     encoding = info.get("encoding", {})
     names = [n for n in ds.FRAME_CHANNELS if channel_member(files, n)]
-    derivable = [c for c in ds.DERIVED_CHANNELS if c not in names
-                 and ("depth" in names or "projector_column" in names)]
+    derivable = derivable_channels(names, "depth" in names or "projector_column" in names)
     wanted = names + derivable if channels is None else list(channels)
     missing = [c for c in wanted if c not in names and c not in derivable]
     if missing:
@@ -290,9 +290,14 @@ def _decode_frame(key: str, files: dict[str, bytes], channels, where: str, meta:
         if rig_dict is None:
             raise ds.FormatError(f"{where}: {name!r} is derived from the rig, which neither its frame.json "
                                  f"nor a scene.json gives")
-        rig = Rig.from_dict(rig_dict)  # disparity, the one derived channel
-        out[name] = (ds.ground_truth_disparity(channel("depth"), rig) if "depth" in names else
-                     depth_to_disparity(projector_column_to_depth(channel("projector_column"), rig), rig))
+        rig = Rig.from_dict(rig_dict)
+        # a training export may hold the projector column instead of depth: depth follows from it
+        depth = (channel("depth") if "depth" in names
+                 else projector_column_to_depth(channel("projector_column"), rig))
+        try:
+            out[name] = DERIVATIONS[name](depth, rig)
+        except ValueError as error:  # a stereo channel of a rig without a stereo pair
+            raise ds.FormatError(f"{where}: channel {name!r}: {error}") from None
     return out
 
 

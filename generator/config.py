@@ -35,6 +35,7 @@ from dotsim.rig_files import (
     configured_rig,
     holds_camera_only,
 )
+from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     MaskParams,
@@ -84,6 +85,10 @@ class RigConfig(Checked):
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
     max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
                                **bounds_of(Rig, "max_depth"))
+    stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
+                           "stereo_visibility and stereo_disparity beside the channels of the rig's own "
+                           "camera (docs/FORMAT.md); needs a rig whose second camera sits on the camera's x "
+                           "axis to its right (presets realsense_d415, realsense_d435, structure_core)")
     camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
                                 "set camera_width, camera_height and camera_fx to give one; width and "
                                 "height alone give the size of a file's camera that has none)", low=0,
@@ -381,12 +386,17 @@ def rig_from_options(spec: str | None = None, camera_file: str | None = None,
 
 
 def _resolve_rig(config: Config, prefix: str = "") -> None:
-    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one is a ConfigError,
-    `prefix` before the message that names the config's [rig]."""
+    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one, or a stereo pair asked
+    of a rig without one, is a ConfigError, `prefix` before the message that names the config's [rig]."""
     try:
-        config.calibrated_rig  # noqa: B018 (the property resolves and keeps the rig)
+        rig = config.calibrated_rig.rig
     except RigFileError as error:
         raise ConfigError(f"{prefix}{error}") from None
+    if config.rig.stereo:
+        try:
+            stereo_baseline(rig, f"{config.source}: [rig] stereo = true")
+        except ValueError as error:
+            raise ConfigError(f"{prefix}{error}, or stereo = false") from None
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:

@@ -31,6 +31,7 @@ from generator.scene_spec import (
     SceneSpec,
     SensorModel,
     Texture,
+    camera_views,
 )
 
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
@@ -50,11 +51,12 @@ def scene_rng(base_seed: int, scene_index: int, stream: int) -> np.random.Genera
     return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=(stream,)))
 
 
-def frame_sensor_rng(base_seed: int, scene_index: int, frame: int) -> np.random.Generator:
-    """The sensor-noise generator of one frame: a stream of its own, so any frame can be
-    post-rendered alone (the Blender add-on's preview) and give what `dotsim generate` stores."""
-    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index),
-                                                        spawn_key=(STREAM_SENSOR, frame)))
+def frame_sensor_rng(base_seed: int, scene_index: int, frame: int, camera: int = 0) -> np.random.Generator:
+    """The sensor-noise generator of one frame of one of the rig's cameras (0: its own, 1: its second):
+    a stream of its own, so any frame can be post-rendered alone (the Blender add-on's preview) and
+    give what `dotsim generate` stores, and the right IR's noise is independent of the left's."""
+    spawn_key = (STREAM_SENSOR, frame) + ((camera,) if camera else ())
+    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=spawn_key))
 
 
 def scene_seed(base_seed: int, scene_index: int) -> int:
@@ -328,6 +330,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         world_strength=_log_uniform(rng, *li.world_strength),
         lights=lights,
         poses=_poses(rng, config, base_pose),
+        cameras=camera_views(rig, config.rig.stereo),
         objects=tuple(objects),
         sensor=sensor_model(config),
         masks=config.masks,

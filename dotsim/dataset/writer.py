@@ -17,10 +17,15 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import __version__ as DOTSIM_VERSION
-from dotsim.dataset.frames import EXR_COMPRESSION, FRAME_CHANNELS, RENDERED_CHANNELS, encode_frame
+from dotsim.dataset.frames import (
+    EXR_COMPRESSION,
+    FRAME_CHANNELS,
+    RENDERED_CHANNELS,
+    encode_frame,
+    frame_format_version,
+)
 from dotsim.dataset.layout import (
     DEFAULT_SCENES_PER_SHARD,
-    FORMAT_VERSION,
     INDEX_FILE,
     LAYOUT_FILE,
     SCENE_FILE,
@@ -110,7 +115,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
 
     encoded, checksums = zip(*map_in_threads(encode_and_hash, range(len(frames)), threads), strict=True)
     full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
-    full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
+    full_meta.update(format_version=frame_format_version(channels), dotsim_version=DOTSIM_VERSION,
                      scene_index=scene_index, frame_count=len(frames),
                      channels={c: FRAME_CHANNELS[c].name for c in channels},
                      frames=[{"file": frame_name(k), "sha256": sha} for k, sha in enumerate(checksums)])

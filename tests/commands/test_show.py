@@ -6,6 +6,7 @@ import pytest
 
 from commands import cli, show
 from dotsim import dataset as ds
+from dotsim.channels import rendered_channels
 from dotsim.rig import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45
@@ -60,6 +61,39 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     # Depth 2, 3, 4 m over frames: turbo's low end is blue, high end red (BGR).
     near, far = tile(0, "depth")[-1, -1], tile(2, "depth")[-1, -1]
     assert near[0] > near[2] and far[2] > far[0]
+
+
+def test_the_columns_are_the_declared_channels_but_a_devices_depth():
+    assert show.COLUMNS == rendered_channels(stereo=True)
+
+
+def test_a_stereo_pair_adds_its_three_columns(tmp_path):
+    """The right IR on the sensor's full scale, the stereo mask white where set, the stereo disparity
+    (fx B / z, derived on read) colour-mapped in camera px: Structure Core's pair, B = 0.07501 m."""
+    frames = [dict(constant_frame(k), ir_right=np.full((H, W), 0.25),
+                   stereo_visibility=np.eye(H, W, dtype=bool)) for k in range(3)]
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [np.eye(4).tolist()] * 3}
+    scene = ds.write_scene(tmp_path, 0, meta, frames, scenes_per_shard=2,
+                           channels=rendered_channels(stereo=True))
+    loaded, title, labels, meanings = show.load_for_sheet(scene)
+    sheet, layout = show.contact_sheet(loaded, title, 122, labels, meanings)
+    assert len(layout.tiles) == 3 * 11
+    assert [name for k, name in layout.tiles if k == 0][-3:] == ["ir_right", "stereo_visibility",
+                                                               "stereo_disparity"]
+
+    def tile(k, name):
+        x, y, w, h = layout.tiles[(k, name)]
+        return sheet[y:y + h, x:x + w].astype(int)
+
+    assert (tile(1, "ir_right") == round(0.25 * 255)).all()
+    mask = tile(0, "stereo_visibility")[..., 0]
+    assert mask[0, 0] == 255 and mask[-1, 0] == 0  # the diagonal, drawn at twice the size
+    # 2, 3, 4 m: the nearest frame has the largest disparity, the red end of turbo (BGR)
+    near, far = tile(0, "stereo_disparity")[-1, -1], tile(2, "stereo_disparity")[-1, -1]
+    assert near[2] > near[0] and far[0] > far[2]
+    np.testing.assert_allclose(loaded[0]["stereo_disparity"][20, 20], RIG.camera.fx * 0.07501 / 2.0,
+                               rtol=1e-6)
 
 
 def test_show_frame_file_and_dataset_and_errors(tmp_path, capsys):

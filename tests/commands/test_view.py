@@ -9,8 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from commands import cli
+from commands import cli, view
 from dotsim import dataset as ds
+from dotsim.channels import rendered_channels
 from dotsim.patterns import generate_dot_pattern
 from dotsim.prediction_file import write_prediction
 from dotsim.rig import get_preset
@@ -145,6 +146,42 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     assert not list(tmp_path.glob(".tmp-*"))
 
 
+def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
+                           "stereo_visibility")
+
+
+def test_a_stereo_pair_adds_the_right_ir_its_mask_and_the_right_frustum(scene, tmp_path):
+    """A scene of the pair (the oracle frames with a right IR and a mask beside them): its right IR as
+    stored, the mask 0 / 255, the right camera's frustum at the rig's second camera (Structure Core:
+    0.07501 m along x); a scene without the pair has neither."""
+    root = tmp_path / "pair"
+    rng = np.random.default_rng(8)
+    frames = []
+    for frame in (ds.read_frame(scene[1] / ds.frame_name(k)) for k in range(4)):
+        frame.update(ir_right=rng.uniform(0, 1, (H, W)), stereo_visibility=rng.uniform(size=(H, W)) > 0.5)
+        frames.append(frame)
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [pose(k).tolist() for k in range(4)]}
+    path = ds.write_scene(root, 0, meta, frames, channels=rendered_channels(stereo=True))
+    out = tmp_path / "pair.rrd"
+    assert cli.main(["view", str(path), "--save", str(out)]) == 0
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
+    assert {"/world/camera/ir_right", "/world/camera/stereo_visibility",
+            "/world/pose_3/camera_right"} <= entities
+    stored = ds.read_frame(path / ds.frame_name(1))
+    assert np.array_equal(image(out, "/world/camera/ir_right", 1, np.float32),
+                          stored["ir_right"].astype(np.float32))
+    assert np.array_equal(image(out, "/world/camera/stereo_visibility", 1, np.uint8),
+                          stored["stereo_visibility"] * 255)
+    right = array(component(out, "/world/pose_3/camera_right", "Translation3D", static=True)[None])
+    np.testing.assert_allclose(right, [0.07501, 0.0, 0.0], rtol=1e-6)
+    mono = tmp_path / "mono.rrd"
+    assert cli.main(["view", str(scene[1]), "--save", str(mono)]) == 0
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(mono)).schema().component_columns()}
+    assert not any("right" in entity for entity in entities)
+
+
 def test_missing_rerun_is_one_clear_line(scene, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "rerun", None)
     assert cli.main(["view", str(scene[0]), "--save", "x.rrd"]) == 1
@@ -158,3 +195,4 @@ def test_without_save_it_spawns_the_viewer(scene, monkeypatch, capsys, tmp_path)
     assert cli.main(["view", str(scene[0]), "--frame", "1"]) == 0
     assert len(spawned) == 1 and "sent to the Rerun viewer" in capsys.readouterr().out
     assert not list(tmp_path.iterdir())  # nothing written
+

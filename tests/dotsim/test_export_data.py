@@ -348,3 +348,44 @@ def test_the_webdataset_library_loads_an_export_into_batches_with_two_workers(da
     assert sorted(seen) == sorted(expected)
     with pytest.raises(ds.FormatError, match="without __key__"):
         decode_webdataset({"ir.png": b""})
+
+
+def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_disparity(tmp_path):
+    """ir_right as 10-bit codes and stereo_visibility as a 1-bit PNG, like their left twins;
+    stereo_disparity derived on read from depth (exact export) or from the column (training export)."""
+    from dotsim.channels import rendered_channels
+    from dotsim.patterns import generate_dot_pattern
+    from dotsim.rig import get_preset
+    from tests.trainer_fixtures import TINY_SCALE, random_depth, synthetic_frame
+
+    rig = get_preset("structure_core").scaled(TINY_SCALE)
+    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    root = tmp_path / "stereo"
+    root.mkdir()
+    dots.save_png(ds.pattern_path(root))
+    rng = np.random.default_rng(7)
+    frames = []
+    for _ in range(2):
+        frame = synthetic_frame(random_depth(rig, rng), rig, dots.image.astype(np.float64), rng, ir_bits=10)
+        frame["ir_right"] = np.roll(frame["ir"], -3, axis=1)
+        frame["stereo_visibility"] = frame["visibility"] & (rng.uniform(size=frame["ir"].shape) > 0.2)
+        frames.append(frame)
+    meta = {"split": "train", "seed": 0, "rig": rig.to_dict(), "poses": [np.eye(4).tolist()] * 2,
+            "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
+                        "height": rig.projector.height, "params": dots.params},
+            "render": {"kind": "oracle (tests/trainer_fixtures.py)"}}
+    ds.write_scene(root, 0, meta, frames, channels=rendered_channels(stereo=True))
+    ds.seal_dataset(root)
+    exact = export_webdataset(root, tmp_path / "exact")
+    training = export_webdataset(root, tmp_path / "training", precision="training", channels=[
+        "ir", "ir_right", "projector_column", "visibility", "stereo_visibility"])
+    names = {m.name for m in members(exact.out / exact.shards[0]["name"])}
+    assert {"scene_0000000_frame_0.ir_right.png", "scene_0000000_frame_0.stereo_visibility.png"} <= names
+    folder = [f for _, _, f in folder_frames(root)]
+    for sample, frame in zip(Frames(exact.out), folder, strict=True):
+        assert_same_frame(sample, sample["meta"], frame)
+        assert "stereo_disparity" in sample
+    for sample, frame in zip(Frames(training.out), folder, strict=True):
+        assert np.array_equal(sample["ir_right"], frame["ir_right"])
+        seen = frame["stereo_visibility"] > 0
+        assert np.allclose(sample["stereo_disparity"][seen], frame["stereo_disparity"][seen], atol=0.02)

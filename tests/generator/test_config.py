@@ -20,7 +20,8 @@ from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, config_json, load_config
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml"]
+GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
+                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml"]
 TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml"]
 # (config module, its reference page)
 CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]

@@ -10,20 +10,24 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import OpenEXR
 import pytest
 
 from commands.cli import main as dotsim_main
-from dotsim import dataset
+from dotsim import config_schema, dataset
+from dotsim.channels import rendered_channels
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
-from dotsim.rig_files import load_rig_file
+from dotsim.rig_files import load_rig_file, rig_file_json
+from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import generate
-from generator.post_render import RAW_PASSES, make_frame
+from generator.post_render import make_frame
 from generator.render_scenes import LOG_DIR
 from generator.run_request import RunRequest
 from generator.run_steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
+from generator.scene_spec import camera_views
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -39,7 +43,7 @@ def run_cli(*args: str) -> int:
 def spec_with_rig(rig, config):
     """A sampled spec of `config` whose rig is `rig` (make_frame reads its rig, sensor and masks)."""
     spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
-    return replace(spec, rig=rig)
+    return replace(spec, rig=rig, cameras=camera_views(rig))
 
 
 def test_make_frame_against_analytic_wall():
@@ -58,7 +62,7 @@ def test_make_frame_against_analytic_wall():
            "projector_direct": projector, "flood_direct": flood_only}  # no indirect light here
     frame = make_frame(raw, spec_with_rig(rig, config), np.random.default_rng(1))
     # Every stored channel; disparity is derived from depth on read (format 2).
-    assert set(frame) == set(dataset.RENDERED_CHANNELS) - set(dataset.DERIVED_CHANNELS)
+    assert set(frame) == set(dataset.RENDERED_CHANNELS) - {"disparity"}
     disparity = dataset.ground_truth_disparity(frame["depth"], rig)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
@@ -482,6 +486,63 @@ def test_generate_rig_option_errors(tmp_path, capsys):
                        "--scenes", "1") == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+# ----------------------------------------------------------------------------- the stereo pair
+
+
+def tiny_d415(stereo: bool):
+    """The tiny config with a RealSense D415 at 0.1 scale (128 x 72 px), its pair rendered or not."""
+    data = config_schema.read_toml(TINY)
+    data["rig"] = {"preset": "realsense_d415", "scale": 0.1, "stereo": stereo, "max_depth": 10.0}
+    return config_from_dict(data, source=str(TINY), base_dir=REPO)
+
+
+def test_stereo_pair_is_written_beside_the_left_camera_which_it_leaves_as_it_was(tmp_path):
+    """[rig] stereo = true: format 2.1 scenes with the right IR, the stereo mask and the stereo
+    disparity fx B / z (derived on read); every channel of the left camera is what the same config
+    without the pair writes, byte for byte (the scene's mono frames record format 2.0)."""
+    mono, pair = tmp_path / "mono", tmp_path / "pair"
+    assert generate(tiny_d415(False), mono, "train", 1, seed=4, progress=False).done == 1
+    assert generate(tiny_d415(True), pair, "train", 1, seed=4, progress=False).done == 1
+    rig = get_preset("realsense_d415").scaled(0.1)
+    scene = dataset.read_scene(dataset.open_dataset(pair).scenes[0].path)
+    alone = dataset.read_scene(dataset.open_dataset(mono).scenes[0].path)
+    assert scene.meta["format_version"] == "2.1" and alone.meta["format_version"] == "2.0"
+    assert set(scene.meta["channels"]) == set(rendered_channels(stereo=True))
+    assert scene.meta["config"]["rig"]["stereo"] is True
+    for frame, mono_frame in zip(scene.frames, alone.frames, strict=True):
+        for name, value in mono_frame.items():
+            np.testing.assert_array_equal(frame[name], value, err_msg=name)
+        near = np.isfinite(frame["depth"]) & (frame["depth"] <= 10.0)
+        np.testing.assert_allclose(frame["stereo_disparity"][near],
+                                   rig.camera.fx * 0.055 / frame["depth"][near], rtol=1e-6)
+        assert 0.3 < frame["stereo_visibility"].mean() < 1.0
+        assert frame["ir_right"].max() > 0.5 and not np.array_equal(frame["ir_right"], frame["ir"])
+    frame_file = OpenEXR.File(str(scene.path / "frame_0.exr"), separate_channels=True)
+    assert "stereo_disparity" not in frame_file.channels()
+    assert frame_file.header()["dotsim_format_version"] == "2.1"
+
+
+@pytest.mark.parametrize("config, rig, message", [
+    ('[rig]\npreset = "kinect_v1"\nstereo = true\n', None, "rig 'kinect_v1' has no second IR camera"),
+    ('[rig]\npreset = "realsense_d435"\nstereo = true\n', "kinect_v1", "rig 'kinect_v1' has no second"),
+    ('[rig]\nstereo = true\n', "tilted.json", "has its second IR camera at [0.05, 0.0, 0.01], not on the "
+                                                "camera's x axis to its right"),
+])
+def test_a_pair_asked_of_a_rig_without_one_stops_before_writing(tmp_path, capsys, config, rig, message):
+    path = tmp_path / "c.toml"
+    path.write_text(config)
+    tilted = replace(get_preset("realsense_d435"), second_camera_translation=(0.05, 0.0, 0.01))
+    (tmp_path / "tilted.json").write_bytes(rig_file_json(tilted))
+    out = tmp_path / "out"
+    options = ["--rig", str(tmp_path / rig) if rig == "tilted.json" else rig] if rig else []
+    assert run_cli("--config", str(path), *options, "--out", str(out), "--split", "train",
+                   "--scenes", "1") == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "[rig] stereo = true" in error and message in error, error
+    assert "allowed: a rig whose second_camera_translation is [B, 0, 0] with B > 0" in error
+    assert not out.exists()
 
 
 def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):
