@@ -364,8 +364,12 @@ class SceneRenderer:
 
     def render(self, spec: SceneSpec, recipe: FrameRecipe | None = None) -> list[dict[str, np.ndarray]]:
         """All frames of `spec`, rendered as `recipe` says (frame_recipe(spec) unless given): a list
-        (one per pose) of render_frame's passes."""
-        return self.render_poses(self.setup(spec, recipe))
+        (one per pose) of render_frame's passes. Cycles' kept scene is freed once the last pose is
+        rendered (the next setup syncs the whole scene again in any case), so the worker
+        post-renders the frames with that memory given back (bench.generate_cost)."""
+        frames = self.render_poses(self.setup(spec, recipe))
+        self.scene.render.use_persistent_data = False  # setup() switches it on again (refresh)
+        return frames
 
 
 def _add_passes(frame: dict[str, np.ndarray], channels: dict[str, np.ndarray],
