@@ -13,7 +13,6 @@ Scene k depends only on (config, k, base seed), so the dataset does not depend o
 
 from __future__ import annotations
 
-import ctypes
 import json
 import os
 import subprocess
@@ -183,23 +182,11 @@ def _clear_failure_log(job: RenderJob, index: int) -> None:
     (job.out / LOG_DIR / f"{dataset.scene_name(index)}.log").unlink(missing_ok=True)
 
 
-def _return_freed_memory() -> None:
-    """Give the memory Blender and the frame reads freed back to the system (glibc's malloc_trim;
-    nothing elsewhere): glibc keeps it in the process otherwise, and the post-render threads, which
-    allocate from arenas of their own, would stack their memory on top of it."""
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
 def _render_in_process(job: RenderJob, renderer, index: int) -> SceneResult:
     start = time.perf_counter()
     try:
         spec = _sample(job, index)
-        raw_frames = renderer.render(spec)
-        _return_freed_memory()
-        frames = _finish_scene(job, spec, raw_frames)
+        frames = _finish_scene(job, spec, renderer.render(spec))
         _clear_failure_log(job, index)
         return SceneResult(index, True, frames, time.perf_counter() - start)
     except DiskFullError:

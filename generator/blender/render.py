@@ -23,6 +23,7 @@ replaced and meshes, materials and the pattern image are cached, so memory stays
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import shutil
 import sys
@@ -329,7 +330,9 @@ class SceneRenderer:
             bpy.ops.render.render(write_still=True)
         if not output.is_file():
             raise RuntimeError(f"Cycles wrote no image to {output}")
-        return read_exr(output)
+        channels = read_exr(output)
+        _return_freed_memory()  # the render's buffers: a scene's poses would stack them otherwise
+        return channels
 
     def _render_through(self, render: Render, poses: list[np.ndarray] | tuple[np.ndarray, ...],
                         frames: list[dict[str, np.ndarray]]) -> None:
@@ -369,7 +372,19 @@ class SceneRenderer:
         post-renders the frames with that memory given back (bench.generate_cost)."""
         frames = self.render_poses(self.setup(spec, recipe))
         self.scene.render.use_persistent_data = False  # setup() switches it on again (refresh)
+        _return_freed_memory()
         return frames
+
+
+def _return_freed_memory() -> None:
+    """Give the memory the process freed back to the system (glibc's malloc_trim; nothing
+    elsewhere). glibc keeps freed memory in the process for reuse, and the worker's next
+    allocations come partly from elsewhere (the post-render threads' own arenas), so without this
+    a worker's peak grows with every render of a scene (bench.generate_cost measures it)."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _add_passes(frame: dict[str, np.ndarray], channels: dict[str, np.ndarray],

@@ -146,6 +146,21 @@ def test_exr_reader_matches_openexr(tmp_path):
         read_exr(compressed)
 
 
+def test_exr_reader_reads_tall_and_refuses_truncated_files(tmp_path):
+    """Lines are read into the image one by one: an image whose line offsets reach past the first
+    bytes read (8200 lines) reads right, and a truncated file is refused naming it."""
+    tall = np.random.default_rng(1).normal(size=(8200, 3)).astype(np.float32)
+    path = tmp_path / "tall.exr"
+    with OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"Y": tall.copy()}) as out:
+        out.write(str(path))
+    np.testing.assert_array_equal(read_exr(path)["Y"], tall)
+    cut = tmp_path / "cut.exr"
+    cut.write_bytes(path.read_bytes()[:-20])
+    with pytest.raises(ValueError, match=rf"{cut}: line at byte \d+ is truncated"):
+        read_exr(cut)
+
+
 def test_box_prefilter_matches_explicit_convolution():
     from scipy.ndimage import convolve
 
