@@ -4,6 +4,7 @@ import argparse
 import importlib
 import sys
 
+from dotsim.command_options import take_positional_output
 from dotsim.file_io import DiskFullError, WriteError
 from dotsim.process_lifetime import Stopped, stop_signals
 from dotsim.version import __version__
@@ -22,6 +23,7 @@ COMMANDS = {
     "verify": "commands.dataset",
     "seal": "commands.dataset",
     "config": "commands.config",
+    "rig": "commands.rig",
     "stats": "commands.stats",
     "train": "trainer.cli",
     "eval": "trainer.cli",
@@ -51,7 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     # the first word that is no option names the command (dotsim takes no option with a value)
     command = next((word for word in argv if not word.startswith("-")), None)
-    args = build_parser(command).parse_args(argv)
+    parser = build_parser(command)
+    # parse_args, but a command's output may also be one argument left over (export's earlier spelling)
+    args, extras = parser.parse_known_args(argv)
+    extras = take_positional_output(args, extras, parser.error)
+    if extras:
+        parser.error(f"unrecognized arguments: {' '.join(extras)}")
     # Any stage can run out of space or find its output folder unwritable: the message names the
     # file (and the space it needed), and the atomic writer left nothing half-written behind.
     errors = {DiskFullError: 1, WriteError: 1, **getattr(args, "errors", {})}

@@ -3,65 +3,70 @@
 Each frame is one sample, its files named KEY.EXT (the WebDataset convention, so the `webdataset`
 library and any tar reader see it): KEY = scene_SSSSSSS_frame_K, then
 
-- KEY.CHANNEL.npy for every stored channel, the arrays dotsim.dataset.read_frame returns (same
-  dtype and values, so a round trip is exact);
-- KEY.scene.json: the scene's scene.json (rig, pattern, poses, config: what a reader needs);
-- KEY.frame.json: scene_index, frame_index, split, and the source frame file and its sha256.
+- KEY.CHANNEL.png or KEY.CHANNEL.npy.gz for every exported channel (dotsim.shard_format says which
+  codec each gets: masks and IR codes as PNG, float channels as gzip'ed .npy; with precision
+  "training" the projector column as fixed-point PNG too);
+- KEY.frame.json: scene_index, frame_index, split, the source frame file and its sha256, how PNG
+  channels decode (`encoding`), and the scene's rig and pattern (what decoding and training need,
+  so a sample stands alone in a shuffled pipeline);
+- KEY.scene.json.gz: the scene's whole scene.json (poses, objects, lights, config), gzip'ed, once per
+  scene and shard, in the scene's first sample there.
 
-Shards OUT/shard-NNNNNN.tar hold whole samples, at most `shard_bytes` of tar members each (a sample
-larger than that gets a shard of its own); scenes and frames keep the dataset's order. OUT/index.json,
-written last, lists every shard with its sha256, size and sample count (OUT/SHA256SUMS the same
-checksums for `sha256sum -c`). Every file is written under a temporary name and renamed when
-complete. dotsim.data reads the shards back (streamed, or indexed for random access).
+Channels derived on read (`disparity`) are never stored. Shards OUT/shard-NNNNNN.tar hold whole
+samples: at most `shard_bytes` of tar members each (a sample larger than that gets a shard of its
+own), or `samples_per_shard` samples each; scenes and frames keep the dataset's order. OUT/pattern.png
+is the dataset's pattern (SGBM and `dotsim eval` need it). OUT/index.json, written last, lists every
+shard with its sha256, size and sample count (OUT/SHA256SUMS the same checksums for `sha256sum -c`).
+
+An export resumes: every shard is written under a temporary name and renamed when complete, and
+OUT/.progress.json (the plan and the shards done, each with its sha256) is rewritten after each
+one. A rerun of the same export skips the shards that match it and writes the rest, exactly as an
+unbroken run would have; one with other options or of changed data starts the unfinished export
+over. A finished export (index.json) is never overwritten.
 """
 
 from __future__ import annotations
 
 import argparse
+import gzip
 import io
+import math
+import shutil
 import tarfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from dotsim import __version__
 from dotsim import dataset as ds
-from dotsim.file_io import atomic_write_bytes, atomic_write_json, atomic_writer, json_bytes, sha256_file
+from dotsim.command_options import add_output_or_positional
+from dotsim.dataset.layout import load_json
+from dotsim.file_io import (
+    TMP_PREFIX,
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_writer,
+    json_bytes,
+    sha256_file,
+)
+from dotsim.option_types import integer
+from dotsim.shard_format import (
+    INDEX_NAME,
+    PATTERN_NAME,
+    PRECISIONS,
+    SUMS_NAME,
+    WEBDATASET_FORMAT,
+    WEBDATASET_VERSION,
+    encode_channel,
+    sample_key,
+)
 
-WEBDATASET_FORMAT = "dotsim-webdataset"
-WEBDATASET_VERSION = "1.0"
-INDEX_NAME = "index.json"
-SUMS_NAME = "SHA256SUMS"
+PROGRESS_NAME = ".progress.json"
 DEFAULT_SHARD_BYTES = 256 << 20
 _BLOCK = 512  # tar block: every member is a header block plus its data rounded up to blocks
 
 
 def shard_file_name(n: int) -> str:
     return f"shard-{n:06d}.tar"
-
-
-def sample_key(scene_index: int, frame_index: int) -> str:
-    """The sample's WebDataset key (also `dotsim infer`'s output name for that frame)."""
-    return f"{ds.scene_name(scene_index)}_frame_{frame_index}"
-
-
-def npy_bytes(array: np.ndarray) -> bytes:
-    stream = io.BytesIO()
-    np.save(stream, np.ascontiguousarray(array), allow_pickle=False)
-    return stream.getvalue()
-
-
-def sample_files(meta: dict, frame_index: int, frame: dict[str, np.ndarray],
-                 source: tuple[str, str]) -> list[tuple[str, bytes]]:
-    """(member name, bytes) of one frame's sample; source = (frame file, its sha256)."""
-    key = sample_key(meta["scene_index"], frame_index)
-    files = [(f"{key}.{name}.npy", npy_bytes(frame[name])) for name in frame]
-    files.append((f"{key}.scene.json", json_bytes(meta)))
-    files.append((f"{key}.frame.json", json_bytes({
-        "scene_index": meta["scene_index"], "frame_index": frame_index, "split": meta["split"],
-        "file": source[0], "sha256": source[1]})))
-    return files
 
 
 def tar_bytes_of(files: list[tuple[str, bytes]]) -> int:
@@ -80,48 +85,105 @@ def parse_size(text: str) -> int:
     units = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
     t = str(text).strip().upper().removesuffix("B")
     try:
-        value = int(float(t[:-1]) * units[t[-1]]) if t and t[-1] in units else int(t)
+        number = float(t[:-1]) * units[t[-1]] if t and t[-1] in units else float(t)
+        value = int(number) if math.isfinite(number) and number < 2**62 else None
     except ValueError:
-        raise ValueError(f"shard size {text!r}: give bytes, or a number with K, M or G") from None
+        value = None
+    if value is None:
+        raise ValueError(f"shard size {text!r}: give bytes, or a number with K, M or G, below 4 EB")
     if value < _BLOCK:
         raise ValueError(f"shard size {text!r}: at least {_BLOCK} bytes")
     return value
+
+
+def stored_channels(meta: dict) -> list[str]:
+    """The channels a scene's frames store (its scene.json `channels`, less those derived on read)."""
+    return [c for c in meta["channels"] if c not in ds.DERIVED_CHANNELS]
+
+
+def choose_channels(wanted: list[str] | None, meta: dict, where) -> list[str]:
+    """The channels to export: `wanted` (checked against what the frames store) or all stored ones."""
+    stored = stored_channels(meta)
+    if wanted is None:
+        return stored
+    for name in wanted:
+        if name in ds.DERIVED_CHANNELS:
+            raise ValueError(f"--channels: {name!r} is derived on read from depth (or the projector "
+                             f"column); export those instead")
+        if name not in stored:
+            raise ValueError(f"--channels: {where} stores no channel {name!r}; it stores "
+                             f"{', '.join(stored)}")
+    return list(dict.fromkeys(wanted))
+
+
+def frame_files(meta: dict, frame_index: int, frame: dict, source: tuple[str, str], precision: str
+                ) -> list[tuple[str, bytes]]:
+    """(member name, bytes) of one frame's sample, without scene.json; source = (frame file, sha256)."""
+    key = sample_key(meta["scene_index"], frame_index)
+    bits = meta.get("config", {}).get("sensor", {}).get("bit_depth")
+    files, encoding = [], {}
+    for name, array in frame.items():
+        ext, data, enc = encode_channel(name, array, precision, meta["rig"]["projector"]["width"], bits)
+        files.append((f"{key}.{name}.{ext}", data))
+        if enc is not None:
+            encoding[name] = enc
+    files.append((f"{key}.frame.json", json_bytes({
+        "scene_index": meta["scene_index"], "frame_index": frame_index, "split": meta["split"],
+        "file": source[0], "sha256": source[1], "encoding": encoding, "rig": meta["rig"],
+        "pattern": meta["pattern"]})))
+    return files
 
 
 @dataclass
 class ExportResult:
     out: Path
     shards: list[dict]
+    resumed: int = 0  # shards a rerun found done
 
     def line(self) -> str:
         samples = sum(s["samples"] for s in self.shards)
         size = sum(s["bytes"] for s in self.shards)
-        return f"{samples} sample(s) in {len(self.shards)} shard(s), {size / 1e6:.1f} MB, in {self.out}"
+        again = f" ({self.resumed} found done by an earlier run)" if self.resumed else ""
+        return (f"{samples} sample(s) in {len(self.shards)} shard(s){again}, {size / 1e6:.1f} MB "
+                f"({size / max(samples, 1) / 1e3:.0f} kB a frame), in {self.out}")
 
 
 class _ShardWriter:
-    """Writes samples into shard-NNNNNN.tar files of at most shard_bytes of members each."""
+    """Writes samples into shard-NNNNNN.tar files: a new shard when the next sample would pass
+    `shard_bytes` of members or the shard has `samples_per_shard` samples. A scene's scene.json goes
+    into its first sample in each shard. After each shard, `on_shard(shards)` records progress."""
 
-    def __init__(self, out: Path, shard_bytes: int):
-        self.out, self.shard_bytes = out, shard_bytes
-        self.shards: list[dict] = []
+    def __init__(self, out: Path, shard_bytes: int | None, samples_per_shard: int | None,
+                 done: list[dict], on_shard):
+        self.out, self.shard_bytes, self.samples_per_shard = out, shard_bytes, samples_per_shard
+        self.shards, self.on_shard = list(done), on_shard
         self._context = self._stream = self._tar = None
         self._used = self._samples = 0
+        self._scenes: set[int] = set()
 
-    def add(self, files: list[tuple[str, bytes]]) -> None:
-        size = tar_bytes_of(files)
-        if self._tar is not None and self._used + size > self.shard_bytes:
-            self.close()
+    def _full(self, size: int) -> bool:
+        return self.samples_per_shard is None and self._used + size > self.shard_bytes
+
+    def add(self, scene_index: int, scene_json: tuple[str, bytes], files: list[tuple[str, bytes]]) -> None:
+        with_scene = [scene_json] + files
+        if self._tar is not None:
+            size = tar_bytes_of(files if scene_index in self._scenes else with_scene)
+            if self._full(size):
+                self.close()
         if self._tar is None:
-            name = shard_file_name(len(self.shards))
-            self._context = atomic_writer(self.out / name)
+            self._context = atomic_writer(self.out / shard_file_name(len(self.shards)))
             self._stream = self._context.__enter__()
             self._tar = tarfile.open(fileobj=self._stream, mode="w", format=tarfile.USTAR_FORMAT)
             self._used = self._samples = 0
+            self._scenes = set()
+        if scene_index not in self._scenes:
+            files, self._scenes = with_scene, self._scenes | {scene_index}
         for name, data in files:
             _add(self._tar, name, data)
-        self._used += size
+        self._used += tar_bytes_of(files)
         self._samples += 1
+        if self.samples_per_shard is not None and self._samples >= self.samples_per_shard:
+            self.close()  # now, not at the next sample: a kill then loses no finished shard
 
     def close(self) -> None:
         if self._tar is None:
@@ -132,6 +194,7 @@ class _ShardWriter:
         self.shards.append({"name": path.name, "sha256": sha256_file(path), "bytes": path.stat().st_size,
                             "samples": self._samples})
         self._tar = None
+        self.on_shard(self.shards)
 
     def abort(self, error: BaseException) -> None:
         if self._tar is not None:
@@ -139,46 +202,131 @@ class _ShardWriter:
             self._tar = None
 
 
-def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int = DEFAULT_SHARD_BYTES,
-                      split: str | None = None, verify: bool = True) -> ExportResult:
+def _done_shards(out: Path, plan: dict) -> list[dict]:
+    """The shards an earlier run of the same plan finished and that are still intact, in order.
+
+    Another plan's unfinished export (other options, or data that changed since) is removed: none
+    of it was ever published (no index.json), and mixing the two would be wrong."""
+    progress = out / PROGRESS_NAME
+    done = []
+    if progress.is_file():
+        try:
+            record = load_json(progress)
+        except ds.FormatError:
+            record = {}
+        if record.get("plan") == plan:
+            for shard in record.get("shards", []):
+                path = out / shard["name"]
+                if not path.is_file() or sha256_file(path) != shard["sha256"]:
+                    break  # this one and every later one are written again
+                done.append(shard)
+        elif record:
+            print(f"{out}: an unfinished export of other data or options is there; starting over")
+    names = {s["name"] for s in done}
+    for path in out.iterdir():
+        unfinished = path.name.startswith("shard-") and path.name not in names
+        if (path.name.startswith(TMP_PREFIX) or unfinished) and path.is_file():
+            path.unlink()
+    return done
+
+
+def _plan(source: ds.Dataset, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard
+          ) -> dict:
+    return {"source": {"dataset": str(Path(dataset_dir).resolve()), "split": split,
+                       "index_sha256": sha256_file(Path(dataset_dir) / ds.INDEX_FILE),
+                       "format_version": source.index["format_version"]},
+            "channels": channels, "precision": precision,
+            "sharding": {"shard_bytes": shard_bytes} if samples_per_shard is None
+            else {"samples_per_shard": samples_per_shard}}
+
+
+def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int | None = None,
+                      split: str | None = None, verify: bool = True, channels: list[str] | None = None,
+                      precision: str = "exact", samples_per_shard: int | None = None,
+                      shards: int | None = None) -> ExportResult:
     """Write the scenes of `split` (None: all) of the sealed dataset as shards in `out` (see the
-    module docstring); `out` must not hold an export already."""
+    module docstring), resuming an unfinished export of the same plan there.
+
+    Sharding: `shard_bytes` (default 256 MiB), `samples_per_shard`, or `shards` (that many shards of
+    equal sample counts, e.g. a multiple of the loader's workers); give at most one."""
+    if sum(x is not None for x in (shard_bytes, samples_per_shard, shards)) > 1:
+        raise ValueError("give one of --shard-size, --samples-per-shard and --shards")
+    for name, value in (("--samples-per-shard", samples_per_shard), ("--shards", shards)):
+        if value is not None and value < 1:
+            raise ValueError(f"{name} {value}: at least 1")
+    if precision not in PRECISIONS:
+        raise ValueError(f"--precision {precision!r}: choose one of {', '.join(PRECISIONS)}")
     source = ds.open_dataset(dataset_dir, verify=verify)
     out = Path(out)
-    if (out / INDEX_NAME).exists() or (out.is_dir() and any(out.glob("shard-*.tar"))):
-        raise ds.FormatError(f"{out}: already holds an export (index.json or shard-*.tar); choose an "
-                             f"empty or new folder")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a folder; give a new or empty folder for the shards")
     scenes = source.scenes if split is None else source.split(split)
     if not scenes:
         raise ds.FormatError(f"{dataset_dir}: no scenes to export (split {split!r})")
+    channels = choose_channels(channels, ds.read_scene_meta(scenes[0].path, verify=verify), scenes[0].path)
+    if shards is not None:
+        samples_per_shard = -(-sum(ref.frame_count for ref in scenes) // shards)
+    if samples_per_shard is None and shard_bytes is None:
+        shard_bytes = DEFAULT_SHARD_BYTES
+    plan = _plan(source, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard)
+    if (out / INDEX_NAME).exists():
+        index = load_json(out / INDEX_NAME)
+        if index.get("plan") != plan:
+            raise ds.FormatError(f"{out}: already holds a finished export of other data or options "
+                                 f"(index.json); choose an empty or new folder")
+        return ExportResult(out, index["shards"], resumed=len(index["shards"]))
     out.mkdir(parents=True, exist_ok=True)
-    writer = _ShardWriter(out, shard_bytes)
-    channels: list[str] = []
+    done = _done_shards(out, plan)
+    skip = sum(s["samples"] for s in done)
+    writer = _ShardWriter(out, shard_bytes, samples_per_shard, done,
+                          lambda written: atomic_write_json(out / PROGRESS_NAME, {"plan": plan,
+                                                                                  "shards": written}))
+    seen = 0
     try:
         for ref in scenes:
+            if seen + ref.frame_count <= skip:
+                seen += ref.frame_count
+                continue
             meta = ds.read_scene_meta(ref.path, verify=verify)
-            channels = channels or list(meta["channels"])
+            if not set(channels) <= set(stored_channels(meta)):
+                raise ds.FormatError(f"{ref.path}: stores {stored_channels(meta)}, not every exported "
+                                     f"channel {channels}")
+            scene_json = gzip.compress(json_bytes(meta), mtime=0)  # its objects list: 0.4 MB a scene
             for k, entry in enumerate(meta["frames"]):
-                frame = ds.read_frame(ref.path / entry["file"], verify=verify, meta=meta)
-                writer.add(sample_files(meta, k, frame, (entry["file"], entry["sha256"])))
+                seen += 1
+                if seen <= skip:
+                    continue
+                frame = ds.read_frame(ref.path / entry["file"], verify=verify, meta=meta, channels=channels)
+                files = frame_files(meta, k, frame, (entry["file"], entry["sha256"]), precision)
+                key = sample_key(ref.scene_index, k)
+                writer.add(ref.scene_index, (f"{key}.scene.json.gz", scene_json), files)
         writer.close()
     except BaseException as error:
         writer.abort(error)
         raise
-    shards = writer.shards
-    atomic_write_bytes(out / SUMS_NAME, "".join(f"{s['sha256']}  {s['name']}\n" for s in shards).encode())
+    written = writer.shards
+    pattern = ds.pattern_path(dataset_dir)
+    pattern_entry = None
+    if pattern.is_file():
+        with atomic_writer(out / PATTERN_NAME) as stream, open(pattern, "rb") as src:
+            shutil.copyfileobj(src, stream)
+        pattern_entry = {"name": PATTERN_NAME, "sha256": sha256_file(out / PATTERN_NAME)}
+    atomic_write_bytes(out / SUMS_NAME, "".join(f"{s['sha256']}  {s['name']}\n" for s in written).encode())
     atomic_write_json(out / INDEX_NAME, {
         "format": WEBDATASET_FORMAT, "format_version": WEBDATASET_VERSION, "dotsim_version": __version__,
-        "source": {"dataset": str(Path(dataset_dir).resolve()), "split": split,
-                   "format_version": source.index["format_version"]},
-        "channels": channels, "sample_count": sum(s["samples"] for s in shards),
-        "shard_bytes": shard_bytes, "shards": shards})
-    return ExportResult(out, shards)
+        "plan": plan, "channels": channels, "precision": precision, "pattern": pattern_entry,
+        "sample_count": sum(s["samples"] for s in written), "shards": written})
+    (out / PROGRESS_NAME).unlink(missing_ok=True)
+    return ExportResult(out, written, resumed=len(done))
 
 
 def run(args: argparse.Namespace) -> int:
-    result = export_webdataset(args.dataset, args.out, parse_size(args.shard_size), args.split,
-                               verify=not args.no_verify)
+    channels = [c.strip() for c in args.channels.split(",") if c.strip()] if args.channels else None
+    result = export_webdataset(args.dataset, args.out,
+                               parse_size(args.shard_size) if args.shard_size is not None else None,
+                               args.split, verify=not args.no_verify, channels=channels,
+                               precision=args.precision, samples_per_shard=args.samples_per_shard,
+                               shards=args.shards)
     print(f"exported {result.line()}")
     return 0
 
@@ -187,16 +335,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "export", help="write a dataset as WebDataset tar shards (for streaming from object storage)",
         description="Write the frames of a sealed dataset as WebDataset tar shards OUT/shard-NNNNNN.tar: "
-        "one sample per frame (KEY.CHANNEL.npy per channel, KEY.scene.json, KEY.frame.json; KEY = "
-        "scene_SSSSSSS_frame_K), shards of at most --shard-size bytes, OUT/index.json and OUT/SHA256SUMS "
-        "with every shard's sha256. dotsim.data.Frames streams them (or the folder itself) into torch; "
-        "`dotsim train --data` takes OUT, its shards or their URLs.")
+        "one sample per frame (KEY.CHANNEL.png or KEY.CHANNEL.npy.gz per channel, KEY.frame.json, and "
+        "KEY.scene.json.gz once per scene and shard; KEY = scene_SSSSSSS_frame_K), OUT/pattern.png, and "
+        "OUT/index.json and OUT/SHA256SUMS with every shard's sha256. A rerun resumes an unfinished "
+        "export. dotsim.data.Frames streams them (or the folder itself) into torch; `dotsim train "
+        "--data` and `dotsim eval --data` take OUT, its shards or their URLs. docs/VIEWING.md has the "
+        "sizes and the codecs.")
     parser.add_argument("dataset", metavar="DIR", help="sealed dotsim dataset directory")
-    parser.add_argument("out", metavar="OUT", help="folder for the shards (new or empty)")
+    add_output_or_positional(parser, "folder for the shards (new, empty, or an unfinished export to resume)")
     parser.add_argument("--format", choices=("webdataset",), default="webdataset",
                         help="webdataset (the only one so far)")
-    parser.add_argument("--shard-size", default="256M", metavar="BYTES",
-                        help="most bytes of samples per shard, e.g. 64M, 1G (default 256M)")
+    parser.add_argument("--channels", metavar="A,B,...",
+                        help="channels to export (default: every stored one), e.g. "
+                        "ir,projector_column,visibility,edge for training")
+    parser.add_argument("--precision", choices=PRECISIONS, default="exact",
+                        help="exact: every value as read (default); training: also the projector "
+                        "column as a 16-bit fixed-point PNG, to 1/32 projector px (a seventh of its "
+                        "lossless size)")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--shard-size", default=None, metavar="BYTES",
+                      help="most bytes of samples per shard, e.g. 64M, 1G (default 256M)")
+    size.add_argument("--samples-per-shard", type=integer(1), default=None, metavar="N",
+                      help="N samples (frames) per shard")
+    size.add_argument("--shards", type=integer(1), default=None, metavar="N",
+                      help="N shards of equal sample counts (a multiple of the loader's workers)")
     parser.add_argument("--split", default=None, help="export only the scenes of this split (default: all)")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
     parser.set_defaults(func=run, errors={ds.FormatError: 1, ValueError: 1})

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.command_options import add_output
 from dotsim.false_colour import (
     BACKGROUND,
     FONT,
@@ -32,6 +33,7 @@ from dotsim.false_colour import (
 from dotsim.images import write_image
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
+from dotsim.prediction_file import prediction_source
 from dotsim.rig import Rig
 
 COLUMNS = ("ir", "ambient", "flood", "depth", "visibility", "edge", "projector_column", "disparity")
@@ -43,6 +45,8 @@ UNITS = {"depth": "m", "projector_column": "projector px", "disparity": "camera 
 MEANINGS = {"ir": "what the sensor sees", "ambient": "projector off", "flood": "uniform projector",
             "depth": "ground truth", "visibility": "white: dots seen", "edge": "white: depth edge",
             "projector_column": "ground truth", "disparity": "ground truth"}
+# Under the columns of a `dotsim infer` output (dotsim.prediction_file): a network's estimate.
+PREDICTED = "predicted (dotsim infer)"
 GREY_CHANNELS = ("ir", "ambient", "flood")
 FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
             "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
@@ -124,11 +128,13 @@ def _wrap(text: str, width: int) -> list[str]:
 
 
 def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: int = 320,
-                  frame_labels: list[str] | None = None) -> tuple[np.ndarray, SheetLayout]:
+                  frame_labels: list[str] | None = None,
+                  meanings: dict[str, str] | None = None) -> tuple[np.ndarray, SheetLayout]:
     """Draw the sheet (BGR uint8) for frames (channel -> (H, W) array, as read_frame returns).
 
-    Columns follow COLUMNS, keeping the channels the frames have. Returns the image and where
-    each tile is, so callers (and tests) can find a pass in it.
+    Columns follow COLUMNS, keeping the channels the frames have, each under its title and its
+    meaning (MEANINGS, or `meanings`' for the channels it names). Returns the image and where each
+    tile is, so callers (and tests) can find a pass in it.
     """
     if not frames:
         raise ValueError("contact_sheet needs at least one frame")
@@ -143,6 +149,7 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     ranges = {c: _finite_range([f[c] for f in frames]) for c in channels if c in COLOUR_MAPPED}
     scales = {c: _grey_scale(frames, c) for c in channels if c in GREY_CHANNELS}
     labels = frame_labels or [f"frame {k}" for k in range(len(frames))]
+    meanings = {**MEANINGS, **(meanings or {})}
 
     top = 4 * LINE + GAP  # title line, column title, meaning, scale
     grid_w = len(channels) * (tile_w + GAP)
@@ -157,7 +164,7 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
         put_text(sheet, TITLES[name], x, 2 * LINE - 4, width=tile_w)
-        put_text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        put_text(sheet, meanings[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         if name in scales:
             caption = scale_caption(name, scales[name])
         elif name in ranges:
@@ -221,21 +228,28 @@ def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:
 
 
 def load_for_sheet(path: str | Path, scene_index: int | None = None,
-                   verify: bool = True) -> tuple[list[dict], str, list[str]]:
-    """Frames, a title and row labels for PATH: a dataset dir (scene `scene_index`, default the
-    first), a scene dir, or one frame EXR."""
+                   verify: bool = True) -> tuple[list[dict], str, list[str], dict[str, str]]:
+    """Frames, a title, row labels and the meanings of the columns that differ from MEANINGS, for
+    PATH: a dataset dir (scene `scene_index`, default the first), a scene dir, one frame EXR, or one
+    output EXR of `dotsim infer` (its disparity and depth labelled as predictions)."""
     path = Path(path)
     if path.is_file():
         frame = ds.read_frame(path, verify=verify)
         h, w = next(iter(frame.values())).shape
-        return [frame], f"{path}  ({w} x {h})", [path.stem]
+        source = prediction_source(path)
+        if source is None:
+            return [frame], f"{path}  ({w} x {h})", [path.stem], {}
+        names = {key: Path(str(source.get(key, "?"))).name for key in ("checkpoint", "input")}
+        title = (f"{path.name}  ({w} x {h}): PREDICTED by {names['checkpoint']} from {names['input']} "
+                 f"(dotsim infer), not ground truth")
+        return [frame], title, [path.stem], {name: PREDICTED for name in frame}
     scene_path = scene_path_of(path, scene_index)
     scene = ds.read_scene(scene_path, verify=verify)
     meta = scene.meta
     h, w = ds.camera_size(meta)
     title = (f"{scene_path}  scene {meta['scene_index']} ({meta['split']}), rig "
              f"{meta['rig'].get('name', '?')}, {w} x {h}, format {meta['format_version']}")
-    return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))]
+    return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))], {}
 
 
 def overview_sheet(tiles: list[tuple[str, np.ndarray]], title: str, tile_width: int = 240,
@@ -322,8 +336,8 @@ def run(args: argparse.Namespace) -> int:
         out = write_image(args.output, sheet)
         print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): IR of {len(tiles)} scene(s)")
         return 0
-    frames, title, labels = load_for_sheet(args.path, args.scene, verify=verify)
-    sheet, layout = contact_sheet(frames, title, args.tile_width, labels)
+    frames, title, labels, meanings = load_for_sheet(args.path, args.scene, verify=verify)
+    sheet, layout = contact_sheet(frames, title, args.tile_width, labels, meanings)
     out = write_image(args.output, sheet)
     print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): {len(frames)} frame(s) x "
           f"{len({c for _, c in layout.tiles})} pass(es)")
@@ -337,11 +351,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity), each on "
         "its own scale written above it, colour bars in metres / pixels for the colour-mapped passes. "
         "PATH is a dataset directory (shows its first scene, or --scene N), a scene directory "
-        "(shard_*/scene_*), or one frame EXR. --overview draws the IR of many scenes of a dataset in "
+        "(shard_*/scene_*), one frame EXR, or an output EXR of `dotsim infer` (its columns labelled as "
+        "predictions). --overview draws the IR of many scenes of a dataset in "
         "one grid instead; --ply writes a frame's ground-truth point cloud instead.")
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
-    parser.add_argument("-o", "--output", default="contact_sheet.png",
-                        help="image to write, .png or .jpg (default: contact_sheet.png)")
+    add_output(parser, "image to write, .png or .jpg (default: contact_sheet.png)", metavar="FILE",
+               required=False, old=("--output",), dest="output", default="contact_sheet.png")
     parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
     parser.add_argument("--frame", type=integer(0), default=0, metavar="K",

@@ -2,19 +2,26 @@
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
 arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
-`split` and `meta` (the scene.json dict: rig, pattern, poses). It needs no trainer config:
+`split` and `meta` (the scene.json dict: rig, pattern, poses; a SceneMeta). It needs no trainer config,
+and PyTorch's default collate batches it (the channels as tensors, `meta` as a list: collate_meta):
 
     from torch.utils.data import DataLoader
     from dotsim.data import Frames
-    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=None, num_workers=4)
+    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=4, num_workers=4)
+
+The webdataset library's own pipelines read the shards too: `decode_webdataset` turns one of its raw
+samples into the same frame dict, without `meta` (each sample decodes alone from its frame.json):
+
+    wds.WebLoader(wds.WebDataset(urls).map(decode_webdataset).batched(4), batch_size=None, num_workers=4)
 
 A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
 commands.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
 URL the `webdataset` library opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`),
 or a list of these. Work is split first over ranks (torch.distributed's, or the RANK and
 WORLD_SIZE environment variables), then over the DataLoader's workers: shards for shard sources,
-frames for a folder. Local shards listed in an export's index.json are checked against their sha256
-before they are read.
+frames for a folder. Local shards listed in the index.json of the export folder they lie in are
+checked against their sha256 before they are read, whether the folder, their paths or a pattern
+named them. The pattern a source's frames were rendered with: `pattern_file`.
 
 For random access (a trainer's seeded shuffle), `index_shards` lists every sample of local shards
 with the byte ranges of its members, and `read_indexed` reads one sample by seeking to them;
@@ -23,7 +30,7 @@ with the byte ranges of its members, and `read_indexed` reads one sample by seek
 
 from __future__ import annotations
 
-import io
+import gzip
 import json
 import os
 import shutil
@@ -34,11 +41,21 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.data._utils.collate import default_collate_fn_map
 
-from commands.export import INDEX_NAME, WEBDATASET_FORMAT, sample_key
 from dotsim import dataset as ds
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
+from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth
+from dotsim.shard_format import (
+    INDEX_NAME,
+    PATTERN_NAME,
+    WEBDATASET_FORMAT,
+    channel_member,
+    check_version,
+    decode_channel,
+    sample_key,
+)
 
 FRAME_KEYS = ("key", "scene_index", "frame_index", "split", "meta")
 
@@ -79,8 +96,27 @@ def _expand(text: str) -> list[str]:
     return list(braceexpand(text))
 
 
+def _export_index(folder: Path) -> dict | None:
+    """The index.json of an export folder (checked), or None when `folder` holds no export."""
+    index = folder / INDEX_NAME
+    if not index.is_file():
+        return None
+    meta = load_json(index)
+    if meta.get("format") != WEBDATASET_FORMAT:
+        return None
+    check_version(meta.get("format_version"), index)
+    shards = meta.get("shards")
+    if not isinstance(shards, list) or not all(isinstance(s, dict) and isinstance(s.get("name"), str)
+                                               and isinstance(s.get("sha256"), str) for s in shards):
+        raise ds.FormatError(f"{index}: 'shards' must be a list of {{name, sha256, ...}} entries")
+    return meta
+
+
 def resolve(source) -> Source:
-    """The Source that `source` (see the module docstring) names; FormatError naming what is wrong."""
+    """The Source that `source` (see the module docstring) names; FormatError naming what is wrong.
+
+    Local shards named one by one or by a pattern are checked against the index.json of the export
+    folder they lie in, when there is one, as if the folder had been given."""
     if isinstance(source, Source):
         return source
     items = [str(s) for s in source] if isinstance(source, (list, tuple)) else [str(source)]
@@ -88,20 +124,41 @@ def resolve(source) -> Source:
         raise ds.FormatError("no data source given")
     folder = Path(_local(items[0]))
     if len(items) == 1 and not _is_url(items[0]) and (folder.is_dir() or not _names_shards(items[0])):
-        index = folder / INDEX_NAME
-        if not index.is_file() or load_json(index).get("format") != WEBDATASET_FORMAT:
+        meta = _export_index(folder) if folder.is_dir() else None
+        if meta is None:
             return Source(folder=folder)  # a dataset folder; open_dataset names what is missing
-        meta = load_json(index)
         shards = tuple(str(folder / s["name"]) for s in meta["shards"])
         return Source(None, shards, tuple((str(folder / s["name"]), s["sha256"]) for s in meta["shards"]))
-    shards = []
+    shards, checksums, indexes = [], {}, {}
     for item in items:
         for name in _expand(item):
-            if not _is_url(name) and not Path(_local(name)).is_file():
+            if _is_url(name):
+                shards.append(name)
+                continue
+            path = Path(_local(name))
+            if not path.is_file():
                 raise ds.FormatError(f"{name}: no such shard (give a dataset or export folder, .tar "
                                      f"shards, a brace pattern of them, or URLs)")
-            shards.append(name if _is_url(name) else _local(name))
-    return Source(None, tuple(shards))
+            parent = path.resolve().parent
+            if parent not in indexes:
+                indexes[parent] = _export_index(parent)
+            listed = {s["name"]: s["sha256"] for s in (indexes[parent] or {}).get("shards", [])}
+            if path.name in listed:
+                checksums[str(path)] = listed[path.name]
+            shards.append(str(path))
+    return Source(None, tuple(shards), tuple(checksums.items()))
+
+
+def pattern_file(source) -> Path:
+    """The projector pattern of a source: DATASET/pattern.png of a folder, else the pattern.png that
+    `dotsim export` put beside the (local) shards."""
+    src = resolve(source)
+    if src.folder is not None:
+        return ds.pattern_path(src.folder)
+    local = [s for s in src.shards if not _is_url(s)]
+    if not local:
+        raise ds.FormatError("shards behind URLs: stage them first (stage_shards) to find their pattern")
+    return Path(local[0]).parent / PATTERN_NAME
 
 
 def open_shard(location: str, checksums: dict[str, str] | None = None):
@@ -148,22 +205,112 @@ def iter_tar_samples(stream, where: str) -> Iterator[tuple[str, dict[str, bytes]
         yield key, files
 
 
-def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str = "") -> dict:
-    """A frame dict from a sample's files (commands.export's layout); channels: keep only these."""
-    for needed in ("scene.json", "frame.json"):
-        if needed not in files:
-            raise ds.FormatError(f"{where}: sample {key} has no {needed} (not a dotsim export)")
+def _scene_of(key: str, where: str) -> int:
+    """The scene index in a sample key scene_SSSSSSS_frame_K."""
+    try:
+        return int(key.rsplit("/", 1)[-1].split("_")[1])
+    except (IndexError, ValueError):
+        raise ds.FormatError(f"{where}: sample key {key!r} is not scene_SSSSSSS_frame_K") from None
+
+
+def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str = "",
+                  metas: dict[int, dict] | None = None) -> dict:
+    """A frame dict from a sample's files (any export format version); channels: keep only these.
+
+    `metas` (scene index -> scene.json dict) supplies the metadata of a 2.x sample that does not carry
+    it (it is stored once per scene and shard) and learns it from one that does. `disparity` is
+    derived on read as from a dataset folder: from depth, or, when the sample has no depth, from the
+    projector column (at its stored precision)."""
+    where = f"{where}: sample {key}"
+    metas = {} if metas is None else metas
+    scene = _scene_of(key, where)
+    own = _own_scene_json(files)
+    if own is not None:
+        metas[scene] = own
+    if scene not in metas:
+        raise ds.FormatError(f"{where} has no scene.json, nor has an earlier sample of its scene in "
+                             f"this shard")
+    return {**_decode_frame(key, files, channels, where, metas[scene]), "meta": metas[scene]}
+
+
+def decode_webdataset(sample: dict, channels=None) -> dict:
+    """One raw sample of the webdataset library ({"__key__": KEY, "__url__": shard, "ir.png": bytes,
+    "frame.json": bytes, ...}, as `webdataset.WebDataset(urls)` yields it without `.decode()`) as the
+    frame dict Frames yields, without `meta`: the channels (PNG codes decoded as its frame.json says,
+    .npy.gz unpacked, `disparity` derived) and key, scene_index, frame_index, split. It needs no other
+    sample: frame.json carries the rig and the codecs, so it suits a shuffled pipeline, in which a
+    scene's scene.json.gz (in its first sample per shard only) may come later, or in another worker.
+    FormatError naming the shard and the sample."""
+    key = sample.get("__key__")
+    if not isinstance(key, str):
+        raise ds.FormatError(f"{sample.get('__url__', '?')}: a sample without __key__ (not a raw "
+                             f"webdataset sample: leave out .decode() before this map)")
+    files = {ext: data for ext, data in sample.items() if not ext.startswith("__")}
+    where = f"{sample.get('__url__', '')}: sample {key}"
+    return _decode_frame(key, files, channels, where, _own_scene_json(files))
+
+
+def _own_scene_json(files: dict[str, bytes]) -> dict | None:
+    """The scene.json a sample carries itself (format 1.0: every sample; 2.0: a scene's first per shard)."""
+    if "scene.json" not in files and "scene.json.gz" not in files:
+        return None
+    return json.loads(files.get("scene.json") or gzip.decompress(files["scene.json.gz"]))
+
+
+def _decode_frame(key: str, files: dict[str, bytes], channels, where: str, meta: dict | None) -> dict:
+    """The channels of one sample and its key, scene_index, frame_index and split; the rig (for the
+    derived channels) from its frame.json, else from its scene's `meta`."""
+    if "frame.json" not in files:
+        raise ds.FormatError(f"{where} has no frame.json (not a dotsim export)")
     info = json.loads(files["frame.json"])
-    out = {"key": key, "scene_index": info["scene_index"], "frame_index": info["frame_index"],
-           "split": info["split"], "meta": json.loads(files["scene.json"])}
-    names = [e.removesuffix(".npy") for e in files if e.endswith(".npy")]
-    wanted = names if channels is None else list(channels)
-    missing = [c for c in wanted if c not in names]
+    encoding = info.get("encoding", {})
+    names = [n for n in ds.FRAME_CHANNELS if channel_member(files, n)]
+    derivable = [c for c in ds.DERIVED_CHANNELS if c not in names
+                 and ("depth" in names or "projector_column" in names)]
+    wanted = names + derivable if channels is None else list(channels)
+    missing = [c for c in wanted if c not in names and c not in derivable]
     if missing:
-        raise ds.FormatError(f"{where}: sample {key} has no channel(s) {missing}; it has {names}")
+        raise ds.FormatError(f"{where} has no channel(s) {missing}; it has {names}")
+    decoded: dict[str, np.ndarray] = {}
+
+    def channel(name: str) -> np.ndarray:
+        if name not in decoded:
+            member = channel_member(files, name)
+            decoded[name] = decode_channel(name, member[len(name) + 1:], files[member],
+                                           encoding.get(name), where)
+        return decoded[name]
+
+    out = {"key": key, "scene_index": info["scene_index"], "frame_index": info["frame_index"],
+           "split": info["split"]}
     for name in wanted:
-        out[name] = np.load(io.BytesIO(files[f"{name}.npy"]), allow_pickle=False)
+        if name in names:
+            out[name] = channel(name)
+            continue
+        rig_dict = info.get("rig") or (meta or {}).get("rig")
+        if rig_dict is None:
+            raise ds.FormatError(f"{where}: {name!r} is derived from the rig, which neither its frame.json "
+                                 f"nor a scene.json gives")
+        rig = Rig.from_dict(rig_dict)  # disparity, the one derived channel
+        out[name] = (ds.ground_truth_disparity(channel("depth"), rig) if "depth" in names else
+                     depth_to_disparity(projector_column_to_depth(channel("projector_column"), rig), rig))
     return out
+
+
+class SceneMeta(dict):
+    """The scene.json dict of a Frames sample. Its own type so that PyTorch's default collate batches
+    it with collate_meta (registered in torch's default_collate_fn_map, PyTorch's documented way to
+    extend default_collate, when this module is imported): scene.json holds null values and lists of
+    per-scene lengths (objects, lights), which default_collate cannot stack."""
+
+
+def collate_meta(batch, *, collate_fn_map=None) -> list[dict]:
+    """The collate rule for SceneMeta: a batch's metadata as a list, one scene.json dict per sample,
+    in the batch's order (default_collate uses it for the `meta` of Frames samples; a custom collate_fn
+    can call it on [sample["meta"] for sample in samples])."""
+    return list(batch)
+
+
+default_collate_fn_map[SceneMeta] = collate_meta
 
 
 def rank_and_world() -> tuple[int, int]:
@@ -183,7 +330,8 @@ def share(items: list, rank: int, world: int, worker: int, workers: int) -> list
 class Frames(torch.utils.data.IterableDataset):
     """The frames of a source (see the module docstring) as dicts; `split` keeps one scene split,
     `channels` some channels (default all), `shuffle` with `seed` reorders the shards (or frames of a
-    folder) per epoch (set_epoch)."""
+    folder) per epoch (set_epoch). A sample's `meta` is a SceneMeta, so DataLoader(frames,
+    batch_size=N) batches samples with PyTorch's default collate."""
 
     def __init__(self, source, channels=None, split: str | None = None, shuffle: bool = False,
                  seed: int = 0, rank: int | None = None, world: int | None = None, verify: bool = True):
@@ -220,15 +368,16 @@ class Frames(torch.utils.data.IterableDataset):
                 frame = ds.read_frame(ref.path / ds.frame_name(k), verify=self.verify, channels=self.channels,
                                       meta=meta)
                 yield {"key": sample_key(ref.scene_index, k), "scene_index": ref.scene_index,
-                       "frame_index": k, "split": meta["split"], "meta": meta, **frame}
+                       "frame_index": k, "split": meta["split"], "meta": SceneMeta(meta), **frame}
             return
         checksums = dict(self.source.checksums) if self.verify else {}
         for location in self._units():
             with open_shard(location, checksums) as stream:
+                metas: dict[int, dict] = {}
                 for key, files in iter_tar_samples(stream, location):
-                    sample = decode_sample(key, files, self.channels, location)
+                    sample = decode_sample(key, files, self.channels, location, metas)
                     if self.split is None or sample["split"] == self.split:
-                        yield sample
+                        yield {**sample, "meta": SceneMeta(sample["meta"])}
 
 
 def default_cache_dir() -> Path:
@@ -287,17 +436,30 @@ def index_shards(source) -> list[IndexedSample]:
             if m.isfile():
                 key, ext = _split_name(m.name)
                 by_key.setdefault(key, []).append((ext, m.offset_data, m.size))
-        samples += [IndexedSample(location, key, tuple(v)) for key, v in by_key.items()]
+        scene_json: dict[int, tuple] = {}  # format 2.x: once per scene and shard, in its first sample
+        for key, found in by_key.items():
+            scene = _scene_of(key, location)
+            own = next((member for member in found if member[0] in ("scene.json", "scene.json.gz")), None)
+            if own is not None:
+                scene_json.setdefault(scene, own)
+            elif scene in scene_json:
+                found.append(scene_json[scene])
+            samples.append(IndexedSample(location, key, tuple(found)))
     return samples
 
 
 def read_indexed(sample: IndexedSample, channels=None) -> dict:
     """Read one indexed sample (decode_sample's dict) by seeking to its members."""
-    wanted = None if channels is None else {f"{c}.npy" for c in channels} | {"scene.json", "frame.json"}
+    wanted = None
+    if channels is not None:  # the members holding these channels (disparity: what it derives from)
+        stored = {ext.split(".")[0] for ext, _, _ in sample.members}
+        wanted = {c for c in channels if c in stored} | {"scene", "frame"}
+        if set(channels) & set(ds.DERIVED_CHANNELS):
+            wanted.add("depth" if "depth" in stored else "projector_column")
     files = {}
     with open(sample.shard, "rb") as f:
         for ext, offset, size in sample.members:
-            if wanted is None or ext in wanted:
+            if wanted is None or ext.split(".")[0] in wanted:
                 f.seek(offset)
                 files[ext] = f.read(size)
     return decode_sample(sample.key, files, channels, sample.shard)

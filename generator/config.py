@@ -25,9 +25,16 @@ from typing import TYPE_CHECKING
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
-from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
-from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
+from dotsim.rig_files import (
+    RIG_FILE_SUFFIXES,
+    RigFileError,
+    composed_rig,
+    configured_rig,
+    holds_camera_only,
+)
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     MaskParams,
@@ -192,6 +199,11 @@ class MotionConfig(Checked):
 @dataclass(frozen=True)
 class OutputConfig(Checked):
     scenes_per_shard: int = setting(100, "scenes per shard directory", low=1, high=100000)
+    exr_compression: str = setting("zstd", "lossless compression of the frame EXRs: zstd (the smallest, "
+                                   "fastest to read; OpenEXR >= 3.4 reads it) or zip / piz (1.4x the bytes; "
+                                   "older OpenEXR readers too); neither makes a frame readable by OpenCV or "
+                                   "imageio (docs/FORMAT.md \"Compression\", README \"Reading frames\")",
+                                   choices=tuple(EXR_COMPRESSIONS))
 
 
 @dataclass(frozen=True)
@@ -306,24 +318,66 @@ def _read_saved(path: Path) -> dict:
     return data
 
 
-def rig_settings(spec: str, rig: RigConfig = RigConfig(), also: tuple[str, ...] = ()) -> RigConfig:
-    """[rig] settings `rig` with `--rig SPEC` in place of their preset / file: SPEC is a preset name,
-    or a rig file (any layout dotsim.rig_files reads; made absolute). Raises ConfigError naming
-    --rig and what it allows (`also`: what the caller allows besides, named in that message)."""
+def rig_settings(spec: str, rig: RigConfig = RigConfig(), option: str = "--rig") -> RigConfig:
+    """[rig] settings `rig` with `--rig SPEC` in their place. SPEC is, for every command that takes
+    --rig: a preset's name (its preset, no file); a rig file of a whole rig (its `file`); a rig file of
+    a camera alone, such as OpenCV's calibration sample, a ROS camera_info or a Kalibr chain of cam0 only
+    (its `camera_file`: the projector and pose stay the preset's or file's, and the rig's notes say so);
+    or a generator config (.toml: its whole [rig] table). Raises ConfigError naming `option` and the
+    file, or what it allows."""
     if spec in PRESETS:
         return replace(rig, preset=spec, file="")
-    if Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-        return replace(rig, file=str(Path(spec).resolve()))
-    allowed = [f"a preset ({', '.join(PRESETS)})", f"a rig file ({', '.join(RIG_FILE_SUFFIXES)})", *also]
-    raise ConfigError(f"--rig {spec!r}: neither {', '.join(allowed[:-1])} nor {allowed[-1]}")
+    suffix = Path(spec).suffix.lower()
+    if suffix == ".toml":
+        try:
+            return load_config(spec).rig
+        except ConfigError as error:
+            raise ConfigError(f"{option} {error}") from None
+    if suffix in RIG_FILE_SUFFIXES:
+        path = str(Path(spec).resolve())
+        try:
+            camera_only = holds_camera_only(path)
+        except RigFileError as error:
+            raise ConfigError(f"{option} {error}") from None
+        return replace(rig, camera_file=path) if camera_only else replace(rig, file=path, camera_file="")
+    raise ConfigError(f"{option} {spec!r}: neither a preset ({', '.join(PRESETS)}), a rig file "
+                      f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
 
 
-def with_rig(config: Config, spec: str) -> Config:
-    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file
-    (rig_settings); its other [rig] keys still apply. Raises ConfigError naming --rig."""
-    config = replace(config, rig=rig_settings(spec, config.rig))
-    _resolve_rig(config, f"--rig {spec}: with ")
+def _options(spec: str | None, camera_file: str | None, option: str = "--rig") -> str:
+    """How the options were given, for messages: '--rig SPEC --camera-file FILE'."""
+    given = (spec and f"{option} {spec}", camera_file and f"--camera-file {camera_file}")
+    return " ".join(text for text in given if text)
+
+
+def with_rig(config: Config, spec: str | None = None, camera_file: str | None = None) -> Config:
+    """The config with `dotsim generate --rig SPEC` (rig_settings) and `--camera-file FILE` (its [rig]
+    camera_file) in place of its own; its other [rig] keys still apply. Raises ConfigError naming the
+    options."""
+    rig = rig_settings(spec, config.rig) if spec else config.rig
+    if camera_file:
+        rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
+    config = replace(config, rig=rig)
+    _resolve_rig(config, f"{_options(spec, camera_file)}: ")
     return config
+
+
+def rig_from_options(spec: str | None = None, camera_file: str | None = None,
+                     option: str = "--rig") -> CalibratedRig:
+    """The rig `--rig SPEC` and `--camera-file FILE` name for a command that takes a rig without a
+    generator config (capture, pattern, `rig show` of a file): rig_settings' SPEC (default the preset
+    structure_core), a preset or rig file as it is (with its own max_depth), a generator config's [rig] at
+    scale 1 (so its camera_file and projector_file combine as in `dotsim generate`); --camera-file
+    replaces its camera. Raises ConfigError naming the options (SPEC's as `option`), the file and the
+    key."""
+    settings = rig_settings(spec or DEFAULT_PRESET, option=option)
+    camera = str(Path(camera_file).resolve()) if camera_file else settings.camera_file
+    try:
+        if spec and Path(spec).suffix.lower() == ".toml":
+            return configured_rig(replace(settings, scale=1.0, camera_file=camera), f"{spec}: [rig]")
+        return composed_rig(settings.file or settings.preset, camera, settings.projector_file)
+    except RigFileError as error:
+        raise ConfigError(f"{_options(spec, camera_file, option) or option}: {error}") from None
 
 
 def _resolve_rig(config: Config, prefix: str = "") -> None:

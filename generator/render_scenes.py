@@ -156,7 +156,8 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
                                                  where=f"scene {index} frame {k}"),
                             range(len(raw_frames)), threads)
     dataset.write_scene(job.out, index, scene_meta(job, spec), frames,
-                        scenes_per_shard=job.config.output.scenes_per_shard, threads=threads)
+                        scenes_per_shard=job.config.output.scenes_per_shard, threads=threads,
+                        compression=dataset.EXR_COMPRESSIONS[job.config.output.exr_compression])
     return len(frames)
 
 

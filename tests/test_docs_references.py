@@ -16,8 +16,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 THIS = PurePosixPath("tests") / Path(__file__).name
-# Markdown files the code writes into its outputs (`dotsim eval` writes OUT/eval.md): not documents.
-OUTPUT_FILES = {"eval.md"}
+# Markdown files the code writes into its outputs (`dotsim eval` writes OUT/eval.md, bench.gpu_check
+# OUT/gpu_check.md): not documents.
+OUTPUT_FILES = {"eval.md", "gpu_check.md"}
 # A name like docs/FORMAT.md or GEOMETRY.md, not part of a longer path or URL.
 MD_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)*[\w-]+\.md)\b")
 # A source file named by its path in the repository (tests/dotsim/test_rig.py), so that moving or renaming

@@ -44,14 +44,15 @@ def random_depth(rig: Rig, rng: np.random.Generator, near: float = 0.6, far: flo
 
 
 def synthetic_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.random.Generator,
-                    noise: float = 0.01) -> dict[str, np.ndarray]:
-    """All dotsim channels of one frame from its depth map (IR relative to the flood's 99th percentile)."""
+                    noise: float = 0.01, ir_bits: int = 12) -> dict[str, np.ndarray]:
+    """All dotsim channels of one frame from its depth map (IR relative to the flood's 99th percentile,
+    quantised to `ir_bits`)."""
     projected = expected_pattern_image(depth, rig, pattern, supersample=2)
     flood = expected_pattern_image(depth, rig, np.ones_like(pattern), supersample=2)
     scale = max(float(np.percentile(flood, 99)), 1e-12)
     ambient = np.full(depth.shape, 0.05 * rng.uniform(0.5, 1.5), np.float32)
     ir = ambient + 0.8 * projected / scale + rng.normal(0, noise, depth.shape)
-    ir = np.round(np.clip(ir, 0, 1) * 4095) / 4095  # 12-bit sensor
+    ir = np.round(np.clip(ir, 0, 1) * (2**ir_bits - 1)) / (2**ir_bits - 1)
     return {
         "ir": ir, "ambient": ambient, "flood": ambient + flood / scale, "depth": depth.astype(np.float32),
         "visibility": visibility_mask(ambient, ambient + flood / scale), "edge": edge_mask(depth),
@@ -61,7 +62,7 @@ def synthetic_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.ra
 
 
 def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale: float = TINY_SCALE,
-                 seed: int = 0, test_scenes: int = 0, noise: float = 0.01) -> Path:
+                 seed: int = 0, test_scenes: int = 0, noise: float = 0.01, ir_bits: int = 12) -> Path:
     """Write `scenes` train scenes then `test_scenes` test scenes to root and seal it; returns root."""
     root = Path(root)
     rig = get_preset("structure_core").scaled(scale)
@@ -71,7 +72,7 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
     pattern = np.asarray(dots.image, np.float64)
     for k in range(scenes + test_scenes):
         rng = np.random.default_rng([seed, k])
-        frames = [synthetic_frame(random_depth(rig, rng), rig, pattern, rng, noise)
+        frames = [synthetic_frame(random_depth(rig, rng), rig, pattern, rng, noise, ir_bits)
                   for _ in range(frames_per_scene)]
         meta = {
             "split": "train" if k < scenes else "test", "seed": seed, "rig": rig.to_dict(),

@@ -43,6 +43,12 @@ class FrameRef:
         frame = read_indexed(self.sample, channels)
         return {c: frame[c] for c in channels}
 
+    def scene_meta(self) -> dict:
+        """The frame's scene.json dict."""
+        if self.sample is None:
+            return read_scene_meta(self.path.parent)
+        return read_indexed(self.sample, channels=())["meta"]
+
 
 def _no_split_error(data: str, split: str, splits: list) -> DataError:
     present: dict[str, int] = {}

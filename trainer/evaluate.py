@@ -20,8 +20,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from dotsim.dataset import pattern_path, read_frame, read_scene_meta
-from dotsim.false_colour import with_legend
+from dotsim.data import pattern_file
+from dotsim.false_colour import titled, with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.patterns import PatternError, load_pattern
@@ -42,7 +42,7 @@ from trainer.train import build_model, check_rig, load_checkpoint
 THRESHOLDS = (0.5, 1.0, 2.0, 5.0)
 PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
-EVAL_CHANNELS = ("ir", "visibility", "depth", "disparity")
+EVAL_CHANNELS = ("ir", "visibility", "disparity")  # depth follows from disparity: exports may hold no depth
 
 
 def outlier_counts(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray,
@@ -138,15 +138,14 @@ def error_image(err: np.ndarray, valid: np.ndarray, max_px: float = 5.0) -> np.n
     return img
 
 
-def _labelled(img: np.ndarray, text: str) -> np.ndarray:
-    img = img.copy()
-    cv2.putText(img, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-    return img
+# The narrowest panel of an error strip (IR | network | SGBM): smaller frames are scaled up by a whole
+# factor (dotsim.false_colour.titled), so that the title over each panel is readable.
+PANEL_WIDTH = 240
 
 
-def load_reference(data_dir: Path, rig: Rig) -> np.ndarray:
-    """The dataset's pattern (DATASET/pattern.png) as seen from infinity on the camera grid."""
-    path = pattern_path(data_dir)
+def load_reference(data, rig: Rig) -> np.ndarray:
+    """The data's pattern (DATASET/pattern.png, or an export's) as seen from infinity on the camera grid."""
+    path = pattern_file(data)
     try:
         pattern = load_pattern(path, (rig.projector.height, rig.projector.width))
     except PatternError as e:
@@ -160,33 +159,34 @@ def valid_pixels(frame: dict[str, np.ndarray]) -> np.ndarray:
     return (frame["visibility"] > 0) & np.isfinite(gt) & (gt > 0)
 
 
-def configured_nearest_depth(scene_path: Path) -> float | None:
-    """The nearest object distance of the config a scene was rendered with ([scene] distance's lower
+def configured_nearest_depth(ref: FrameRef) -> float | None:
+    """The nearest object distance of the config a frame was rendered with ([scene] distance's lower
     bound, from scene.json), or None for data without one (captures, oracle-rendered tests)."""
-    distance = read_scene_meta(scene_path).get("config", {}).get("scene", {}).get("distance")
+    distance = ref.scene_meta().get("config", {}).get("scene", {}).get("distance")
     return float(distance[0]) if distance else None
 
 
-def nearest_valid_depth(frames: list[FrameRef]) -> float:
-    """The smallest GT depth over the valid pixels of `frames` (inf when none is valid)."""
-    nearest = np.inf
+def nearest_valid_depth(frames: list[FrameRef], rig: Rig) -> float:
+    """The smallest GT depth over the valid pixels of `frames` (inf when none is valid): the depth of
+    the largest GT disparity (exports may store no depth)."""
+    largest = 0.0
     for ref in frames:
-        f = read_frame(ref.path, channels=("visibility", "depth", "disparity"))
+        f = ref.read(("visibility", "disparity"))
         valid = valid_pixels(f)
         if valid.any():
-            nearest = min(nearest, float(f["depth"][valid].min()))
-    return nearest
+            largest = max(largest, float(f["disparity"][valid].max()))
+    return float(disparity_to_depth(np.float64(largest), rig)) if largest > 0 else np.inf
 
 
-def sgbm_nearest_depth(frames: list[FrameRef]) -> float:
+def sgbm_nearest_depth(frames: list[FrameRef], rig: Rig) -> float:
     """The nearest depth SGBM's range must reach on these frames: the nearer of the config's scene
     distance and the data's nearest valid GT depth, so no valid pixel lies beyond its range."""
-    candidates = [nearest_valid_depth(frames)]
-    if frames and (configured := configured_nearest_depth(frames[0].path.parent)) is not None:
+    candidates = [nearest_valid_depth(frames, rig)]
+    if frames and (configured := configured_nearest_depth(frames[0])) is not None:
         candidates.append(configured)
     nearest = min(candidates)
     if not np.isfinite(nearest):
-        raise DataError(f"{frames[0].path.parent if frames else 'no frames'}: no valid pixel (visible "
+        raise DataError(f"{frames[0].path if frames else 'no frames'}: no valid pixel (visible "
                         "pattern with finite depth) to size SGBM's disparity range on")
     return nearest
 
@@ -206,7 +206,7 @@ def choose_preprocessing(frames: list[FrameRef], reference: np.ndarray, num_disp
     outliers = dict.fromkeys(PREPROCESSINGS, 0)
     pixels = 0
     for ref in frames:
-        f = read_frame(ref.path, channels=EVAL_CHANNELS)
+        f = ref.read(EVAL_CHANNELS)
         valid, gt = valid_pixels(f), f["disparity"].astype(np.float64)
         pixels += int(valid.sum())
         for name in PREPROCESSINGS:
@@ -259,10 +259,11 @@ def verdict(rows: list[dict], sgbm_method: str) -> str:
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
-             val_split: str = "train", val_frames: int = 8) -> list[dict]:
+             val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM (plain and LCN) on `split` of data_dir; write OUT/eval.md,
     OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a
-    legend). Returns the table rows.
+    legend). Returns the table rows. progress: print the table, with a progress bar (progress_bar=False:
+    without).
 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
@@ -280,13 +281,14 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         all_val, val_rig, _ = list_frames(val_data, val_split)
         check_rig(rig, val_rig, f"checkpoint {checkpoint}", str(val_data))
         validation = spread(all_val, val_frames)
-        if any(ref.path in {f.path for f in frames} for ref in validation):
+        if any((ref.path, ref.scene_index, ref.frame_index) in {(f.path, f.scene_index, f.frame_index)
+                                                                 for f in frames} for ref in validation):
             raise DataError(f"{val_data}: validation frames (split {val_split!r}) overlap the evaluated "
                             f"frames of {data_dir} (split {split!r}); give another split or dataset")
-    nearest = sgbm_nearest_depth(frames + validation)
+    nearest = sgbm_nearest_depth(frames + validation, rig)
     n_disp = num_disparities_for(rig, nearest)
     if validation:
-        chosen, val_rates = choose_preprocessing(validation, load_reference(Path(val_data), rig), n_disp)
+        chosen, val_rates = choose_preprocessing(validation, load_reference(val_data, rig), n_disp)
         choice = (f"SGBM preprocessing chosen on {len(validation)} validation frame(s) of {val_data} (split "
                   f"{val_split!r}) by o(0.5): " + ", ".join(f"{k} {v:.4f}" for k, v in val_rates.items())
                   + f" -> {chosen}")
@@ -299,30 +301,32 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     bins = list(zip(depth_bins[:-1], depth_bins[1:], strict=True))
     ranges = [("all", None)] + [(f"{a:g}-{b:g}", (a, b)) for a, b in bins]
     counts = {(m, r): np.zeros(2 + len(THRESHOLDS), np.int64) for m in methods for r, _ in ranges}
-    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
-        f = read_frame(ref.path, channels=EVAL_CHANNELS)
+    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not (progress and progress_bar))):
+        f = ref.read(EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f)
+        depth = disparity_to_depth(gt, rig)
         preds = {"network": predict_disparity(model, rig, ir, device, precision)[0]}
         for p in PREPROCESSINGS:
             preds[f"sgbm-{p}"] = sgbm_disparity(ir, reference, n_disp, preprocessing=p)
         # what each method can represent: SGBM disparities 0 .. n_disp - 1, the network any column
         # inside the projector image
-        column = depth_to_projector_column(f["depth"], rig, normalised=True)
+        column = depth_to_projector_column(depth, rig, normalised=True)
         reachable = {"network": (column >= 0) & (column <= 1)}
         reachable |= {f"sgbm-{p}": gt <= n_disp - 1 for p in PREPROCESSINGS}
         for method, pred in preds.items():
             for name, lim in ranges:
-                sel = valid if lim is None else valid & (f["depth"] >= lim[0]) & (f["depth"] < lim[1])
+                sel = valid if lim is None else valid & (depth >= lim[0]) & (depth < lim[1])
                 pixels, outliers = outlier_counts(pred, gt, sel)
                 outside = int((sel & ~reachable[method]).sum())
                 counts[(method, name)] += np.array([pixels, outside, *outliers])
         if n < images:
             grey = cv2.cvtColor(_to_grey(ir), cv2.COLOR_GRAY2BGR)
-            panels = [_labelled(grey, "IR")] + [
-                _labelled(error_image(preds[m] - gt, valid), f"{m} |err|") for m in ("network", sgbm_chosen)
+            panels = [titled(grey, "IR", PANEL_WIDTH)] + [
+                titled(error_image(preds[m] - gt, valid), f"{m} |err|", PANEL_WIDTH)
+                for m in ("network", sgbm_chosen)
             ]
-            sep = np.full((ir.shape[0], 2, 3), 255, np.uint8)
+            sep = np.full((panels[0].shape[0], 2, 3), 255, np.uint8)
             strip = np.concatenate([p for panel in panels for p in (panel, sep)][:-1], axis=1)
             strip = with_legend(strip, 0.0, 5.0, "px |disparity error|", ERROR_SWATCHES)
             name = f"scene_{ref.scene_index:07d}_frame_{ref.frame_index}.png"

@@ -202,12 +202,14 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
 
 
 def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
-          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0) -> dict:
+          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0,
+          progress_bar: bool = True) -> dict:
     """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds"}.
 
     Launched as several processes (torchrun, or trainer.distributed.run_on_ranks), each is one DDP rank
     of the same run: each takes its share of every global batch, and rank 0 alone writes and prints.
-    max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time."""
+    max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time.
+    progress: print warnings and the summary, with a progress bar (progress_bar=False: without)."""
     from torch.utils.tensorboard import SummaryWriter
 
     out_dir = Path(out_dir)
@@ -274,7 +276,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     start = time.perf_counter()
     model.train()
     progress = progress and ranks.main
-    bar = tqdm(total=total_steps, initial=step, desc="train", unit="step", disable=not progress)
+    bar = tqdm(total=total_steps, initial=step, desc="train", unit="step",
+               disable=not (progress and progress_bar))
     while step < total_steps:
         epoch, within = divmod(step, steps_per_epoch)
         loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,

@@ -20,11 +20,13 @@ from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_vers
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
 from dotsim.rig import Rig, depth_to_disparity
 
-# Lossless, the smallest and the fastest to read of OpenEXR's lossless codecs on rendered frames
-# (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size); needs
-# OpenEXR >= 3.4 to read. Measured in docs/FORMAT.md "Compression" (bench.generate_stages
-# --compression, on rendered frames).
-EXR_COMPRESSION = "ZSTD_COMPRESSION"
+# The lossless compressions a dataset's frames may have ([output] exr_compression -> OpenEXR's name).
+# zstd, the default, is the smallest and the fastest to read of OpenEXR's lossless codecs on rendered
+# frames (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size) and needs
+# OpenEXR >= 3.4 to read; zip and piz are read by older OpenEXR versions too. Measured in
+# docs/FORMAT.md "Compression" (bench.generate_stages --compression, bench.exr_readability).
+EXR_COMPRESSIONS = {"zstd": "ZSTD_COMPRESSION", "zip": "ZIP_COMPRESSION", "piz": "PIZ_COMPRESSION"}
+EXR_COMPRESSION = EXR_COMPRESSIONS["zstd"]
 VERSION_ATTRIBUTE = "dotsim_format_version"
 # Format 2.x: the rig (Rig.to_dict() as JSON) the derived channels are computed with.
 RIG_ATTRIBUTE = "dotsim_rig"

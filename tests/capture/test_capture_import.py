@@ -210,7 +210,13 @@ def test_cli_import_records_settings_and_pattern(tmp_path, rig, capsys):
             "--pattern", str(tmp_path / "pattern.png")]
     args = parser.parse_args(argv)
     assert args.func(args) == 0
-    assert "imported 2 frame pairs as 1 scene(s)" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "imported 2 frame pairs as 1 scene(s)" in out and "importing scenes" in err  # the bar
+    quiet = [str(tmp_path / "quiet") if arg == str(tmp_path / "data") else arg for arg in argv]
+    args = parser.parse_args([*quiet, "--no-progress"])
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert "imported 2 frame pairs" in out and "importing scenes" not in err and "checking frames" not in err
     data = open_dataset(tmp_path / "data")
     meta = data.read_scene(0).meta
     assert meta["capture"]["settings"] == {"exposure_us": 1600, "gain": 2}

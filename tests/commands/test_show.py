@@ -35,7 +35,8 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     out = tmp_path / "sheet.png"
     assert run_cli(scene, "-o", out, "--tile-width", 122) == 0
     sheet = cv2.imread(str(out))
-    frames, title, labels = show.load_for_sheet(scene)
+    frames, title, labels, meanings = show.load_for_sheet(scene)
+    assert meanings == {}
     drawn, layout = show.contact_sheet(frames, title, 122, labels)
     assert np.array_equal(sheet, drawn)  # the PNG holds exactly the drawn sheet
     tile_w, tile_h = layout.tile_size
@@ -139,3 +140,35 @@ def test_ground_truth_point_cloud_ply(tmp_path, capsys):
     assert (cloud.colors[:, :3] == 255).all()  # constant IR: its own 99.5th percentile, white
     assert run_cli(scene / "frame_0.exr", "--ply", out) == 1
     assert "--ply needs the scene's rig" in capsys.readouterr().err
+
+
+def test_an_infer_output_is_labelled_as_predictions(tmp_path):
+    """A file `dotsim infer` writes (dotsim.prediction_file, the header naming checkpoint and input): its
+    columns say "predicted", not "ground truth", and the title says whose prediction it is."""
+    from dotsim.prediction_file import write_prediction
+
+    depth = constant_frame(0)["depth"]
+    disparity = RIG.camera.fx * RIG.baseline / depth
+    path = tmp_path / "scene_0000000_frame_0.exr"
+    write_prediction(path, {"disparity": disparity, "depth": depth},
+                     {"checkpoint": "/runs/tiny/checkpoint.pt", "input": "/data/frame_0.exr",
+                      "precision": "float32"})
+    out = tmp_path / "pred.png"
+    assert run_cli(path, "-o", out, "--tile-width", 122) == 0
+    frames, title, labels, meanings = show.load_for_sheet(path)
+    assert meanings == {"depth": show.PREDICTED, "disparity": show.PREDICTED}
+    assert title.startswith("scene_0000000_frame_0.exr  (61 x 45): PREDICTED by checkpoint.pt from "
+                            "frame_0.exr")
+    sheet = cv2.imread(str(out))
+    predicted, layout = show.contact_sheet(frames, title, 122, labels, meanings)
+    as_truth, _ = show.contact_sheet(frames, title, 122, labels)
+    assert np.array_equal(sheet, predicted)
+    x, _, w, _ = layout.tiles[(0, "depth")]
+    row = np.s_[2 * show.LINE:3 * show.LINE + 4]  # the meaning under each column's title, descenders too
+    assert not np.array_equal(predicted[row][:, x:x + w], as_truth[row][:, x:x + w])
+    others = predicted.copy()
+    others[row] = as_truth[row]
+    assert np.array_equal(others, as_truth)  # only the meaning row differs
+    # a dataset frame stays ground truth
+    scene = write_scene(tmp_path / "data")
+    assert show.load_for_sheet(scene / "frame_0.exr")[3] == {}

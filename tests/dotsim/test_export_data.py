@@ -1,26 +1,32 @@
-"""`dotsim export --format webdataset`, dotsim.data.Frames and the trainer's --data on shards.
+"""`dotsim export --format webdataset`, dotsim.data.Frames, and the trainer and eval on shards.
 
-A tiny oracle dataset (tests/trainer_fixtures.py, written with the dataset writer) is exported; the
-shards are read back by dotsim.data (streamed and indexed), by the webdataset library itself, and
-by the trainer, and everything is compared with the folder read through dotsim.dataset.
+Tiny oracle datasets (tests/trainer_fixtures.py, written with the dataset writer) are exported; the
+shards are read back by dotsim.data (streamed and indexed), by the webdataset library and OpenCV
+(independently of dotsim's decoder), by the trainer and by eval, and everything is compared with
+the folder read through dotsim.dataset.
 """
 
 import hashlib
+import json
+import shutil
 import tarfile
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
 from commands import cli
+from commands import export as export_module
 from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
-from dotsim.data import Frames, index_shards, read_indexed
-from tests.trainer_fixtures import tiny_config
+from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
+from tests.trainer_fixtures import make_dataset, tiny_config
 from trainer.data import DataError, list_frames
+from trainer.evaluate import evaluate
 from trainer.train import train
 
-SHARD_BYTES = 600_000  # a frame's sample takes about 250 KB of tar: two per shard
+SHARD_BYTES = 260_000  # a frame's sample takes about 120 kB of tar: two per shard
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +35,12 @@ def export(data, tmp_path_factory):
     assert cli.main(["export", str(data), "--format", "webdataset", str(out), "--shard-size",
                      str(SHARD_BYTES)]) == 0
     return out
+
+
+@pytest.fixture(scope="module")
+def data10(tmp_path_factory):
+    """Frames of a 10-bit sensor (the generator's default), whose IR codes float16 holds exactly."""
+    return make_dataset(tmp_path_factory.mktemp("ds10"), scenes=2, frames_per_scene=2, ir_bits=10)
 
 
 def folder_frames(data):
@@ -44,14 +56,21 @@ def folder_frames(data):
 
 def assert_same_frame(sample, meta, frame):
     assert sample["meta"] == meta
+    assert set(frame) <= set(sample)
     for name, array in frame.items():
         assert sample[name].dtype == array.dtype and sample[name].shape == array.shape, name
         assert np.array_equal(sample[name], array, equal_nan=True), name
 
 
-def test_shards_sized_by_bytes_with_checksums(export):
+def members(path):
+    with tarfile.open(path) as tar:
+        return tar.getmembers()
+
+
+def test_shards_sized_by_bytes_with_checksums_and_scene_json_once(export):
     index = ds.layout.load_json(export / "index.json")
     shards = index["shards"]
+    assert index["format_version"] == "2.0" and index["precision"] == "exact"
     assert len(shards) == 4 and index["sample_count"] == 8 == sum(s["samples"] for s in shards)
     sums = (export / "SHA256SUMS").read_text().splitlines()
     for s, line in zip(shards, sums, strict=True):
@@ -59,11 +78,34 @@ def test_shards_sized_by_bytes_with_checksums(export):
         digest = hashlib.sha256(path.read_bytes()).hexdigest()  # independently of dotsim.file_io
         assert s["sha256"] == digest and line == f"{digest}  {s['name']}"
         assert s["bytes"] == path.stat().st_size
-        with tarfile.open(path) as tar:
-            members = tar.getmembers()
-        used = sum(512 + -(-m.size // 512) * 512 for m in members)
-        assert used <= SHARD_BYTES and len(members) == s["samples"] * 10  # 8 channels + 2 JSON
+        found = members(path)
+        assert sum(512 + -(-m.size // 512) * 512 for m in found) <= SHARD_BYTES
+        names = [m.name for m in found]
+        assert not any(n.endswith(".disparity.npy.gz") or ".disparity." in n for n in names)  # derived
+        # scene.json once per scene and shard: in the first sample of each scene the shard holds
+        firsts = {}
+        for n in names:
+            key = n.split(".")[0]
+            firsts.setdefault(key.rsplit("_frame_", 1)[0], key)
+        assert sorted(n for n in names if ".scene.json" in n) == sorted(f"{k}.scene.json.gz"
+                                                                         for k in firsts.values())
+    assert (export / "pattern.png").read_bytes() == ds.pattern_path(ds.open_dataset(
+        index["plan"]["source"]["dataset"]).root).read_bytes()
     assert tar_bytes_of([("a", b"x" * 513)]) == 512 + 1024
+
+
+def test_samples_per_shard_and_shard_count(data, tmp_path):
+    by_count = export_webdataset(data, tmp_path / "per3", samples_per_shard=3)
+    assert [s["samples"] for s in by_count.shards] == [3, 3, 2]
+    assert cli.main(["export", str(data), str(tmp_path / "four"), "--shards", "4"]) == 0
+    index = ds.layout.load_json(tmp_path / "four" / "index.json")
+    assert [s["samples"] for s in index["shards"]] == [2, 2, 2, 2]
+    for bad in (["--shards", "0"], ["--samples-per-shard", "-1"]):
+        with pytest.raises(SystemExit):  # argparse: "allowed: an integer >= 1"
+            cli.main(["export", str(data), str(tmp_path / "bad"), *bad])
+    assert cli.main(["export", str(data), str(tmp_path / "bad"), "--shard-size", "1e400M"]) == 1
+    assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,disparity"]) == 1
+    assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,nope"]) == 1
 
 
 def test_round_trip_is_exact_streamed_indexed_and_by_the_webdataset_library(data, export):
@@ -86,9 +128,119 @@ def test_round_trip_is_exact_streamed_indexed_and_by_the_webdataset_library(data
     by_library = list(wds.WebDataset(shards, shardshuffle=False).decode())
     assert [s["__key__"] for s in by_library] == [k for k, _, _ in expected]
     for sample, (_, meta, frame) in zip(by_library, expected, strict=True):
-        assert sample["scene.json"] == meta
-        for name, array in frame.items():
-            assert np.array_equal(sample[f"{name}.npy"], array, equal_nan=True)
+        assert sample["frame.json"]["rig"] == meta["rig"]
+        for name in ("depth", "projector_column", "ambient", "flood"):
+            assert np.array_equal(sample[f"{name}.npy.gz"], frame[name], equal_nan=True)
+        for name in ("visibility", "edge"):  # 1-bit PNGs any image reader opens
+            png = cv2.imdecode(np.frombuffer(sample[f"{name}.png"], np.uint8), cv2.IMREAD_UNCHANGED)
+            assert np.array_equal(png > 0, frame[name] > 0)
+
+
+def test_ir_codes_as_16_bit_png_and_the_training_precision_column(data10, tmp_path):
+    exact = export_webdataset(data10, tmp_path / "exact")
+    training = export_webdataset(data10, tmp_path / "training", precision="training",
+                                 channels=["ir", "projector_column", "visibility", "edge"])
+    assert sum(s["bytes"] for s in training.shards) < 0.5 * sum(s["bytes"] for s in exact.shards)
+    import webdataset as wds
+
+    raw = list(wds.WebDataset(sorted(str(p) for p in (tmp_path / "training").glob("shard-*.tar")),
+                              shardshuffle=False))
+    for (key, _, frame), sample, stored in zip(folder_frames(data10), Frames(tmp_path / "training"), raw,
+                                               strict=True):
+        # the IR PNG holds the 10-bit codes, read back by OpenCV alone
+        codes = cv2.imdecode(np.frombuffer(stored["ir.png"], np.uint8), cv2.IMREAD_UNCHANGED)
+        assert codes.dtype == np.uint16
+        assert np.array_equal(codes, np.round(frame["ir"].astype(np.float64) * 1023))
+        assert np.array_equal(sample["ir"], frame["ir"])
+        column, want = sample["projector_column"], frame["projector_column"]
+        inside = np.isfinite(want) & (want > -60) & (want < 1000)
+        assert np.all(np.abs(column[inside] - want[inside]) <= 1 / 32 + 1e-6)
+        lit = frame["visibility"] > 0
+        assert np.all(np.isfinite(column[lit]))
+        # disparity derived from the stored column agrees with the folder's (from depth)
+        d = sample["disparity"][lit].astype(np.float64)
+        assert np.allclose(d, frame["disparity"][lit], atol=0.02), key
+        assert not {"depth", "ambient", "flood"} & set(sample)
+
+
+def test_export_resumes_after_a_crash_exactly_as_an_unbroken_run(data, tmp_path, monkeypatch):
+    unbroken = export_webdataset(data, tmp_path / "unbroken", samples_per_shard=2)
+    calls = {"n": 0}
+    real = export_module.frame_files
+
+    def crash_on_the_sixth(*args):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            raise KeyboardInterrupt  # as a kill in the middle of shard 2
+        return real(*args)
+
+    out = tmp_path / "resumed"
+    monkeypatch.setattr(export_module, "frame_files", crash_on_the_sixth)
+    with pytest.raises(KeyboardInterrupt):
+        export_webdataset(data, out, samples_per_shard=2)
+    monkeypatch.setattr(export_module, "frame_files", real)
+    assert sorted(p.name for p in out.glob("shard-*.tar")) == ["shard-000000.tar", "shard-000001.tar"]
+    assert not (out / "index.json").exists()
+    (out / ".tmp-shard-000002.tar-99999").write_bytes(b"half a shard a kill -9 left")
+    with pytest.raises(DataError, match="not a usable dotsim dataset"):  # unfinished: no index.json
+        list_frames(out, "all")
+    result = export_webdataset(data, out, samples_per_shard=2)
+    assert result.resumed == 2 and "found done" in result.line()
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in (tmp_path / "unbroken").iterdir())
+    for p in (tmp_path / "unbroken").iterdir():
+        if p.name != "index.json":
+            assert (out / p.name).read_bytes() == p.read_bytes(), p.name
+    assert [s["sha256"] for s in unbroken.shards] == [s["sha256"] for s in result.shards]
+    # a finished export: the same command does nothing, another one is refused
+    assert export_webdataset(data, out, samples_per_shard=2).resumed == 4
+    with pytest.raises(ds.FormatError, match="finished export of other data or options"):
+        export_webdataset(data, out, samples_per_shard=3)
+
+
+def test_an_unfinished_export_of_other_options_starts_over(data, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "x"
+    real = export_module.frame_files
+    calls = {"n": 0}
+
+    def crash(*args):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        return real(*args)
+
+    monkeypatch.setattr(export_module, "frame_files", crash)
+    with pytest.raises(KeyboardInterrupt):
+        export_webdataset(data, out, samples_per_shard=1)
+    monkeypatch.setattr(export_module, "frame_files", real)
+    assert len(list(out.glob("shard-*.tar"))) == 3
+    result = export_webdataset(data, out, samples_per_shard=4)
+    assert "starting over" in capsys.readouterr().out and result.resumed == 0
+    assert [s["samples"] for s in result.shards] == [4, 4] and len(list(out.glob("shard-*.tar"))) == 2
+
+
+def test_bad_sources_and_damaged_shards_are_named(data, export, tmp_path):
+    with pytest.raises(ds.FormatError, match="no such shard"):
+        Frames(tmp_path / "nope-{0..1}.tar")
+    copy = tmp_path / "copy"
+    shutil.copytree(export, copy)
+    damaged = bytearray((copy / "shard-000001.tar").read_bytes())
+    damaged[2000] ^= 1
+    (copy / "shard-000001.tar").write_bytes(bytes(damaged))
+    # by folder, by path and by brace pattern alike: the index.json beside the shards is checked
+    for source in (copy, copy / "shard-000001.tar", str(copy / "shard-{000000..000003}.tar")):
+        with pytest.raises(ds.FormatError, match="shard-000001.tar: sha256 differs"):
+            list(Frames(source))
+        with pytest.raises(DataError, match="shard-000001.tar: sha256 differs"):
+            list_frames(source, "all")
+    with pytest.raises(DataError, match="no scenes with split 'val'"):
+        list_frames(export, "val")
+    index = json.loads((copy / "index.json").read_text())
+    index["format_version"] = "3.0"
+    (copy / "index.json").write_text(json.dumps(index))
+    with pytest.raises(ds.FormatError, match="format_version '3.0' is not supported"):
+        Frames(copy)
+    (tmp_path / "file").write_text("x")
+    assert cli.main(["export", str(data), str(tmp_path / "file")]) == 1
 
 
 def test_rank_and_worker_splitting_covers_every_frame_once(data, export):
@@ -104,26 +256,8 @@ def test_rank_and_worker_splitting_covers_every_frame_once(data, export):
     assert len(keys) == len(set(keys)) == 6
 
 
-def test_bad_sources_and_damaged_shards_are_named(data, export, tmp_path):
-    with pytest.raises(ds.FormatError, match="already holds an export"):
-        export_webdataset(data, export)
-    with pytest.raises(ds.FormatError, match="no such shard"):
-        Frames(tmp_path / "nope-{0..1}.tar")
-    copy = tmp_path / "copy"
-    copy.mkdir()
-    for p in export.iterdir():
-        (copy / p.name).write_bytes(p.read_bytes())
-    damaged = bytearray((copy / "shard-000001.tar").read_bytes())
-    damaged[2000] ^= 1
-    (copy / "shard-000001.tar").write_bytes(bytes(damaged))
-    with pytest.raises(ds.FormatError, match="shard-000001.tar: sha256 differs"):
-        list(Frames(copy))
-    with pytest.raises(DataError, match="no scenes with split 'val'"):
-        list_frames(export, "val")
-
-
 @pytest.mark.usefixtures("one_thread")
-def test_training_from_shards_gives_the_folders_losses(data, export, tmp_path):
+def test_training_and_eval_from_shards_give_the_folders_figures(data, export, tmp_path):
     folder = train(tiny_config(4), data, tmp_path / "folder", progress=False)["losses"]
     shards = train(tiny_config(4), export, tmp_path / "wds", progress=False)["losses"]
     assert shards == folder and folder[0] != folder[1]
@@ -137,3 +271,80 @@ def test_training_from_shards_gives_the_folders_losses(data, export, tmp_path):
     for a, b in zip(frames, local, strict=True):
         assert (a.scene_index, a.frame_index) == (b.scene_index, b.frame_index)
         assert np.array_equal(a.read(("ir",))["ir"], b.read(("ir",))["ir"])
+    checkpoint = tmp_path / "folder" / "checkpoint.pt"
+    on_folder = evaluate(checkpoint, data, tmp_path / "e1", progress=False, images=1, val_data=data)
+    on_shards = evaluate(checkpoint, export, tmp_path / "e2", progress=False, images=1, val_data=export)
+    assert json.dumps(on_folder) == json.dumps(on_shards) and on_folder[0]["pixels"] > 0  # nan == nan
+
+
+def test_default_collate_batches_frames_with_workers_and_their_metadata_as_a_list(data, tmp_path):
+    """DataLoader(Frames(...), batch_size=N) with PyTorch's default collate: channels as tensors, keys
+    and splits as lists, the scene.json dicts (which hold nulls) as a list (dotsim.data.collate_meta)."""
+    out = tmp_path / "two"
+    assert cli.main(["export", str(data), str(out), "--shards", "2"]) == 0
+    expected = {key: (meta, frame) for key, meta, frame in folder_frames(data)}
+    for source in (out, data):
+        loader = torch.utils.data.DataLoader(Frames(source, channels=("ir", "depth", "visibility")),
+                                             batch_size=3, num_workers=2)
+        seen = []
+        for batch in loader:
+            assert isinstance(batch["ir"], torch.Tensor) and batch["ir"].dtype == torch.float16
+            assert isinstance(batch["meta"], list) and len(batch["meta"]) == len(batch["key"]) <= 3
+            for n, key in enumerate(batch["key"]):
+                meta, frame = expected[key]
+                assert batch["meta"][n] == meta and batch["split"][n] == meta["split"]
+                assert batch["scene_index"][n].item() == meta["scene_index"]
+                for name in ("ir", "depth", "visibility"):
+                    assert np.array_equal(batch[name][n].numpy(), frame[name], equal_nan=True), (key, name)
+                seen.append(key)
+        assert sorted(seen) == sorted(expected)
+    # scene.json holds nulls (a capture's poses, a rig without a second camera), which default_collate
+    # cannot batch in a plain dict; a SceneMeta it keeps as a list
+    with pytest.raises(TypeError):
+        torch.utils.data.default_collate([{"poses": [None]}] * 2)
+    assert torch.utils.data.default_collate([SceneMeta({"poses": [None]})] * 2) == [{"poses": [None]}] * 2
+
+
+@pytest.mark.parametrize("precision, channels", [
+    ("exact", None),
+    ("training", "ir,projector_column,visibility,edge"),
+])
+def test_the_webdataset_library_loads_an_export_into_batches_with_two_workers(data, tmp_path, precision,
+                                                                              channels):
+    """An export read by the webdataset library's own pipeline and WebLoader(num_workers=2), each raw
+    sample decoded alone by dotsim.data.decode_webdataset (shuffled, so a scene's scene.json.gz may come
+    after its other frames), batched by webdataset, against the folder read by dotsim.dataset."""
+    import webdataset as wds
+
+    out = tmp_path / precision
+    argv = ["export", str(data), str(out), "--shards", "2", "--precision", precision]
+    assert cli.main(argv + (["--channels", channels] if channels else [])) == 0
+    shards = sorted(str(p) for p in out.glob("shard-*.tar"))
+    pipeline = (wds.WebDataset(shards, shardshuffle=False, nodesplitter=wds.split_by_node)
+                .shuffle(8, seed=1).map(decode_webdataset).batched(3, partial=True))
+    batches = list(wds.WebLoader(pipeline, batch_size=None, num_workers=2))
+    expected = {key: frame for key, _, frame in folder_frames(data)}
+    seen = []
+    for batch in batches:  # WebLoader hands numpy arrays on as tensors
+        assert "meta" not in batch and len(batch["key"]) <= 3 and isinstance(batch["ir"], torch.Tensor)
+        batch = {name: value.numpy() if isinstance(value, torch.Tensor) else value
+                 for name, value in batch.items()}
+        for n, key in enumerate(batch["key"]):
+            frame = expected[key]
+            scene, _, k = key.removeprefix("scene_").partition("_frame_")
+            assert (batch["scene_index"][n], batch["frame_index"][n]) == (int(scene), int(k))
+            for name in ("ir", "edge"):
+                assert np.array_equal(batch[name][n], frame[name]), (key, name)
+            if precision == "exact":
+                for name in ("depth", "projector_column", "disparity", "flood"):
+                    assert np.array_equal(batch[name][n], frame[name], equal_nan=True), (key, name)
+            else:  # the fixed-point column, and disparity derived from it, to their precision
+                lit = frame["visibility"] > 0
+                assert np.all(np.abs(batch["projector_column"][n][lit] - frame["projector_column"][lit])
+                              <= 1 / 32 + 1e-6)
+                assert np.allclose(batch["disparity"][n][lit], frame["disparity"][lit], atol=0.02)
+                assert "depth" not in batch
+            seen.append(key)
+    assert sorted(seen) == sorted(expected)
+    with pytest.raises(ds.FormatError, match="without __key__"):
+        decode_webdataset({"ir.png": b""})

@@ -218,6 +218,27 @@ def test_generate_writes_a_readable_dataset(rendered):
     assert pattern.sha256 == scene.meta["pattern"]["sha256"]
 
 
+def test_exr_compression_zip_stores_the_same_frames_in_zip_files(rendered, tmp_path):
+    """[output] exr_compression = "zip": scene 0 again, its frame files ZIP-compressed (the OpenEXR
+    package reads their header), their values those of the default ZSTD render, bit for bit."""
+    import OpenEXR
+
+    source, _ = rendered
+    config = load_config(TINY)
+    config = replace(config, output=replace(config.output, exr_compression="zip"))
+    assert generate(config, tmp_path / "zip", "train", 1, seed=3, progress=False).done == 1
+    zipped = dataset.read_scene(dataset.scene_dir(tmp_path / "zip", 0, 2))
+    original = dataset.read_scene(dataset.scene_dir(source, 0, 2))
+    assert zipped.meta["config"]["output"]["exr_compression"] == "zip"
+    for k, (a, b) in enumerate(zip(zipped.frames, original.frames, strict=True)):
+        for path, compression in ((zipped.path, "ZIP_COMPRESSION"), (original.path, "ZSTD_COMPRESSION")):
+            header = OpenEXR.File(str(path / dataset.frame_name(k))).header()
+            assert header["compression"] == getattr(OpenEXR, compression)
+        assert a.keys() == b.keys()
+        for name in a:
+            np.testing.assert_array_equal(a[name], b[name])
+
+
 def test_resume_skips_complete_and_redoes_partial(rendered, tmp_path):
     source, _ = rendered
     out = tmp_path / "resume"
@@ -428,6 +449,29 @@ def test_generate_with_rig_file_renders_its_pinhole_model(tmp_path, capsys):
     assert frame["ir"].shape == (48, 64)
     near = np.isfinite(frame["depth"]) & (frame["depth"] <= rig["max_depth"])
     np.testing.assert_allclose(frame["disparity"][near], 60.0 * 0.06 / frame["depth"][near], rtol=1e-5)
+
+
+def test_generate_with_a_ros_camera_info_by_flag_prints_the_rig_it_renders(tmp_path, capsys):
+    """`--camera-file` with a ROS camera_info: the file's pinhole camera with the config's preset projector
+    renders, the rig is named after both, and generate says so when it starts: the rig in one line
+    (as `dotsim rig show` prints it), the camera-only note and the lens note."""
+    from tests.capture.test_capture_rectify import LENS_K, ros_camera_info
+
+    ros = ros_camera_info(tmp_path / "ir.yaml")
+    assert run_cli("--config", "tiny", "--camera-file", str(ros), "--out", str(tmp_path / "d"), "--split",
+                   "train", "--scenes", "1") == 0
+    out, err = capsys.readouterr()
+    name = "ir_camera (camera) + structure_core (projector)"
+    assert out.splitlines()[0].startswith(f"rig {name}: camera 32 x 24 px, f 26.00 px, field of view ")
+    assert f"{ros} calibrates the camera alone: the projector and its pose are those of preset " \
+        "structure_core" in err
+    assert "the calibrated camera has lens distortion" in err
+    rig = dataset.read_scene_meta(dataset.open_dataset(tmp_path / "d").scenes[0].path)["rig"]
+    focal = (LENS_K[0, 0] + LENS_K[1, 1]) / 2 * 0.1
+    assert rig["name"] == name and (rig["camera"]["width"], rig["camera"]["fx"]) == (32, focal)
+    assert rig["projector"] == get_preset("structure_core").scaled(0.1).projector.to_dict()
+    # the same file as --rig: a camera alone, so the same rig
+    assert with_rig(load_config("tiny"), str(ros)).calibrated_rig.rig.to_dict() == rig
 
 
 def test_generate_rig_option_errors(tmp_path, capsys):

@@ -1,0 +1,41 @@
+"""bench.gpu_check's dry run on CPU at 128 x 94 (4 training frames, 2 steps), so the prepared GPU check
+cannot rot between the sessions that have a GPU: every section runs and reports, on real exported
+shards of oracle frames, with a real tiny network and a real eval against SGBM."""
+
+import json
+
+import pytest
+
+from bench.gpu_check import main
+from commands.export import export_webdataset
+from tests.trainer_fixtures import make_dataset
+
+TRAINING = ["ir", "projector_column", "visibility", "edge"]
+
+
+@pytest.mark.usefixtures("one_thread")
+def test_every_section_runs_and_reports_as_it_goes(tmp_path):
+    data = make_dataset(tmp_path / "ds", scenes=2, frames_per_scene=2, test_scenes=1, ir_bits=10)
+    for split in ("train", "test"):
+        export_webdataset(data, tmp_path / split, split=split, precision="training", channels=TRAINING)
+    out = tmp_path / "out"
+    assert main(["--device", "cpu", "--small", "--train", str(tmp_path / "train"), "--test",
+                 str(tmp_path / "test"), "--out", str(out), "--minutes", "3", "--repeats", "1",
+                 "--train-steps", "2", "--variants", "eager", "--max-steps", "2",
+                 "--tests", "tests/trainer/test_trainer_cuda.py"]) == 0
+    results = json.loads((out / "gpu_check.json").read_text())
+    assert results["environment"][0]["device"] == "cpu"
+    timed = [r for r in results["inference"] if "ms" in r]
+    assert {r["precision"] for r in timed} == {"float32", "float16", "bfloat16"}
+    assert all(r["ms"] > 0 and r["variant"] == "eager" for r in timed)
+    trained = [r for r in results["training"] if "ms_per_step" in r]
+    assert {r["config"] for r in trained} == {"train_tiny (oracle)", "train_tiny (carried)"}
+    assert all(r["finite"] for r in trained)
+    run, scores = results["accuracy"]
+    assert run["steps"] == 2 and run["train_frames"] == 4  # one batch
+    assert scores["network"]["pixels"] == scores["sgbm"]["pixels"] > 0
+    assert "o(0.5)" in (out / "eval.md").read_text()
+    assert "skipped" in results["tests"][0]["summary"]  # the CUDA tests, on a machine without CUDA
+    assert (out / "gpu_check.md").read_text().startswith("# GPU check on cpu")
+    with pytest.raises(SystemExit):
+        main(["--train", "x", "--test", "y", "--out", str(out), "--sections", "inference,nope"])
