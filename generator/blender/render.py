@@ -28,6 +28,7 @@ replaced and meshes, materials and the pattern image are cached, so memory stays
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import shutil
 import sys
@@ -343,7 +344,9 @@ class SceneRenderer:
             bpy.ops.render.render(write_still=True)
         if not output.is_file():
             raise RuntimeError(f"Cycles wrote no image to {output}")
-        return read_exr(output)
+        channels = read_exr(output)
+        _return_freed_memory()  # the render's buffers: a scene's poses would stack them otherwise
+        return channels
 
     def _render_through(self, render: Render, poses: list[np.ndarray] | tuple[np.ndarray, ...],
                         frames: list[dict[str, np.ndarray]]) -> None:
@@ -384,8 +387,24 @@ class SceneRenderer:
 
     def render(self, spec: SceneSpec, recipe: FrameRecipe | None = None) -> list[dict[str, np.ndarray]]:
         """All frames of `spec`, rendered as `recipe` says (frame_recipe(spec) unless given): a list
-        (one per pose) of render_frame's passes."""
-        return self.render_poses(self.setup(spec, recipe))
+        (one per pose) of render_frame's passes. Cycles' kept scene is freed once the last pose is
+        rendered (the next setup syncs the whole scene again in any case), so the worker
+        post-renders the frames with that memory given back (bench.generate_cost)."""
+        frames = self.render_poses(self.setup(spec, recipe))
+        self.scene.render.use_persistent_data = False  # setup() switches it on again (refresh)
+        _return_freed_memory()
+        return frames
+
+
+def _return_freed_memory() -> None:
+    """Give the memory the process freed back to the system (glibc's malloc_trim; nothing
+    elsewhere). glibc keeps freed memory in the process for reuse, and the worker's next
+    allocations come partly from elsewhere (the post-render threads' own arenas), so without this
+    a worker's peak grows with every render of a scene (bench.generate_cost measures it)."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _add_passes(frame: dict[str, np.ndarray], channels: dict[str, np.ndarray],

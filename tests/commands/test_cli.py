@@ -6,10 +6,16 @@ item 6); every command spells its output -o/--out (the earlier spellings still a
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
-from commands.cli import build_parser, main
+from commands.cli import COMMANDS, build_parser, main
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def options(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
@@ -62,6 +68,29 @@ def test_an_option_out_of_range_is_refused_before_the_command_runs(tmp_path, mon
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.endswith(f"argument {option}: '{argv[argv.index(option) + 1]}': allowed: {allowed}"), err
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_commands_name_each_module_by_the_commands_it_adds():
+    """COMMANDS is what main uses to import one module per run: each module adds exactly the
+    commands COMMANDS gives it, and the full parser has every command."""
+    assert list(_subparsers(build_parser())) == list(COMMANDS)
+    for module in set(COMMANDS.values()):
+        mine = [command for command, name in COMMANDS.items() if name == module]
+        assert list(_subparsers(build_parser(mine[0]))) == mine, module
+
+
+def test_a_run_imports_its_own_command_only():
+    """`dotsim generate` builds no other stage's parser: torch (the trainer's), trimesh (the asset
+    builder's) and OpenCV (show's) stay unimported, in a process of its own."""
+    code = ("import sys; from commands.cli import build_parser; build_parser('generate'); "
+            "print(sorted({'torch', 'trimesh', 'cv2', 'scipy'} & set(sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=REPO)
+    assert done.stdout.strip() == "[]", done.stdout
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict:
+    return next(a.choices for a in parser._actions if isinstance(a, argparse._SubParsersAction))
 
 
 def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):

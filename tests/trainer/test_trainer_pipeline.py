@@ -176,8 +176,9 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
 
 
 def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path):
-    """A checkpoint whose rig's max_depth is the median predicted depth: the PLY holds exactly the
-    pixels with a depth up to it, none beyond (the EXR keeps every depth)."""
+    """A checkpoint whose rig's max_depth lies among the predicted depths (the median of those a
+    rig's max_depth may be: from 0.5 m): the PLY holds exactly the pixels with a depth up to it,
+    none beyond (the EXR keeps every depth)."""
     import OpenEXR
 
     frames, _, _ = list_frames(data, "test")
@@ -185,7 +186,7 @@ def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path
     name = f"{frames[0].path.parent.name}_{frames[0].path.stem}"
     depth = OpenEXR.File(str(tmp_path / "full" / f"{name}.exr"), separate_channels=True
                          ).channels()["depth"].pixels
-    limit = float(np.nanmedian(depth))
+    limit = float(np.median(depth[np.isfinite(depth) & (depth >= 0.5)]))
     ckpt = torch.load(trained["run"] / "checkpoint.pt", weights_only=False)
     ckpt["rig"]["max_depth"] = limit
     torch.save(ckpt, tmp_path / "near.pt")
