@@ -20,7 +20,9 @@ from commands import cli
 from commands import export as export_module
 from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
+from dotsim import file_io
 from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
+from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, tiny_config
 from trainer.data import DataError, list_frames
 from trainer.evaluate import evaluate
@@ -100,10 +102,9 @@ def test_samples_per_shard_and_shard_count(data, tmp_path):
     assert cli.main(["export", str(data), str(tmp_path / "four"), "--shards", "4"]) == 0
     index = ds.layout.load_json(tmp_path / "four" / "index.json")
     assert [s["samples"] for s in index["shards"]] == [2, 2, 2, 2]
-    for bad in (["--shards", "0"], ["--samples-per-shard", "-1"]):
-        with pytest.raises(SystemExit):  # argparse: "allowed: an integer >= 1"
+    for bad in (["--shards", "0"], ["--samples-per-shard", "-1"], ["--shard-size", "1e400M"]):
+        with pytest.raises(SystemExit):  # argparse: "allowed: ..."
             cli.main(["export", str(data), str(tmp_path / "bad"), *bad])
-    assert cli.main(["export", str(data), str(tmp_path / "bad"), "--shard-size", "1e400M"]) == 1
     assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,disparity"]) == 1
     assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,nope"]) == 1
 
@@ -389,3 +390,31 @@ def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_dispari
         assert np.array_equal(sample["ir_right"], frame["ir_right"])
         seen = frame["stereo_visibility"] > 0
         assert np.allclose(sample["stereo_disparity"][seen], frame["stereo_disparity"][seen], atol=0.02)
+
+
+def test_unusable_output_folders_are_one_line_and_a_full_disk_resumes(data, tmp_path, read_only_folder,
+                                                                       monkeypatch, capsys):
+    assert cli.main(["export", str(data), "-o", str(read_only_folder / "wds")]) == 1
+    assert_one_line_error(capsys.readouterr().err, read_only_folder / "wds", "not writable")
+    with pytest.raises(SystemExit):
+        cli.main(["export", str(data), "-o", str(tmp_path / "x"), "--shard-size", "1e400M"])
+    assert "'1e400M': allowed: bytes, or a number with K, M or G" in capsys.readouterr().err
+    out = tmp_path / "full"
+    real, calls = file_io.os.fsync, {"n": 0}
+
+    def full_after_two(fd):  # two shards reach the disk, then it is full
+        calls["n"] += 1
+        if calls["n"] > 4:  # each shard: the shard, then .progress.json
+            raise OSError(28, "No space left on device")
+        return real(fd)
+
+    monkeypatch.setattr(file_io.os, "fsync", full_after_two)
+    assert cli.main(["export", str(data), "-o", str(out), "--samples-per-shard", "2"]) == 1
+    assert_one_line_error(capsys.readouterr().err, "no space left on device")
+    assert not leftovers(out) and len(list(out.glob("shard-*.tar"))) == 2
+    monkeypatch.setattr(file_io.os, "fsync", real)  # space freed: the same command finishes the export
+    assert cli.main(["export", str(data), "-o", str(out), "--samples-per-shard", "2"]) == 0
+    assert "2 found done by an earlier run" in capsys.readouterr().out
+    unbroken = export_webdataset(data, tmp_path / "unbroken", samples_per_shard=2)
+    assert [s["sha256"] for s in unbroken.shards] == [
+        s["sha256"] for s in ds.layout.load_json(out / "index.json")["shards"]]
