@@ -29,7 +29,7 @@ from generator.scene_spec import (
     RenderSettings,
     SceneObject,
     SceneSpec,
-    SensorModel,
+    SensorSettings,
     Texture,
 )
 
@@ -329,11 +329,11 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         lights=lights,
         poses=_poses(rng, config, base_pose),
         objects=tuple(objects),
-        sensor=sensor_model(config),
+        sensor=sensor_settings(config),
         masks=config.masks,
     )
 
 
-def sensor_model(config: Config) -> SensorModel:
+def sensor_settings(config: Config) -> SensorSettings:
     """The config's [sensor] parameters at its render scale."""
-    return SensorModel(**asdict(config.sensor), pixel_scale=config.rig.scale)
+    return SensorSettings(**asdict(config.sensor), pixel_scale=config.rig.scale)

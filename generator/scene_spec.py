@@ -104,8 +104,9 @@ class SensorConfig(Checked):
 
 
 @dataclass(frozen=True)
-class SensorModel(SensorConfig):
-    """One scene's sensor model: the config's [sensor] at the render scale."""
+class SensorSettings(SensorConfig):
+    """One scene's sensor settings: the config's [sensor] at the render scale (the sensor model,
+    generator/sensor_model.py, applies them)."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
                                  "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.0,
                                  low_open=True)
@@ -287,7 +288,7 @@ class SceneSpec(Checked):
     lights: tuple[Light, ...]
     poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera per frame
     objects: tuple[SceneObject, ...]
-    sensor: SensorModel
+    sensor: SensorSettings
     masks: MaskParams
 
     def __post_init__(self) -> None:
@@ -349,7 +350,7 @@ class SceneSpec(Checked):
             poses=_poses(d["poses"], f"{_WHERE}: poses"),
             objects=tuple(SceneObject.from_dict(obj, f"{_WHERE}: objects[{k}]")
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
-            sensor=SensorModel.from_dict(d["sensor"], f"{_WHERE}: sensor"),
+            sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             **one_key,
         )

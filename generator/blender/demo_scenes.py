@@ -15,7 +15,7 @@ from dataclasses import asdict
 import numpy as np
 
 from generator.config import Config
-from generator.sample_scene import sensor_model
+from generator.sample_scene import sensor_settings
 
 IDENTITY_POSE = np.eye(4).tolist()
 
@@ -52,7 +52,7 @@ def base_spec(
         "lights": lights or [],
         "poses": poses or [IDENTITY_POSE],
         "objects": [],
-        "sensor": {**sensor_model(Config()).to_dict(), "pixel_scale": pixel_scale},
+        "sensor": {**sensor_settings(Config()).to_dict(), "pixel_scale": pixel_scale},
         "masks": asdict(Config().masks),
     }
 
