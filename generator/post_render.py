@@ -22,7 +22,7 @@ from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import Rig, depth_to_projector_column
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import apply_sensor_model, exposure_gain
+from generator.sensor_model import SensorModel
 
 RAW_PASSES = ("projector", "flood", "ambient", "depth", "projector_direct", "flood_direct")
 
@@ -46,21 +46,20 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
                where: str = "frame") -> dict[str, np.ndarray]:
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
     spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise."""
-    rig, masks, sensor = spec.rig, spec.masks, spec.sensor
+    rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, rig, where)
     depth = np.where(raw["depth"] >= NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
     signal = ambient + raw["projector"]
-    gain = exposure_gain(signal, sensor)  # once: the sensor model and the mask share it
+    gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
         raw["projector_direct"], raw["flood_direct"], signal - raw["projector_direct"],
-        gain, sensor.read_noise, sensor.shot_noise,
-        masks.visibility_margin, sensor.blur_sigma * sensor.pixel_scale,
+        gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
     return {
-        "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale, gain),
+        "ir": sensor.apply(signal, rng, gain),
         "ambient": ambient,
         "flood": flood,
         "depth": depth,
