@@ -349,7 +349,26 @@ def config_reference_markdown() -> str:
         "object), `room_size` (the walls are the farthest surfaces), and the light: the projector's "
         "power against `world_strength` and the sensor's noise decide how far dots stay visible (the "
         "mask's `visibility_margin` must not be loosened to get there: the network would learn from "
-        "pixels with no visible dot)."))
+        "pixels with no visible dot).\n\n"
+        "## Laser speckle\n\n"
+        "A laser projector's dots are speckled: the light a rough surface scatters interferes at the "
+        "sensor, so a dot's brightness varies from dot to dot and inside a dot, in a pattern that stays "
+        "put while the scene and the sensor stand still and changes when either moves. `[sensor] "
+        "speckle_contrast` = c (0, the default: off, the frames of before bit for bit) multiplies the "
+        "projector's light, direct and indirect (not the ambient light, not the flood), by 1 - c + c S "
+        "before the sensor model sees it (`generator/sensor_model.py` `speckle_field`). S is fully "
+        "developed speckle: the intensity of a circular complex Gaussian field, with negative-exponential "
+        "statistics (contrast 1) and an intensity autocorrelation that is a Gaussian of full width at half "
+        "maximum `speckle_grain` (full-resolution camera px, scaled by `[rig] scale`; the camera's "
+        "aperture sets it, about the size of its blur); the unspeckled part 1 - c stands for partly "
+        "coherent light (several laser modes). The model's source: J. W. Goodman, *Speckle Phenomena in "
+        "Optics* (2007), chapter 3 (first-order statistics of fully developed speckle, and of speckle "
+        "plus a coherent or incoherent background) and chapter 4 (its autocorrelation, set by the imaging "
+        "aperture). Each frame's speckle is seeded by the scene's seed and the frame's pose "
+        "(`generator.sample_scene.frame_speckle_rng`): frames of one pose (`[motion] translation = 0` "
+        "and `rotation = 0` make a scene a static recording of 4 frames) share it, as a real static "
+        "recording does, while the sensor noise changes from frame to frame. The visibility mask sees the "
+        "speckled direct light: a dot that speckle dims below the noise is not visible."))
 
 
 if __name__ == "__main__":

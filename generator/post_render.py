@@ -6,7 +6,7 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   projector_direct, flood_direct  the projector's and the flood's direct light alone (included in
   projector and flood).
 Stored channels (dotsim.dataset.FRAME_CHANNELS):
-  ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
+  ir = sensor model (ambient + projector x laser speckle); ambient as rendered; flood = ambient + flood (the
   projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
   frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column
@@ -21,6 +21,7 @@ import numpy as np
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import Rig, depth_to_projector_column
 from generator.blender.geometry import NO_HIT_DEPTH
+from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec
 from generator.sensor_model import SensorModel
 
@@ -43,19 +44,28 @@ def check_raw_passes(raw: dict, rig: Rig, where: str) -> dict[str, np.ndarray]:
 
 
 def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
-               where: str = "frame") -> dict[str, np.ndarray]:
+               where: str = "frame", frame: int | None = None) -> dict[str, np.ndarray]:
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
-    spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise."""
+    spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise. frame:
+    the frame's index in spec.poses, whose pose seeds the laser speckle (needed when the sensor has
+    speckle: the projector's light, direct and all, is multiplied by it before the sensor sees it)."""
     rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, rig, where)
     depth = np.where(raw["depth"] >= NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
-    signal = ambient + raw["projector"]
+    projector, projector_direct = raw["projector"], raw["projector_direct"]
+    if sensor.has_speckle:
+        if frame is None or not 0 <= frame < len(spec.poses):
+            raise ValueError(f"{where}: frame = {frame}: the sensor's speckle needs the frame's index "
+                             f"in the spec's poses, 0 to {len(spec.poses) - 1}")
+        speckle = sensor.speckle(depth.shape, frame_speckle_rng(spec.seed, spec.poses[frame]))
+        projector, projector_direct = projector * speckle, projector_direct * speckle
+    signal = ambient + projector
     gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
-        raw["projector_direct"], raw["flood_direct"], signal - raw["projector_direct"],
+        projector_direct, raw["flood_direct"], signal - projector_direct,
         gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
     return {

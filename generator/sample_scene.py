@@ -57,6 +57,15 @@ def frame_sensor_rng(base_seed: int, scene_index: int, frame: int) -> np.random.
                                                         spawn_key=(STREAM_SENSOR, frame)))
 
 
+def frame_speckle_rng(scene_seed: int, pose: np.ndarray) -> np.random.Generator:
+    """The laser speckle's generator of one frame: seeded by the scene's seed and the frame's pose
+    (its 4 x 4 world_from_camera, bit for bit), so speckle stays put while the scene and the sensor
+    stand still (two frames of one pose have the same speckle, as a static recording does) and
+    changes with the pose; the sensor noise (frame_sensor_rng) changes from frame to frame."""
+    words = np.ascontiguousarray(pose, np.float64).view(np.uint32).ravel()
+    return np.random.default_rng(np.random.SeedSequence([scene_seed, *words.tolist()]))
+
+
 def scene_seed(base_seed: int, scene_index: int) -> int:
     """A 31-bit integer identifying the scene's random state (recorded; also seeds Cycles)."""
     return int(np.random.SeedSequence((base_seed, scene_index)).generate_state(1)[0] >> 1)

@@ -1,8 +1,9 @@
 """The infrared sensor model: rendered radiance (ambient + projector) -> the IR image the sensor sees.
 
 Pure numpy/scipy and seeded. Levels are fractions of the sensor's full scale (1.0 = saturation).
-Steps, in the order light meets a sensor: exposure, bloom (over-bright light spreading into its
-surroundings), optical blur, shot and read noise, clipping, quantisation to the bit depth.
+Steps, in the order light meets a sensor: laser speckle on the projector's light (speckle_field,
+applied by the post-render to the projector's passes), exposure, bloom (over-bright light spreading
+into its surroundings), optical blur, shot and read noise, clipping, quantisation to the bit depth.
 The ambient and flood passes get none of this (as in GigaDepth's renders).
 
 `SensorModel` is the one place that knows the model: it applies it (`apply`) and says how much
@@ -19,6 +20,9 @@ from scipy.ndimage import gaussian_filter
 
 from generator.scene_spec import SensorSettings
 
+# Full width at half maximum of a Gaussian over its standard deviation: 2 sqrt(2 ln 2).
+FWHM_PER_SIGMA = 2.3548200450309493
+
 
 def expose(signal: np.ndarray, gain: float) -> np.ndarray:
     """Radiance -> level (full scale 1): signal times the gain."""
@@ -31,6 +35,34 @@ def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) ->
         return level
     excess = np.maximum(level - threshold, 0.0)
     return level + strength * gaussian_filter(excess, sigma, mode="nearest")
+
+
+def speckle_field(shape: tuple[int, int], contrast: float, grain_px: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Laser speckle as a factor (H, W) on the projector's light: mean 1, standard deviation `contrast`.
+
+    Coherent light scattered by a rough surface and imaged by a lens is speckled: the field at the
+    sensor is a sum of many random phasors, a circular complex Gaussian, and its intensity S = |E|^2
+    has negative-exponential statistics (mean = standard deviation: contrast 1, "fully developed").
+    E here is complex white noise blurred by a Gaussian of sigma s = grain_px / 2.3548 (the lens's
+    aperture sets the grain), so S's autocorrelation is exp(-r^2 / 2 s^2): grain_px is its full width
+    at half maximum. Light that is only partly coherent (several laser modes, a moving diffuser)
+    adds an unspeckled part; the factor is 1 - contrast + contrast x S (J. W. Goodman, Speckle
+    Phenomena in Optics, 2007, chapters 3 and 4). Never negative; periodic at the image border.
+
+    >>> rng = np.random.default_rng(0)
+    >>> field = speckle_field((512, 512), 0.4, 3.0, rng)
+    >>> round(float(field.mean()), 1), round(float(field.std()), 1), bool(field.min() >= 0.6)
+    (1.0, 0.4, True)
+    """
+    sigma = grain_px / FWHM_PER_SIGMA
+    # white noise of variance 1 per part, blurred: each part's variance is then the kernel's energy
+    impulse = np.zeros(2 * int(np.ceil(4 * sigma)) + 1)
+    impulse[impulse.size // 2] = 1.0
+    energy = float((gaussian_filter(impulse, sigma, mode="constant") ** 2).sum()) ** 2
+    parts = [gaussian_filter(rng.standard_normal(shape), sigma, mode="wrap") for _ in range(2)]
+    intensity = (parts[0] ** 2 + parts[1] ** 2) / (2 * energy)
+    return 1.0 - contrast + contrast * intensity
 
 
 def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
@@ -58,6 +90,16 @@ class SensorModel:
     def blur_px(self) -> float:
         """The optical blur's Gaussian sigma in render pixels (blur_sigma is in full-resolution px)."""
         return self.settings.blur_sigma * self.settings.pixel_scale
+
+    @property
+    def has_speckle(self) -> bool:
+        return self.settings.speckle_contrast > 0
+
+    def speckle(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+        """The laser speckle factor (H, W) of one frame (speckle_field at the render scale); rng: a
+        stream fixed for the scene and the pose (generator.sample_scene.frame_speckle_rng)."""
+        s = self.settings
+        return speckle_field(shape, s.speckle_contrast, s.speckle_grain * s.pixel_scale, rng)
 
     def exposure_gain(self, signal: np.ndarray) -> float:
         """Level (full scale 1) per unit radiance for this frame. fixed: the settings' gain. auto: the

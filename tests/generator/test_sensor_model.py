@@ -11,7 +11,7 @@ import pytest
 from dotsim.masks import direct_visibility_mask
 from generator import sensor_model
 from generator.scene_spec import SensorSettings
-from generator.sensor_model import SensorModel, bloom, quantise
+from generator.sensor_model import SensorModel, bloom, quantise, speckle_field
 
 # No blur, no bloom, 16 bits: only the part under test acts.
 PLAIN = SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
@@ -115,3 +115,29 @@ def test_seeded_and_deterministic():
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
     assert a.dtype == np.float32 and a.min() >= 0 and a.max() <= 1
+
+
+@pytest.mark.parametrize("contrast, grain", [(1.0, 3.0), (0.3, 6.0)])
+def test_speckle_field_has_its_contrast_and_grain(contrast, grain):
+    """Mean 1, standard deviation `contrast`, never below 1 - contrast, and an intensity
+    autocorrelation (computed here by FFT) that falls to half at grain / 2 px."""
+    field = speckle_field((512, 512), contrast, grain, np.random.default_rng(4))
+    assert field.mean() == pytest.approx(1.0, abs=0.02)
+    assert field.std() == pytest.approx(contrast, rel=0.03)
+    assert field.min() >= 1 - contrast
+    spectrum = np.fft.fft2(field - field.mean())
+    autocorrelation = np.fft.ifft2(np.abs(spectrum) ** 2).real
+    profile = (autocorrelation[0, :16] + autocorrelation[:16, 0]) / (2 * autocorrelation[0, 0])
+    half = np.interp(0.5, profile[::-1], np.arange(16)[::-1])  # the profile falls monotonically here
+    assert 2 * half == pytest.approx(grain, rel=0.05)
+    # fully developed speckle is negative-exponential: P(S > 2) = exp(-2)
+    if contrast == 1.0:
+        assert np.mean(field > 2) == pytest.approx(np.exp(-2), rel=0.1)
+
+
+def test_speckle_grain_scales_with_render_resolution():
+    model = SensorModel(dataclasses.replace(PLAIN, speckle_contrast=1.0, speckle_grain=8.0, pixel_scale=0.5))
+    a = model.speckle((256, 256), np.random.default_rng(5))
+    b = speckle_field((256, 256), 1.0, 4.0, np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    assert not SensorModel(PLAIN).has_speckle and model.has_speckle
