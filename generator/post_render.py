@@ -6,8 +6,9 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   projector_direct, flood_direct  the projector's and the flood's direct light alone (included in
   projector and flood).
 Stored channels (dotsim.dataset.FRAME_CHANNELS):
-  ir = sensor model (ambient + projector x laser speckle); ambient as rendered; flood = ambient + flood (the
-  projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
+  ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered;
+  flood = ambient + flood (the projector replaced by a rectangle, as in GigaDepth's Unity sim; no
+  sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
   frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column
   (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth. disparity is not
@@ -48,7 +49,7 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
     spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise. frame:
     the frame's index in spec.poses, whose pose seeds the laser speckle (needed when the sensor has
-    speckle: the projector's light, direct and all, is multiplied by it before the sensor sees it)."""
+    speckle: the projector's direct light is multiplied by it before the sensor sees it)."""
     rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, rig, where)
     depth = np.where(raw["depth"] >= NO_HIT_DEPTH, np.inf, raw["depth"]).astype(np.float32)
@@ -61,7 +62,8 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator,
             raise ValueError(f"{where}: frame = {frame}: the sensor's speckle needs the frame's index "
                              f"in the spec's poses, 0 to {len(spec.poses) - 1}")
         speckle = sensor.speckle(depth.shape, frame_speckle_rng(spec.seed, spec.poses[frame]))
-        projector, projector_direct = projector * speckle, projector_direct * speckle
+        speckled = projector_direct * speckle
+        projector, projector_direct = projector + (speckled - projector_direct), speckled
     signal = ambient + projector
     gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(

@@ -101,8 +101,9 @@ class SensorConfig(Checked):
                                 low=0.0, high=1.0)
     bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
                              high=16)
-    speckle_contrast: float = setting(0.0, "laser speckle on the projector's light: standard deviation of "
-                                      "its factor (mean 1; 0 = off, 1 = fully developed speckle); fixed "
+    speckle_contrast: float = setting(0.0, "laser speckle on the projector's direct light: standard "
+                                      "deviation of its factor (mean 1; 0 = off, 1 = fully developed "
+                                      "speckle); fixed "
                                       "for a scene and pose, another for another pose (\"Laser speckle\" "
                                       "above)", low=0.0, high=1.0)
     speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "

@@ -1,9 +1,10 @@
 """The infrared sensor model: rendered radiance (ambient + projector) -> the IR image the sensor sees.
 
 Pure numpy/scipy and seeded. Levels are fractions of the sensor's full scale (1.0 = saturation).
-Steps, in the order light meets a sensor: laser speckle on the projector's light (speckle_field,
-applied by the post-render to the projector's passes), exposure, bloom (over-bright light spreading
-into its surroundings), optical blur, shot and read noise, clipping, quantisation to the bit depth.
+Steps, in the order light meets a sensor: laser speckle on the projector's direct light
+(speckle_field, applied by the post-render to the projector's passes), exposure, bloom (over-bright
+light spreading into its surroundings), optical blur, shot and read noise, clipping, quantisation to
+the bit depth.
 The ambient and flood passes get none of this (as in GigaDepth's renders).
 
 `SensorModel` is the one place that knows the model: it applies it (`apply`) and says how much
@@ -39,7 +40,8 @@ def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) ->
 
 def speckle_field(shape: tuple[int, int], contrast: float, grain_px: float,
                   rng: np.random.Generator) -> np.ndarray:
-    """Laser speckle as a factor (H, W) on the projector's light: mean 1, standard deviation `contrast`.
+    """Laser speckle as a factor (H, W) on the projector's direct light: mean 1, standard deviation
+    `contrast`.
 
     Coherent light scattered by a rough surface and imaged by a lens is speckled: the field at the
     sensor is a sum of many random phasors, a circular complex Gaussian, and its intensity S = |E|^2
