@@ -371,7 +371,9 @@ def config_reference_markdown() -> str:
         "(`generator.sample_scene.frame_speckle_rng`): frames of one pose (`[motion] translation = 0` "
         "and `rotation = 0` make a scene a static recording of 4 frames) share it, as a real static "
         "recording does, while the sensor noise changes from frame to frame. The visibility mask sees the "
-        "speckled direct light: a dot that speckle dims below the noise is not visible."))
+        "speckled direct light: a dot that speckle dims below the noise is not visible. `dotsim capture "
+        "fit-sensor` measures a real sensor's speckle, noise and blur and writes the `[sensor]` table "
+        "that matches it (docs/CAPTURE.md \"Fitting the sensor\")."))
 
 
 if __name__ == "__main__":
