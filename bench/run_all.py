@@ -32,6 +32,7 @@ BENCHMARKS = {
     "trainer_gpu": ["--repeats", "3", "--train-steps", "3", "--backbones", "conv"],  # skips without CUDA
     "scene_cost": ["--scales", "0.1", "--scenes", "1"],
     "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
+    "sensor_fit": ["--scale", "0.2", "--scenes", "1"],
 }
 
 

@@ -475,10 +475,12 @@ def _fit_sensor(args: argparse.Namespace) -> int:
         if args.speckle_grain is not None and not 0 < args.speckle_grain <= 100:
             raise CaptureError(f"--speckle-grain {args.speckle_grain}: allowed: 0 < x <= 100 "
                                "(full-resolution px)")
-        stats = measure(open_recording(args.recording, args.off, args.white_level))
-        reference = measure(open_recording([str(args.compare)])) if args.compare is not None else None
-        if reference is not None and reference.recording.kind != "rendered":
-            raise CaptureError(f"--compare {args.compare}: not a rendering of `dotsim generate`")
+        recording = open_recording(args.recording, args.off, args.white_level)
+        rendering = open_recording([str(args.compare)]) if args.compare is not None else None
+        if rendering is not None and rendering.kind != "rendered":
+            raise CaptureError(f"--compare {args.compare}: a recording, not a rendering of `dotsim generate`")
+        stats = measure(recording)
+        reference = measure(rendering) if rendering is not None else None
         fitted = fit(stats, reference, args.speckle_grain)
     except (CaptureError, ConfigError) as error:
         return _fail("fit-sensor", error)

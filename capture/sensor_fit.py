@@ -171,7 +171,7 @@ def measure(recording: StaticRecording) -> SensorStatistics:
         exposure.append(np.percentile(on_mean, EXPOSURE_PERCENTILE))
         if scene.off is not None:
             ratios.append(_ambient_ratio(on_mean, scene.off.mean(axis=0), scene.where))
-    if levels.saturated_share > MAX_SATURATED_SHARE and levels.saturation() is not None:
+    if levels.saturated_share > MAX_SATURATED_SHARE:
         raise CaptureError(f"{recording.name}: saturated: {100 * levels.saturated_share:.1f}% of the "
                            f"projector-on samples are at the saturation level {levels.highest:.4g} (allowed: "
                            f"at most {100 * MAX_SATURATED_SHARE:g}%); lower the exposure, the gain or the "
@@ -289,6 +289,9 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         grain = SensorConfig().speckle_grain if grain is None else grain
     values["speckle_grain"] = grain
     notes["speckle_grain"] = "assumed (not measured)"
+    if reference is not None and (reference.recording.sensor or {}).get("blur_sigma", 0) > 0:
+        notes["speckle_contrast"] = ("the rendering has blur_sigma > 0: speckle falls on its blurred dots, "
+                                     "and the contrast comes out high; render it with blur_sigma = 0")
     if reference is None:
         grain_px = grain * stats.recording.pixel_scale / FWHM_PER_SIGMA
         kappa = grain_px**2 / (grain_px**2 + stats.dot_sigma.value**2)
@@ -300,7 +303,7 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         blur, contrast = _calibrated(stats, reference, grain)
         values["blur_sigma"], errors["blur_sigma"] = _rounded(blur)
         notes["blur_sigma"] = "rendered dots as wide as the recorded ones"
-        notes["speckle_contrast"] = "calibrated on the rendering's own dots"
+        notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
     values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
     SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
     return SensorFit(values, errors, notes)
@@ -322,7 +325,9 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics,
     b_x are as wide as the recorded ones (in render px: their width times the rendering's image width
     over the recording's), and blur_sigma = sqrt(b_r^2 + b_x^2) / the rendering's scale. The speckle:
     the rendering's mean frames blurred by b_x, with a speckle field of contrast c and the grain on
-    the light of their dots, are measured as the recording is; c is found where their brightness
+    the light of their dots, are measured as the recording is (the speckle falls on the rendering's
+    dots as they are: with no blur of their own, as the sensor model's falls on unblurred dots, when
+    the rendering has blur_sigma = 0); c is found where their brightness
     spread equals the recording's (the spread grows with c: regula falsi, Illinois' way, from
     [0, 1]), and combined with the rendering's own speckle c_r as factors multiply:
     1 + c_new^2 = (1 + c_r^2)(1 + c^2)."""
