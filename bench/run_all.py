@@ -34,6 +34,7 @@ BENCHMARKS = {
     "scene_cost": ["--scales", "0.1", "--scenes", "1"],
     "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
     "generate_cost": ["--pairs", "1", "--scale", "0.05", "--objects", "5", "--threads", "1"],
+    "sensor_fit": ["--scale", "0.2", "--scenes", "1"],
 }
 
 

@@ -1,4 +1,5 @@
-"""`dotsim capture`: import recorded sensor frames as a dataset, or extract a pattern from wall captures."""
+"""`dotsim capture`: import recorded sensor frames as a dataset, extract a pattern from wall captures, or
+fit the simulated sensor to a recording (fit-sensor)."""
 
 from __future__ import annotations
 
@@ -254,6 +255,42 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_output(info, "rig file to write (.json)", metavar="JSON", old=("--output",), dest="output", type=Path)
     info.set_defaults(func=_info)
 
+    fit = actions.add_parser(
+        "fit-sensor",
+        help="fit the simulated sensor to a recording: noise, levels, dot size, speckle; a [sensor] table",
+        description="Measure a recording of a still scene the way camera characterisation does (EMVA 1288's "
+        "photon transfer: temporal variance against mean level gives read and shot noise; black level, "
+        "saturation, bit depth), its dots (FWHM of isolated dots on flat regions, their brightness spread: "
+        "laser speckle; peak signal-to-noise ratio; dots per area by depth where depth is known) and the "
+        "ambient light over the projector's (with projector-off frames); print them with their standard "
+        "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml) and a drawing "
+        "(OUTPUT.png). At least 4 frames of the still scene (16 or more recommended); with one frame the "
+        "noise comes from flat regions of it (spatial statistics), and it says so. With --compare, the same "
+        "statistics of a rendering of your config side by side, and blur_sigma and speckle_contrast set so "
+        "its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
+    )
+    fit.add_argument("recording", nargs="+", metavar="RECORDING",
+                     help="projector-on frames of a still scene: image files, folders or quoted globs "
+                     "(8/16-bit PNG or EXR, raw sensor values); or one dataset from `capture record` / "
+                     "`capture import` (each scene a still scene; ir on, ambient off) or a static rendering "
+                     "of `dotsim generate`")
+    fit.add_argument("--off", nargs="+", metavar="IMG", default=[],
+                     help="projector-off frames of the same still scene (image recordings; a dataset's are "
+                     "its ambient frames): the ambient light, and more levels for the noise")
+    fit.add_argument("--white-level", type=number(0.0, low_open=True),
+                     help="raw value of full scale (default: the files' full scale: 255, 65535, or 1 for "
+                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
+    fit.add_argument("--compare", type=Path, metavar="DATASET",
+                     help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
+                     "translation = 0 and rotation = 0): its statistics beside the recording's, and "
+                     "blur_sigma and speckle_contrast fitted against it")
+    fit.add_argument("--speckle-grain", type=number(0.0, 100.0, low_open=True),
+                     help="the speckle grain assumed, full-resolution px ([sensor] speckle_grain; default: "
+                     "the --compare rendering's, else 2)")
+    add_output(fit, "the [sensor] table to write (.toml); the drawing goes beside it (.png)",
+               metavar="SENSOR.toml", old=("--output",), dest="output", type=Path)
+    fit.set_defaults(func=_fit_sensor)
+
 
 def _size(text: str) -> tuple[int, int]:
     width, _, height = text.partition("x")
@@ -465,6 +502,40 @@ def _record(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 128 + summary["signal"] if summary["signal"] else 1
     print(f"recorded {kept}")
+    return 0
+
+
+def _fit_sensor(args: argparse.Namespace) -> int:
+    from capture.fit_report import draw_report, report_text, sensor_toml
+    from capture.sensor_fit import fit, measure
+    from capture.static_recording import open_recording
+    from dotsim.config_schema import ConfigError
+    from dotsim.images import write_image
+
+    start = time.perf_counter()
+    try:
+        if args.output.suffix.lower() != ".toml":
+            raise CaptureError(f"-o {args.output}: the [sensor] table is written as a .toml file")
+        if not args.output.parent.is_dir():
+            raise CaptureError(f"-o {args.output}: folder {args.output.parent} does not exist")
+        check_writable_folder(args.output.parent, "-o")
+        recording = open_recording(args.recording, args.off, args.white_level)
+        rendering = open_recording([str(args.compare)]) if args.compare is not None else None
+        if rendering is not None and rendering.kind != "rendered":
+            raise CaptureError(f"--compare {args.compare}: a recording, not a rendering of `dotsim generate`")
+        stats = measure(recording)
+        reference = measure(rendering) if rendering is not None else None
+        fitted = fit(stats, reference, args.speckle_grain)
+    except (CaptureError, ConfigError) as error:
+        return _fail("fit-sensor", error)
+    header = (f"dotsim capture fit-sensor {' '.join(args.recording)}"
+              + (f" --compare {args.compare}" if args.compare else "")
+              + ": the simulated sensor fitted to this recording; paste into a generator config")
+    # the drawing first: the table appearing means both are there
+    drawing = write_image(args.output.with_suffix(".png"), draw_report(stats, reference))
+    atomic_write_bytes(args.output, sensor_toml(fitted, header).encode())
+    print(report_text(stats, fitted, reference))
+    print(f"wrote {args.output} and {drawing} in {time.perf_counter() - start:.1f} s")
     return 0
 
 

@@ -44,7 +44,7 @@ from generator.scene_spec import (
     RenderConfig,
     SceneSpec,
     SensorConfig,
-    SensorModel,
+    SensorSettings,
     Texture,
 )
 
@@ -70,7 +70,8 @@ class RigConfig(Checked):
                                   "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
                                   path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
-                           "width and height, same field of view)", **bounds_of(SensorModel, "pixel_scale"))
+                           "width and height, same field of view)",
+                           **bounds_of(SensorSettings, "pixel_scale"))
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
                               "file's)",
                               low=-0.5, high=0.5)
@@ -447,7 +448,31 @@ def config_reference_markdown() -> str:
         "object), `room_size` (the walls are the farthest surfaces), and the light: the projector's "
         "power against `world_strength` and the sensor's noise decide how far dots stay visible (the "
         "mask's `visibility_margin` must not be loosened to get there: the network would learn from "
-        "pixels with no visible dot)."))
+        "pixels with no visible dot).\n\n"
+        "## Laser speckle\n\n"
+        "A laser projector's dots are speckled: the light a rough surface scatters interferes at the "
+        "sensor, so a dot's brightness varies from dot to dot and inside a dot, in a pattern that stays "
+        "put while the scene and the sensor stand still and changes when either moves. `[sensor] "
+        "speckle_contrast` = c (0, the default: off, the frames of before bit for bit) multiplies the "
+        "projector's direct light (not its indirect light, not the ambient light, not the flood) by "
+        "1 - c + c S before the sensor model sees it (`generator/sensor_model.py` `speckle_field`). "
+        "Indirect light reaches a pixel over paths metres apart, far beyond the coherence length of "
+        "the laser diodes such projectors use (millimetres), so its many speckle patterns add up "
+        "incoherently and average out. S is fully "
+        "developed speckle: the intensity of a circular complex Gaussian field, with negative-exponential "
+        "statistics (contrast 1) and an intensity autocorrelation that is a Gaussian of full width at half "
+        "maximum `speckle_grain` (full-resolution camera px, scaled by `[rig] scale`; the camera's "
+        "aperture sets it, about the size of its blur); the unspeckled part 1 - c stands for partly "
+        "coherent light (several laser modes). The model's source: J. W. Goodman, *Speckle Phenomena in "
+        "Optics* (2007), chapter 3 (first-order statistics of fully developed speckle, and of speckle "
+        "plus a coherent or incoherent background) and chapter 4 (its autocorrelation, set by the imaging "
+        "aperture). Each frame's speckle is seeded by the scene's seed and the frame's pose "
+        "(`generator.sample_scene.frame_speckle_rng`): frames of one pose (`[motion] translation = 0` "
+        "and `rotation = 0` make a scene a static recording of 4 frames) share it, as a real static "
+        "recording does, while the sensor noise changes from frame to frame. The visibility mask sees the "
+        "speckled direct light: a dot that speckle dims below the noise is not visible. `dotsim capture "
+        "fit-sensor` measures a real sensor's speckle, noise and blur and writes the `[sensor]` table "
+        "that matches it (docs/CAPTURE.md \"Fitting the sensor\")."))
 
 
 if __name__ == "__main__":

@@ -9,8 +9,9 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   spec renders the stereo pair (SceneSpec.cameras).
 Stored channels (dotsim.channels, the channels' one declaration: make_frame gives exactly the
 rendered ones it stores):
-  ir = sensor model (ambient + projector); ambient as rendered; flood = ambient + flood (the
-  projector replaced by a rectangle, as in GigaDepth's Unity sim; no sensor effects on either);
+  ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered;
+  flood = ambient + flood (the projector replaced by a rectangle, as in GigaDepth's Unity sim; no
+  sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
   frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column
   (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth. disparity is not
@@ -32,8 +33,9 @@ from dotsim.rig import depth_to_projector_column
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
+from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import apply_sensor_model, exposure_gain
+from generator.sensor_model import SensorModel
 
 
 def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
@@ -66,25 +68,31 @@ def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.nda
 
 
 def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str = "frame",
-               right_rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+               right_rng: np.random.Generator | None = None, frame: int | None = None
+               ) -> dict[str, np.ndarray]:
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
     spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise, and
-    `right_rng` (needed when the spec renders the stereo pair) the right camera's."""
-    rig, masks, sensor = spec.rig, spec.masks, spec.sensor
+    `right_rng` (needed when the spec renders the stereo pair) the right camera's. frame: the frame's
+    index in spec.poses, whose pose seeds the laser speckle (needed when the sensor has speckle: the
+    projector's direct light is multiplied by it before the sensor sees it)."""
+    rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, spec, where)
     depth = _depth(raw["depth"])
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
-    signal = ambient + raw["projector"]
-    gain = exposure_gain(signal, sensor)  # once: the sensor model and the mask share it
+    if sensor.has_speckle and (frame is None or not 0 <= frame < len(spec.poses)):
+        raise ValueError(f"{where}: frame = {frame}: the sensor's speckle needs the frame's index in the "
+                         f"spec's poses, 0 to {len(spec.poses) - 1}")
+    projector, projector_direct = _speckled(raw, "", sensor, spec, frame)
+    signal = ambient + projector
+    gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
-        raw["projector_direct"], raw["flood_direct"], signal - raw["projector_direct"],
-        gain, sensor.read_noise, sensor.shot_noise,
-        masks.visibility_margin, sensor.blur_sigma * sensor.pixel_scale,
+        projector_direct, raw["flood_direct"], signal - projector_direct,
+        gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
     made = {
-        "ir": apply_sensor_model(signal, sensor, rng, sensor.pixel_scale, gain),
+        "ir": sensor.apply(signal, rng, gain),
         "ambient": ambient,
         "flood": flood,
         "depth": depth,
@@ -97,11 +105,24 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
             raise ValueError(f"{where}: the spec renders the stereo pair; the right camera needs a noise "
                              f"stream of its own (right_rng)")
         right = spec.cameras[1]
-        right_signal = raw["ambient_right"] + raw["projector_right"]
-        made["ir_right"] = apply_sensor_model(right_signal, sensor, right_rng, sensor.pixel_scale, gain)
+        right_signal = raw["ambient_right"] + _speckled(raw, right.suffix, sensor, spec, frame)[0]
+        made["ir_right"] = sensor.apply(right_signal, right_rng, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
+
+
+def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, frame: int | None):
+    """(projector, projector_direct) of one camera (its raw passes' `suffix`) with the laser speckle
+    on the direct light, or as rendered without speckle. Each camera has a field of its own: speckle
+    is seen through the camera's own aperture, and two imagers centimetres apart see uncorrelated
+    speckle (Goodman 2007)."""
+    projector, direct = raw["projector" + suffix], raw["projector_direct" + suffix]
+    if not sensor.has_speckle:
+        return projector, direct
+    camera = 1 if suffix else 0
+    speckled = direct * sensor.speckle(direct.shape, frame_speckle_rng(spec.seed, spec.poses[frame], camera))
+    return projector + (speckled - direct), speckled
 
 
 def _depth(raw_depth: np.ndarray) -> np.ndarray:

@@ -154,7 +154,7 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
                          f"{len(spec.poses)} poses")
     threads = post_render_threads(job.config)
     frames = map_in_threads(lambda k: make_frame(raw_frames[k], spec, frame_sensor_rng(job.seed, index, k),
-                                                 where=f"scene {index} frame {k}",
+                                                 where=f"scene {index} frame {k}", frame=k,
                                                  right_rng=frame_sensor_rng(job.seed, index, k, camera=1)),
                             range(len(raw_frames)), threads)
     dataset.write_scene(job.out, index, scene_meta(job, spec), frames, channels=frame_channels(spec),

@@ -101,14 +101,28 @@ class SensorConfig(Checked):
                                 low=0.0, high=1.0)
     bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
                              high=16)
+    speckle_contrast: float = setting(0.0, "laser speckle on the projector's direct light: standard "
+                                      "deviation of its factor (mean 1; 0 = off, 1 = fully developed "
+                                      "speckle); fixed "
+                                      "for a scene and pose, another for another pose (\"Laser speckle\" "
+                                      "above)", low=0.0, high=1.0)
+    speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "
+                                   "intensity autocorrelation, full-resolution px", low=0.0, high=100.0,
+                                   low_open=True)
 
 
 @dataclass(frozen=True)
-class SensorModel(SensorConfig):
-    """One scene's sensor model: the config's [sensor] at the render scale."""
+class SensorSettings(SensorConfig):
+    """One scene's sensor settings: the config's [sensor] at the render scale (the sensor model,
+    generator/sensor_model.py, applies them)."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
-                                 "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.02,
-                                 high=1.0)
+                                 "[rig] scale; bloom, blur and speckle sizes are full-resolution px)",
+                                 low=0.02, high=1.0)
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> SensorSettings:
+        """Specs from before the speckle keys read as without speckle."""
+        return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain"))
 
 
 @dataclass(frozen=True)
@@ -352,7 +366,7 @@ class SceneSpec(Checked):
     poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera (the rig's, its left camera's) per frame
     cameras: tuple[CameraView, ...]  # the rig's cameras each frame is rendered from
     objects: tuple[SceneObject, ...]
-    sensor: SensorModel
+    sensor: SensorSettings
     masks: MaskParams
 
     def __post_init__(self) -> None:
@@ -417,7 +431,7 @@ class SceneSpec(Checked):
             cameras=_cameras(d.get("cameras", camera_views(rig)), rig, f"{_WHERE}: cameras"),
             objects=tuple(SceneObject.from_dict(obj, f"{_WHERE}: objects[{k}]")
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
-            sensor=SensorModel.from_dict(d["sensor"], f"{_WHERE}: sensor"),
+            sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             **one_key,
         )

@@ -16,7 +16,7 @@ import numpy as np
 
 from dotsim.rig import Rig
 from generator.config import Config
-from generator.sample_scene import sensor_model
+from generator.sample_scene import sensor_settings
 from generator.scene_spec import camera_views
 
 IDENTITY_POSE = np.eye(4).tolist()
@@ -57,7 +57,7 @@ def base_spec(
         "poses": poses or [IDENTITY_POSE],
         "cameras": [camera.to_dict() for camera in camera_views(Rig.from_dict(rig), stereo)],
         "objects": [],
-        "sensor": {**sensor_model(Config()).to_dict(), "pixel_scale": pixel_scale},
+        "sensor": {**sensor_settings(Config()).to_dict(), "pixel_scale": pixel_scale},
         "masks": asdict(Config().masks),
     }
 
