@@ -15,6 +15,7 @@ from assets_manifest.cache import (
 )
 from assets_manifest.manifest import ManifestError, find_overlaps, load_manifest
 from assets_manifest.mesh_arrays import MeshError, load_mesh_npz
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.file_io import check_writable_folder
 from dotsim.option_types import integer
 
@@ -166,7 +167,7 @@ def add_parser(subparsers) -> None:
         help="processes building assets in parallel (default 0: one per CPU core); the result does not "
         "depend on it",
     )
-    build.add_argument("--no-progress", action="store_true", help="no progress bar (report lines only)")
+    add_no_progress(build)
     build.set_defaults(func=_build)
 
     check = actions.add_parser(
@@ -194,6 +195,7 @@ def add_parser(subparsers) -> None:
     preview.add_argument(
         "--cache", default=DEFAULT_CACHE_DIR, help=f"cache directory (default: {DEFAULT_CACHE_DIR})"
     )
-    preview.add_argument("-o", "--output", help="PNG to write (default: assets_<split>.png)")
+    add_output(preview, "PNG to write (default: assets_<split>.png)", metavar="PNG", required=False,
+               old=("--output",), dest="output")
     preview.add_argument("--count", type=integer(1), default=24, help="meshes and textures each (default 24)")
     preview.set_defaults(func=_preview)

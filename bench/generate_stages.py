@@ -45,11 +45,12 @@ REPO = Path(__file__).resolve().parent.parent
 FULL_WIDTH = 1216
 TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")  # trainer/data.py's
 # Stage rows: (label, function, caller or None). With a caller, the time of that call edge (the
-# stages make_frame calls); without, the function's own total (the writer's stages).
+# stages make_frame calls); without, the function's own total (the writer's stages). A function
+# renamed since is "old|new": whichever the side's code has.
 STAGES = (
     ("checks, depth, flood", "make_frame", None),
     ("exposure (auto gain)", "exposure_gain", "make_frame"),
-    ("sensor model (IR)", "apply_sensor_model", "make_frame"),
+    ("sensor model (IR)", "apply_sensor_model|apply", "make_frame"),
     ("visibility mask", "direct_visibility_mask", "make_frame"),
     ("edge mask", "edge_mask", "make_frame"),
     ("ground truth: projector column", "depth_to_projector_column", "make_frame"),
@@ -89,9 +90,11 @@ def stage_seconds(profile: cProfile.Profile) -> dict[str, float]:
                    if c == caller)
 
     out = {}
-    for label, name, caller in STAGES:
-        if name in by_name:  # a stage the side's code does not have is left out
-            out[label] = edge(name, caller) if caller else total(name)
+    for label, names, caller in STAGES:
+        for name in names.split("|"):
+            if name in by_name:  # a stage the side's code does not have is left out
+                out[label] = edge(name, caller) if caller else total(name)
+                break
     out["checks, depth, flood"] -= sum(out.get(label, 0.0) for label, _, caller in STAGES if caller)
     out["EXR encoding"] -= out["frame checks and dtypes"]
     out["other writing (scene.json, folders)"] -= sum(

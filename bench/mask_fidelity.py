@@ -14,7 +14,7 @@ out the 2 px band at depth edges (dotsim.masks.edge_mask) and 2 px at shadow bor
 - leak: share of cast-shadow pixels (facing the projector, inside its image) marked visible;
 - no dot: share of visible pixels without a dot that the sensor shows above the margin within
   5 x 5 px (noise-free dots: exposure gain x blurred projector pass, against margin x the noise
-  sigma at the ambient level, generator.sensor_model's exposure and noise);
+  sigma at the ambient level, generator.sensor_model.SensorModel's exposure and noise);
 - recall: share of directly lit pixels (cos > 0.2, nearer than 4 m) with such a dot marked visible;
 - pepper: share of directly lit pixels whose flood pass is below 5% of what the oracle's
   cos / r^2 predicts (scaled by the scene's median ratio, which absorbs power and albedo);
@@ -39,13 +39,14 @@ import cv2
 import numpy as np
 
 from bench.render_speed import bench_rig, bench_spec, correlation, scene_poses, write_inputs
-from dotsim.masks import edge_mask, noise_sigma, visibility_mask
+from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
 from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
 from generator.config import config_from_dict
 from generator.post_render import make_frame
+from generator.sample_scene import sensor_settings
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import exposure_gain
+from generator.sensor_model import SensorModel
 
 # name: (render.direct_light, the frame recipe: None for the spec's own)
 WAYS = {"old": ("separate", WITHOUT_DIRECT_LIGHT), "separate": ("separate", None), "shared": ("shared", None)}
@@ -85,19 +86,19 @@ def judged_regions(depth: np.ndarray, rig) -> tuple[np.ndarray, np.ndarray]:
     return _erode(lit, 2) & keep, _erode(shadow, 2) & keep
 
 
-def sensor_dots(raw: dict, sensor, pixel_scale: float, margin: float) -> np.ndarray:
+def sensor_dots(raw: dict, sensor: SensorModel, margin: float) -> np.ndarray:
     """Pixels with a dot the sensor shows above the noise margin within 5 x 5 px (noise-free)."""
     signal = raw["ambient"] + raw["projector"]
-    gain = exposure_gain(signal, sensor)
+    gain = sensor.exposure_gain(signal)
     dots = gain * raw["projector"].astype(np.float64)
-    dots = cv2.GaussianBlur(dots, (0, 0), sensor.blur_sigma * pixel_scale)
+    dots = cv2.GaussianBlur(dots, (0, 0), sensor.blur_px)
     nearby = cv2.dilate(dots, np.ones((5, 5), np.uint8))
-    return nearby > margin * noise_sigma(gain * raw["ambient"], sensor.read_noise, sensor.shot_noise)
+    return nearby > margin * sensor.sigma(gain * raw["ambient"])
 
 
 def fidelity(raw: dict, visible: np.ndarray, lit: np.ndarray, shadow: np.ndarray, oracle_flood: np.ndarray,
              config) -> dict:
-    dotted = sensor_dots(raw, config.sensor, config.rig.scale, config.masks.visibility_margin)
+    dotted = sensor_dots(raw, SensorModel(sensor_settings(config)), config.masks.visibility_margin)
     ratio = raw["flood"][lit] / oracle_flood[lit]
     return {
         "leak": float(visible[shadow].mean()),

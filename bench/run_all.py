@@ -24,6 +24,7 @@ BENCHMARKS = {
                       "--reference-samples", "16", "--timing-sizes", "160", "--timing-objects", "40",
                       "--repeats", "1"],
     "second_pass": ["--sizes", "160", "--objects", "40", "--repeats", "1"],
+    "stereo_cost": ["--sizes", "128", "--objects", "10", "--repeats", "2"],
     "render_objects": ["--repeats", "1"],
     "render_memory": ["--minutes", "1"],
     "trainer_speed": ["--repeats", "1", "--no-published"],
@@ -32,6 +33,8 @@ BENCHMARKS = {
     "trainer_gpu": ["--repeats", "3", "--train-steps", "3", "--backbones", "conv"],  # skips without CUDA
     "scene_cost": ["--scales", "0.1", "--scenes", "1"],
     "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
+    "generate_cost": ["--pairs", "1", "--scale", "0.05", "--objects", "5", "--threads", "1"],
+    "sensor_fit": ["--scale", "0.2", "--scenes", "1"],
 }
 
 

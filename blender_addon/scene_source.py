@@ -58,12 +58,15 @@ def preview_images(raw: dict[str, np.ndarray], spec: SceneSpec, base_seed: int,
     """(ir, depth_display, depth_scale) of rendered frame `frame_index`, each (H, W) float32.
 
     ir: the IR channel `dotsim generate` stores for this frame (generator.post_render: sensor model
-    of ambient + projector, levels in [0, 1], the same noise).
+    of ambient + projector, levels in [0, 1], the same noise and speckle).
     depth_display: planar depth / depth_scale in [0, 1], 0 where nothing is hit; depth_scale is
     the largest finite depth in metres (1 when nothing is hit), so metres = value * depth_scale.
     """
-    rng = frame_sensor_rng(base_seed, spec.scene_index, check_frame(frame_index, spec))
-    frame = make_frame(raw, spec, rng, where=f"scene {spec.scene_index} frame {frame_index}")
+    check_frame(frame_index, spec)
+    frame = make_frame(raw, spec, frame_sensor_rng(base_seed, spec.scene_index, frame_index),
+                       where=f"scene {spec.scene_index} frame {frame_index}",
+                       right_rng=frame_sensor_rng(base_seed, spec.scene_index, frame_index, camera=1),
+                       frame=frame_index)
     depth = frame["depth"]
     finite = np.isfinite(depth)
     depth_scale = float(depth[finite].max()) if finite.any() else 1.0

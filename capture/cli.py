@@ -1,4 +1,5 @@
-"""`dotsim capture`: import recorded sensor frames as a dataset, or extract a pattern from wall captures."""
+"""`dotsim capture`: import recorded sensor frames as a dataset, extract a pattern from wall captures, or
+fit the simulated sensor to a recording (fit-sensor)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import io
 import json
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -19,42 +19,31 @@ from capture.import_frames import import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.config_schema import bounds_of
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
 from dotsim.option_types import integer, number
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig, get_preset
-from dotsim.rig_files import CalibratedRig, RigFileError, configured_rig, load_rig_file
-from generator.config import ConfigError, OutputConfig, load_config, rig_settings
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
+from dotsim.rig_files import CalibratedRig, RigFileError, composed_rig
+from dotsim.rig_report import summary_line
+from generator.config import ConfigError, OutputConfig, rig_from_options
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
 
-def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
-    """A rig preset by name, a rig file (dotsim.rig_files: dotsim rig JSON, OpenCV, ROS or Kalibr
-    calibrations), or a generator config whose [rig] describes it (at scale 1, so camera_file and
-    projector_file combine as in `dotsim generate`); then scaled. The lens of a calibrated camera comes
-    with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
+def load_rig(spec: str | None, scale: float = 1.0, camera_file: str | None = None) -> CalibratedRig:
+    """The rig `--rig SPEC` and `--camera-file FILE` name (generator.config.rig_from_options: a preset, a
+    rig file, a camera-only calibration with the preset's projector, or a generator config whose [rig]
+    describes it, at scale 1; default the preset structure_core), then scaled. The lens of a calibrated
+    camera comes with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
     """
     try:
-        if Path(spec).suffix.lower() == ".toml":
-            try:
-                config = load_config(spec)
-            except ConfigError as error:
-                raise CaptureError(f"--rig {error}") from None
-            calibrated = configured_rig(replace(config.rig, scale=1.0), f"{config.source}: [rig]")
-        else:
-            try:
-                settings = rig_settings(spec, also=("a generator config (.toml)",))
-            except ConfigError as error:
-                raise CaptureError(str(error)) from None
-            # the preset's or file's rig as it is (its own max_depth), not a config's [rig]
-            calibrated = (load_rig_file(settings.file) if settings.file
-                          else CalibratedRig(get_preset(settings.preset)))
-    except RigFileError as error:
-        raise CaptureError(f"--rig {error}") from None
+        calibrated = rig_from_options(spec, camera_file)
+    except ConfigError as error:
+        raise CaptureError(str(error)) from None
     if scale != 1.0:
         try:
             calibrated = calibrated.scaled(scale)
@@ -63,15 +52,41 @@ def load_rig(spec: str, scale: float = 1.0) -> CalibratedRig:
     return calibrated
 
 
-def _rig_arguments(parser: argparse.ArgumentParser, default_note: str = "") -> None:
+def device_or_given_rig(args: argparse.Namespace, device) -> CalibratedRig:
+    """The rig of `capture record` and `import --bag`: --rig's (with --camera-file), else the device's
+    own calibration, its camera replaced by --camera-file's when given."""
+    if args.rig:
+        return load_rig(args.rig, getattr(args, "scale", 1.0), args.camera_file)
+    if not args.camera_file:
+        return CalibratedRig(device.rig())
+    try:
+        return composed_rig(device.rig(), str(Path(args.camera_file).resolve()),
+                            base_name=f"the calibration {device.name} reports")
+    except RigFileError as error:
+        raise CaptureError(f"--camera-file {error}") from None
+
+
+def say_rig(calibrated: CalibratedRig) -> None:
+    """The rig a capture command uses, in one line (as `dotsim generate` prints it), and its notes."""
+    print(summary_line(calibrated), flush=True)
+    for note in calibrated.notes:
+        print(note, file=sys.stderr)
+
+
+def _rig_arguments(parser: argparse.ArgumentParser, default_note: str = "", camera_file: bool = True) -> None:
     parser.add_argument("--rig", default=None,
                         help=f"rig preset ({', '.join(sorted(PRESETS))}; default {DEFAULT_PRESET}"
                         f"{default_note}), a rig "
                         "file (dotsim rig JSON, OpenCV, ROS camera_info or Kalibr calibration; "
-                        "docs/GEOMETRY.md) "
+                        "docs/GEOMETRY.md; a camera-only file gets the preset's projector, and says so) "
                         "or a generator config whose [rig] gives it (camera_file with a preset's projector, "
                         "...); the frames must have its camera resolution, and a calibrated lens "
                         "(distortion) is rectified to the rig's pinhole camera")
+    if camera_file:
+        parser.add_argument("--camera-file", metavar="FILE", default=None,
+                            help="the IR camera from this calibration file (OpenCV's calibration sample, ROS "
+                            "camera_info, Kalibr) instead of the rig's; the projector and its pose stay the "
+                            "rig's (as [rig] camera_file of a generator config)")
     parser.add_argument("--scale", type=number(0.0, 1.0, low_open=True), default=1.0,
                         help="scale the rig first (Rig.scaled; for frames recorded at a reduced "
                         "resolution; default 1)")
@@ -115,7 +130,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--out are refused. Or read a RealSense recording (--bag): its left IR frames paired on/off by "
         "the emitter state each frame recorded (every frame as ir when only one state was recorded), "
         "its depth as device_depth, and by default the rig of its recorded calibration, as `capture "
-        "record` stores a live sensor.",
+        "record` stores a live sensor; --stereo also its right IR frames (infrared 2) as ir_right. "
+        "With --on, --right adds the right IR camera's projector-on frames of a stereo pair as ir_right.",
     )
     source = imp.add_mutually_exclusive_group(required=True)
     source.add_argument("--on", metavar="DIR_OR_GLOB",
@@ -124,8 +140,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="a RealSense recording: .bag (RealSense Viewer, SDK up to 2.55) or .db3 (SDK "
                         "2.56 on); needs dotsim[realsense]")
     imp.add_argument("--off", metavar="DIR_OR_GLOB", help="projector-off frames, likewise (with --on)")
+    imp.add_argument("--right", metavar="DIR_OR_GLOB",
+                     help="the right IR camera's projector-on frames of a stereo pair, likewise (with --on; "
+                     "paired with --on in the same order, the same count), stored as ir_right; the rig's "
+                     "second camera must be the right one (realsense_d415, realsense_d435, structure_core, "
+                     "or a rig file with second_camera_translation = [B, 0, 0])")
+    imp.add_argument("--stereo", action="store_true",
+                     help="with --bag: the recording's right IR frames (infrared 2) too, as ir_right")
     _rig_arguments(imp, "; with --bag: the recording's own calibration")
-    imp.add_argument("--out", required=True, type=Path, metavar="DATASET", help="dataset folder to write")
+    add_output(imp, "dataset folder to write", metavar="DATASET", type=Path)
     imp.add_argument("--frames-per-scene", type=integer(1), default=4,
                      help="consecutive frame pairs per scene; must divide the pair count (default 4)")
     imp.add_argument("--white-level", type=number(0.0, low_open=True),
@@ -135,6 +158,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="JSON file of capture settings (exposure, gain, sensor serial, ...) copied into "
                      "every scene.json")
     _dataset_arguments(imp)
+    add_no_progress(imp)
     imp.set_defaults(func=_import)
 
     pat = actions.add_parser(
@@ -171,7 +195,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     pat.add_argument("--detect-threshold", type=number(0.0, 1.0), default=DEFAULT_DETECT_THRESHOLD,
                      help="keep local maxima above this share of the local dot brightness "
                      f"(default {DEFAULT_DETECT_THRESHOLD})")
-    pat.add_argument("-o", "--output", required=True, type=Path, help="output pattern .png")
+    add_output(pat, "output pattern .png", metavar="PNG", old=("--output",), dest="output", type=Path)
     pat.set_defaults(func=_pattern)
 
     rec = actions.add_parser(
@@ -187,12 +211,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "live preview shows when a display and an OpenCV with windows are there.",
     )
     _device_arguments(rec)
-    rec.add_argument("--out", required=True, type=Path, metavar="DATASET", help="new dataset folder")
+    add_output(rec, "new dataset folder", metavar="DATASET", type=Path)
     rec.add_argument("--scenes", type=integer(1), default=1, help="scenes to record (default 1)")
     rec.add_argument("--frames", type=integer(1), default=4, help="poses per scene (default 4)")
     rec.add_argument("--rig", help="rig preset, rig file or generator config (as for import) for the frames "
                      "(default: the device's own calibration, as `capture info` writes it; required for "
                      "opencv devices); a calibrated lens is rectified to the rig's pinhole camera")
+    rec.add_argument("--camera-file", metavar="FILE", default=None,
+                     help="the IR camera from this calibration file (OpenCV's calibration sample, ROS "
+                     "camera_info, Kalibr) instead of the rig's or the device's; the projector and its pose "
+                     "stay theirs")
     rec.add_argument("--exposure", type=number(0.0, low_open=True),
                      help="fixed exposure in the device's units (default: as set)")
     rec.add_argument("--gain", type=number(0.0, low_open=True),
@@ -205,9 +233,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value stored as 1.0 (default: the stream's full scale: 255 for 8-bit, 65535 "
                      "for RealSense y16, the stream maximum for OpenNI2; e.g. 1023 for 10-bit data)")
+    rec.add_argument("--stereo", action="store_true",
+                     help="RealSense: record the right IR stream (infrared 2) too, as ir_right, with its "
+                     "extrinsics; the rig's second camera must be the right one (the device's own rig is)")
     _dataset_arguments(rec)
     rec.add_argument("--no-preview", action="store_true", help="no live preview window")
-    rec.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(rec)
     rec.set_defaults(func=_record)
 
     info = actions.add_parser(
@@ -221,8 +252,44 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     _device_arguments(info)
     info.add_argument("--max-depth", type=number(**bounds_of(Rig, "max_depth")), default=DEFAULT_MAX_DEPTH,
                       help=f"max_depth of the rig, m (default {DEFAULT_MAX_DEPTH:g})")
-    info.add_argument("-o", "--output", required=True, type=Path, help="rig file to write (.json)")
+    add_output(info, "rig file to write (.json)", metavar="JSON", old=("--output",), dest="output", type=Path)
     info.set_defaults(func=_info)
+
+    fit = actions.add_parser(
+        "fit-sensor",
+        help="fit the simulated sensor to a recording: noise, levels, dot size, speckle; a [sensor] table",
+        description="Measure a recording of a still scene the way camera characterisation does (EMVA 1288's "
+        "photon transfer: temporal variance against mean level gives read and shot noise; black level, "
+        "saturation, bit depth), its dots (FWHM of isolated dots on flat regions, their brightness spread: "
+        "laser speckle; peak signal-to-noise ratio; dots per area by depth where depth is known) and the "
+        "ambient light over the projector's (with projector-off frames); print them with their standard "
+        "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml) and a drawing "
+        "(OUTPUT.png). At least 4 frames of the still scene (16 or more recommended); with one frame the "
+        "noise comes from flat regions of it (spatial statistics), and it says so. With --compare, the same "
+        "statistics of a rendering of your config side by side, and blur_sigma and speckle_contrast set so "
+        "its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
+    )
+    fit.add_argument("recording", nargs="+", metavar="RECORDING",
+                     help="projector-on frames of a still scene: image files, folders or quoted globs "
+                     "(8/16-bit PNG or EXR, raw sensor values); or one dataset from `capture record` / "
+                     "`capture import` (each scene a still scene; ir on, ambient off) or a static rendering "
+                     "of `dotsim generate`")
+    fit.add_argument("--off", nargs="+", metavar="IMG", default=[],
+                     help="projector-off frames of the same still scene (image recordings; a dataset's are "
+                     "its ambient frames): the ambient light, and more levels for the noise")
+    fit.add_argument("--white-level", type=number(0.0, low_open=True),
+                     help="raw value of full scale (default: the files' full scale: 255, 65535, or 1 for "
+                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
+    fit.add_argument("--compare", type=Path, metavar="DATASET",
+                     help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
+                     "translation = 0 and rotation = 0): its statistics beside the recording's, and "
+                     "blur_sigma and speckle_contrast fitted against it")
+    fit.add_argument("--speckle-grain", type=number(0.0, 100.0, low_open=True),
+                     help="the speckle grain assumed, full-resolution px ([sensor] speckle_grain; default: "
+                     "the --compare rendering's, else 2)")
+    add_output(fit, "the [sensor] table to write (.toml); the drawing goes beside it (.png)",
+               metavar="SENSOR.toml", old=("--output",), dest="output", type=Path)
+    fit.set_defaults(func=_fit_sensor)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -271,7 +338,10 @@ def _import(args: argparse.Namespace) -> int:
     try:
         if args.off is None:
             raise CaptureError("--on needs --off (the projector-off frames), or import a recording: --bag")
-        calibrated = load_rig(args.rig or DEFAULT_PRESET, args.scale)
+        if args.stereo:
+            raise CaptureError("--stereo is for --bag; with --on, give the right camera's frames: --right")
+        calibrated = load_rig(args.rig, args.scale, args.camera_file)
+        say_rig(calibrated)
         rig = calibrated.rig
         settings = _read_json(args.settings, "--settings") if args.settings else {}
         pattern = None
@@ -280,7 +350,8 @@ def _import(args: argparse.Namespace) -> int:
         summary = import_frames(args.on, args.off, rig, args.out, frames_per_scene=args.frames_per_scene,
                                 split=args.split, white_level=args.white_level, dot_window=args.dot_window,
                                 visibility_threshold=args.visibility_threshold, capture_settings=settings,
-                                pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens)
+                                pattern=pattern, scenes_per_shard=args.scenes_per_shard, lens=calibrated.lens,
+                                progress=not args.no_progress, right_spec=args.right)
     except (CaptureError, PatternError, FormatError, ValueError) as error:
         return _fail("import", error)
     print(f"imported {summary['frames']} frame pairs as {summary['scenes']} scene(s) into "
@@ -295,12 +366,14 @@ def _import_recording(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     try:
-        if args.off is not None or args.settings is not None:
-            raise CaptureError("--bag: leave out --off and --settings (the recording's emitter states pair "
-                               "its frames, and its options are stored from the file)")
+        if args.off is not None or args.settings is not None or args.right is not None:
+            raise CaptureError("--bag: leave out --off, --right and --settings (the recording's emitter "
+                               "states pair its frames, --stereo adds its right IR frames, and its options "
+                               "are stored from the file)")
         pattern = load_pattern(args.pattern) if args.pattern else None
-        with RealSenseRecording(args.bag) as device:
-            calibrated = load_rig(args.rig, args.scale) if args.rig else CalibratedRig(device.rig())
+        with RealSenseRecording(args.bag, stereo=args.stereo) as device:
+            calibrated = device_or_given_rig(args, device)
+            say_rig(calibrated)
             if device.poses == 0:
                 raise CaptureError(f"--bag {args.bag}: holds no complete pose (an IR frame, and an off frame "
                                    "after an on frame when the emitter switched)")
@@ -350,7 +423,8 @@ def _pattern(args: argparse.Namespace) -> int:
     try:
         if args.output.suffix.lower() != ".png":
             raise CaptureError(f"-o {args.output}: the pattern is written as a .png file")
-        calibrated = load_rig(args.rig or DEFAULT_PRESET, args.scale)
+        calibrated = load_rig(args.rig, args.scale, args.camera_file)
+        say_rig(calibrated)
         rig = calibrated.rig
         on = _load_wall_images(args.wall, "--wall", "ir")
         off = _load_wall_images(args.off, "--off", "ambient")
@@ -409,8 +483,9 @@ def _record(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     try:
         pattern = load_pattern(args.pattern) if args.pattern else None
-        with _open(args, exposure=args.exposure, gain=args.gain) as device:
-            calibrated = load_rig(args.rig) if args.rig else CalibratedRig(device.rig())
+        with _open(args, exposure=args.exposure, gain=args.gain, stereo=args.stereo) as device:
+            calibrated = device_or_given_rig(args, device)
+            say_rig(calibrated)
             summary = record(device, calibrated.rig, args.out, lens=calibrated.lens, scenes=args.scenes,
                              frames_per_scene=args.frames,
                              split=args.split, settle=args.settle, pause_s=args.pause,
@@ -427,6 +502,40 @@ def _record(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 128 + summary["signal"] if summary["signal"] else 1
     print(f"recorded {kept}")
+    return 0
+
+
+def _fit_sensor(args: argparse.Namespace) -> int:
+    from capture.fit_report import draw_report, report_text, sensor_toml
+    from capture.sensor_fit import fit, measure
+    from capture.static_recording import open_recording
+    from dotsim.config_schema import ConfigError
+    from dotsim.images import write_image
+
+    start = time.perf_counter()
+    try:
+        if args.output.suffix.lower() != ".toml":
+            raise CaptureError(f"-o {args.output}: the [sensor] table is written as a .toml file")
+        if not args.output.parent.is_dir():
+            raise CaptureError(f"-o {args.output}: folder {args.output.parent} does not exist")
+        check_writable_folder(args.output.parent, "-o")
+        recording = open_recording(args.recording, args.off, args.white_level)
+        rendering = open_recording([str(args.compare)]) if args.compare is not None else None
+        if rendering is not None and rendering.kind != "rendered":
+            raise CaptureError(f"--compare {args.compare}: a recording, not a rendering of `dotsim generate`")
+        stats = measure(recording)
+        reference = measure(rendering) if rendering is not None else None
+        fitted = fit(stats, reference, args.speckle_grain)
+    except (CaptureError, ConfigError) as error:
+        return _fail("fit-sensor", error)
+    header = (f"dotsim capture fit-sensor {' '.join(args.recording)}"
+              + (f" --compare {args.compare}" if args.compare else "")
+              + ": the simulated sensor fitted to this recording; paste into a generator config")
+    # the drawing first: the table appearing means both are there
+    drawing = write_image(args.output.with_suffix(".png"), draw_report(stats, reference))
+    atomic_write_bytes(args.output, sensor_toml(fitted, header).encode())
+    print(report_text(stats, fitted, reference))
+    print(f"wrote {args.output} and {drawing} in {time.perf_counter() - start:.1f} s")
     return 0
 
 

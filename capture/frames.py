@@ -87,21 +87,30 @@ def check_size(image: GreyImage, width: int, height: int, rig_name: str) -> None
         )
 
 
-def pair_on_off(on_files: list[Path], off_files: list[Path]) -> list[tuple[Path, Path]]:
-    """Pair projector-on with projector-off files by natural sort order; counts must be equal.
+def pair_on_off(on_files: list[Path], off_files: list[Path],
+                right_files: list[Path] | None = None) -> list[tuple[Path, ...]]:
+    """Pair projector-on with projector-off files (and, for a stereo pair, the right camera's
+    projector-on files) by natural sort order; counts must be equal.
 
     Matching by order (not by name) works for the usual layouts: two folders with equal names,
-    or one folder with on_000.png / off_000.png. Raises CaptureError giving both counts.
+    or one folder with on_000.png / off_000.png. Raises CaptureError giving both counts, or naming a
+    file listed twice.
     """
-    if len(on_files) != len(off_files):
-        raise CaptureError(
-            f"{len(on_files)} projector-on frames (first {on_files[0]}) but {len(off_files)} "
-            f"projector-off frames (first {off_files[0]}); each on frame needs one off frame"
-        )
-    overlap = set(on_files) & set(off_files)
-    if overlap:
-        raise CaptureError(f"{sorted(overlap)[0]} is listed both as projector-on and as projector-off")
-    return list(zip(on_files, off_files, strict=True))
+    lists = {"projector-on": on_files, "projector-off": off_files}
+    if right_files is not None:
+        lists["right projector-on"] = right_files
+    (first, first_files), *others = lists.items()
+    for name, files in others:
+        if len(files) != len(first_files):
+            raise CaptureError(f"{len(first_files)} {first} frames (first {first_files[0]}) but {len(files)} "
+                               f"{name} frames (first {files[0]}); each on frame needs one {name} frame")
+    roles = [(path, name) for name, files in lists.items() for path in files]
+    seen: dict[Path, str] = {}
+    for path, name in roles:
+        if path in seen:
+            raise CaptureError(f"{path} is listed both as {seen[path]} and as {name}")
+        seen[path] = name
+    return list(zip(*lists.values(), strict=True))
 
 
 def recorded_images(dataset_dir: Path, channel: str) -> list[GreyImage]:

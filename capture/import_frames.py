@@ -5,6 +5,7 @@ A real capture has no ground truth: each frame stores only the channels a sensor
     ir          projector on (what the simulator's `ir` is), raw value / white level
     ambient     projector off, same units
     visibility  where the projector's dots reach the surface, from the on/off difference
+    ir_right    of a stereo pair (--right): the right IR camera's projector-on frame, same units
 
 and scene.json says so with "has_ground_truth": false and "source": "capture" (docs/CAPTURE.md).
 Depth, projector column, disparity, flood and edge are absent: the format lets a scene list a
@@ -36,23 +37,32 @@ from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
 from dotsim.rig import Rig
 from dotsim.rig_files import Lens
+from dotsim.stereo import stereo_baseline
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
+# A stereo pair's captures also store the right camera's projector-on frame.
+PAIR_CHANNELS = ("ir", "ir_right", "ambient", "visibility")
 
 
 @dataclass(frozen=True)
 class FramePair:
-    """One recorded frame: its projector-on and projector-off files with their checksums."""
+    """One recorded frame: its projector-on and projector-off files with their checksums, and of a
+    stereo pair the right camera's projector-on file."""
 
     on: Path
     off: Path
     on_sha256: str
     off_sha256: str
     white_level: float
+    right: Path | None = None
+    right_sha256: str | None = None
 
     def sources(self) -> dict:
-        return {"on": {"path": str(self.on.resolve()), "sha256": self.on_sha256},
-                "off": {"path": str(self.off.resolve()), "sha256": self.off_sha256}}
+        sources = {"on": {"path": str(self.on.resolve()), "sha256": self.on_sha256},
+                   "off": {"path": str(self.off.resolve()), "sha256": self.off_sha256}}
+        if self.right is not None:
+            sources["right"] = {"path": str(self.right.resolve()), "sha256": self.right_sha256}
+        return sources
 
 
 def _checked_image(path: Path, rig: Rig) -> GreyImage:
@@ -62,26 +72,31 @@ def _checked_image(path: Path, rig: Rig) -> GreyImage:
 
 
 def plan_import(on_spec: str, off_spec: str, rig: Rig, white_level: float | None = None,
-                progress: bool = False) -> list[FramePair]:
+                progress: bool = False, right_spec: str | None = None) -> list[FramePair]:
     """Find, pair, decode and check every input frame; nothing is kept but names and checksums.
+    right_spec: the right camera's projector-on frames of a stereo pair, paired with the on frames.
 
     Raises CaptureError naming the file or argument for: a missing folder / no match, unequal
-    on/off counts, an unreadable image, a size other than the rig camera's, or a file whose sample
-    type (8-bit, 16-bit, EXR float) differs from the first one's: one capture has one white level.
+    on/off (/right) counts, an unreadable image, a size other than the rig camera's, or a file whose
+    sample type (8-bit, 16-bit, EXR float) differs from the first one's: one capture has one white
+    level.
     """
-    pairs = pair_on_off(list_images(on_spec, what="--on frames"), list_images(off_spec, what="--off frames"))
+    right_files = None if right_spec is None else list_images(right_spec, what="--right frames")
+    pairs = pair_on_off(list_images(on_spec, what="--on frames"), list_images(off_spec, what="--off frames"),
+                        right_files)
     planned = []
     first = None
-    for on_path, off_path in _progress(pairs, progress, "checking frames", "pair"):
-        on = _checked_image(on_path, rig)
-        off = _checked_image(off_path, rig)
-        first = first or on
-        for image in (on, off):
+    for paths in _progress(pairs, progress, "checking frames", "pair"):
+        images = [_checked_image(path, rig) for path in paths]
+        first = first or images[0]
+        for image in images:
             if image.pixels.dtype != first.pixels.dtype:
                 raise CaptureError(f"{image.path}: sample type {image.pixels.dtype} differs from "
                                    f"{first.path} ({first.pixels.dtype}); record all frames the same way")
+        on, off, *right = images
         level = on.white_level if white_level is None else float(white_level)
-        planned.append(FramePair(on_path, off_path, on.sha256, off.sha256, level))
+        planned.append(FramePair(on.path, off.path, on.sha256, off.sha256, level,
+                                 *((right[0].path, right[0].sha256) if right else ())))
     return planned
 
 
@@ -94,15 +109,20 @@ def frame_channels(pair: FramePair, dot_window: int, threshold: float,
     check and the write is refused rather than silently stored under the old checksum.
     """
     images = {}
-    for role, path, sha in (("on", pair.on, pair.on_sha256), ("off", pair.off, pair.off_sha256)):
+    files = (("on", pair.on, pair.on_sha256), ("off", pair.off, pair.off_sha256),
+             ("right", pair.right, pair.right_sha256))
+    for role, path, sha in (file for file in files if file[1] is not None):
         image = read_image(path)
         if image.sha256 != sha:
             raise CaptureError(f"{path}: file changed during the import (sha256 differs); rerun")
         images[role] = image.relative(pair.white_level)
         if rectify is not None:
             images[role] = rectify.image(images[role])
-    return {"ir": images["on"], "ambient": images["off"],
-            "visibility": capture_visibility(images["on"], images["off"], dot_window, threshold)}
+    channels = {"ir": images["on"], "ambient": images["off"],
+                "visibility": capture_visibility(images["on"], images["off"], dot_window, threshold)}
+    if "right" in images:
+        channels["ir_right"] = images["right"]
+    return channels
 
 
 def _progress(items, enabled: bool, description: str, unit: str):
@@ -136,9 +156,24 @@ def scene_meta(sources: list[dict], rig: Rig, split: str, settings: dict,
     }
 
 
-def _checksums(sources: list) -> list[tuple[str, str]]:
-    """(on sha256, off sha256) per frame: what identifies a scene's inputs, wherever the files moved."""
-    return [(frame["on"]["sha256"], frame["off"]["sha256"]) for frame in sources]
+def check_pair(rig: Rig, lens: Lens | None, where: str) -> None:
+    """CaptureError naming `where` unless `rig` has a rectified stereo pair to store a right IR with,
+    and the frames need no lens rectified away (only the left camera's lens would be known)."""
+    try:
+        stereo_baseline(rig, where)
+    except ValueError as error:
+        raise CaptureError(str(error)) from None
+    if lens is not None:
+        raise CaptureError(f"{where}: the rig's camera has lens distortion, which dotsim would rectify "
+                           f"from the left images only; allowed: a pair recorded rectified (a RealSense's IR "
+                           f"streams are) with a rig without distortion")
+
+
+def _checksums(sources: list) -> list[tuple[str, ...]]:
+    """(on, off and, of a stereo pair, right sha256) per frame: what identifies a scene's inputs,
+    wherever the files moved."""
+    return [tuple(frame[role]["sha256"] for role in ("on", "off", "right") if role in frame)
+            for frame in sources]
 
 
 def _existing_checksums(dataset_dir: Path, scene_index: int, scenes_per_shard: int) -> list | None:
@@ -175,7 +210,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                   visibility_threshold: float = DEFAULT_VISIBILITY_THRESHOLD,
                   capture_settings: dict | None = None, pattern: DotPattern | None = None,
                   scenes_per_shard: int = dataset.DEFAULT_SCENES_PER_SHARD,
-                  progress: bool = True, lens: Lens | None = None) -> dict:
+                  progress: bool = True, lens: Lens | None = None, right_spec: str | None = None) -> dict:
     """Import projector on/off frame pairs as a sealed dataset; returns a summary dict.
 
     Pairs are grouped into scenes of `frames_per_scene` consecutive frames (the count must divide
@@ -185,13 +220,16 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
     A rerun skips scenes already written from files with the same checksums and refuses a
     dataset written from other files. lens: the calibrated camera the frames were recorded with
     (dotsim.rig_files.Lens), whose distortion is rectified away (capture.rectify) and recorded in
-    scene.json under capture.rectified_from.
+    scene.json under capture.rectified_from. right_spec: the right IR camera's projector-on frames
+    of a stereo pair (stored as ir_right; the rig must have the pair, and no lens: check_pair).
     """
     if int(frames_per_scene) != frames_per_scene or frames_per_scene < 1:
         raise CaptureError(f"--frames-per-scene must be a positive integer, got {frames_per_scene}")
     if white_level is not None and not (np.isfinite(white_level) and white_level > 0):
         raise CaptureError(f"--white-level must be a positive number, got {white_level}")
-    pairs = plan_import(on_spec, off_spec, rig, white_level, progress)
+    if right_spec is not None:
+        check_pair(rig, lens, "--right")
+    pairs = plan_import(on_spec, off_spec, rig, white_level, progress, right_spec)
     if len(pairs) % frames_per_scene:
         raise CaptureError(f"{len(pairs)} frame pairs do not split into scenes of {frames_per_scene} "
                            f"frames (--frames-per-scene); record a multiple of {frames_per_scene} "
@@ -231,7 +269,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
         frames = [frame_channels(pair, dot_window, visibility_threshold, rectify) for pair in scene_pairs]
         meta = scene_meta([pair.sources() for pair in scene_pairs], rig, split, settings, pattern_entry)
         dataset.write_scene(out_dir, scene_index, meta, frames, scenes_per_shard=scenes_per_shard,
-                            channels=CAPTURE_CHANNELS)
+                            channels=CAPTURE_CHANNELS if right_spec is None else PAIR_CHANNELS)
         written += 1
     index = dataset.seal_dataset(out_dir).index
     return {"dataset": str(out_dir), "frames": len(pairs), "scenes": len(scenes), "written": written,

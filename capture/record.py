@@ -3,11 +3,14 @@ stores real frames (docs/CAPTURE.md "Recording").
 
 Per pose: a projector-on frame and, where the device can switch its projector, a projector-off
 frame of the same pose; the device's own depth (of the on frame) where it has one, stored as the
-channel `device_depth`, never as `depth` (ground truth). A scene is written atomically when its
-frames are complete. Ctrl-C, SIGTERM or SIGHUP (under dotsim.process_lifetime.stop_signals, as
-`dotsim capture record` runs) or a device that stops giving frames ends the recording: the frames
-already complete are kept (the last scene may have fewer frames), the dataset is sealed and the
-summary says what was kept. The recording holds the dataset's writer lock (dotsim.dataset.lock).
+channel `device_depth`, never as `depth` (ground truth); for a device opened for its stereo pair (a
+RealSense with --stereo) the right IR camera's image of the on frame, stored as `ir_right`, with a rig
+whose second camera is the right one (its extrinsics in scene.json's capture.device). A scene is
+written atomically when its frames are complete. Ctrl-C, SIGTERM or SIGHUP (under
+dotsim.process_lifetime.stop_signals, as `dotsim capture record` runs) or a device that stops giving
+frames ends the recording: the frames already complete are kept (the last scene may have fewer
+frames), the dataset is sealed and the summary says what was kept. The recording holds the
+dataset's writer lock (dotsim.dataset.lock).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 from capture.devices import Device, DeviceError, DeviceFrame
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError
-from capture.import_frames import refuse_rendered, scene_meta
+from capture.import_frames import check_pair, refuse_rendered, scene_meta
 from capture.rectify import Rectifier, rectifier
 from dotsim import dataset, pattern_store
 from dotsim.dataset.lock import writer_lock
@@ -38,7 +41,8 @@ PREVIEW_WINDOW = "dotsim capture record"
 
 def record_channels(device: Device) -> tuple[str, ...]:
     """The channels a recording from this device stores (a subset of dotsim.dataset.FRAME_CHANNELS)."""
-    return (("ir",) + (("ambient", "visibility") if device.can_switch_emitter else ())
+    return (("ir",) + (("ir_right",) if device.stereo else ())
+            + (("ambient", "visibility") if device.can_switch_emitter else ())
             + (("device_depth",) if device.has_depth else ()))
 
 
@@ -80,6 +84,8 @@ def pose_frame(device: Device, settle: int, white_level: float, dot_window: int,
     switch = device.can_switch_emitter
     on = grab(device, True if switch else None, settle)
     channels = {"ir": image(on)}
+    if on.ir_right is not None:
+        channels["ir_right"] = on.ir_right.astype(np.float32) / np.float32(white_level)
     source = {"on": _source(on)}
     if switch:
         off = grab(device, False, settle)
@@ -142,6 +148,8 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
     if pattern is not None and pattern.image.shape != (rig.projector.height, rig.projector.width):
         raise CaptureError(f"pattern {pattern.source} is {pattern.width} x {pattern.height} px but rig "
                            f"{rig.name!r} projector is {rig.projector.width} x {rig.projector.height} px")
+    if device.stereo:
+        check_pair(rig, lens, f"--stereo: {device.name}")
     with writer_lock(out_dir, "dotsim capture record"):
         return _record(device, rig, out_dir, scenes, frames_per_scene, split, settle, pause_s, white_level,
                        pattern, dot_window, visibility_threshold, scenes_per_shard, progress, preview, lens)

@@ -4,29 +4,38 @@ import argparse
 import importlib
 import sys
 
+from dotsim.command_options import take_positional_output
 from dotsim.file_io import DiskFullError, WriteError
 from dotsim.process_lifetime import Stopped, stop_signals
 from dotsim.version import __version__
 
-# Each module defines add_parser(subparsers); the parser it adds sets `func(args) -> int` and may
-# set `errors`, {error type: exit status}: the errors its command expects (bad input named in the
-# message), reported as one line on stderr instead of a traceback.
-SUBCOMMAND_MODULES = [
-    "generator.cli",
-    "assets_manifest.cli",
-    "commands.show",
-    "commands.view",
-    "commands.export",
-    "commands.pattern",
-    "commands.dataset",
-    "commands.config",
-    "commands.stats",
-    "trainer.cli",
-    "capture.cli",
-]
+# command -> the module that defines it, in --help order. Each module defines add_parser(subparsers),
+# adding its commands; the parser it adds sets `func(args) -> int` and may set `errors`, {error
+# type: exit status}: the errors its command expects (bad input named in the message), reported as
+# one line on stderr instead of a traceback.
+COMMANDS = {
+    "generate": "generator.cli",
+    "assets": "assets_manifest.cli",
+    "show": "commands.show",
+    "view": "commands.view",
+    "export": "commands.export",
+    "pattern": "commands.pattern",
+    "verify": "commands.dataset",
+    "seal": "commands.dataset",
+    "config": "commands.config",
+    "rig": "commands.rig",
+    "stats": "commands.stats",
+    "train": "trainer.cli",
+    "eval": "trainer.cli",
+    "infer": "trainer.cli",
+    "capture": "capture.cli",
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The `dotsim` parser with every command, or with only the module of `command` when it is one
+    of COMMANDS: a run imports what its own command needs and no other stage (the trainer's torch
+    takes longer to import than `dotsim generate` takes to start)."""
     parser = argparse.ArgumentParser(
         prog="dotsim",
         description="Synthetic structured-light training data (headless Blender/Cycles), "
@@ -34,13 +43,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"dotsim {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in SUBCOMMAND_MODULES:
+    modules = [COMMANDS[command]] if command in COMMANDS else COMMANDS.values()
+    for name in dict.fromkeys(modules):
         importlib.import_module(name).add_parser(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    # the first word that is no option names the command (dotsim takes no option with a value)
+    command = next((word for word in argv if not word.startswith("-")), None)
+    parser = build_parser(command)
+    # parse_args, but a command's output may also be one argument left over (export's earlier spelling)
+    args, extras = parser.parse_known_args(argv)
+    extras = take_positional_output(args, extras, parser.error)
+    if extras:
+        parser.error(f"unrecognized arguments: {' '.join(extras)}")
     # Any stage can run out of space or find its output folder unwritable: the message names the
     # file (and the space it needed), and the atomic writer left nothing half-written behind.
     errors = {DiskFullError: 1, WriteError: 1, **getattr(args, "errors", {})}

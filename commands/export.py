@@ -38,13 +38,16 @@ from pathlib import Path
 
 from dotsim import __version__
 from dotsim import dataset as ds
+from dotsim.command_options import add_output_or_positional
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import (
     TMP_PREFIX,
     atomic_write_bytes,
     atomic_write_json,
     atomic_writer,
+    check_writable_folder,
     json_bytes,
+    make_folder,
     sha256_file,
 )
 from dotsim.option_types import integer
@@ -80,7 +83,12 @@ def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
 
 
 def parse_size(text: str) -> int:
-    """'256M' -> 268435456; plain bytes or K/M/G (powers of 1024). ValueError naming the text."""
+    """'256M' -> 268435456; plain bytes or K/M/G (powers of 1024). argparse.ArgumentTypeError (a
+    ValueError) naming the text and what is allowed, so that it serves as --shard-size's type.
+
+    >>> parse_size("64M"), parse_size("1e3")
+    (67108864, 1000)
+    """
     units = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
     t = str(text).strip().upper().removesuffix("B")
     try:
@@ -89,9 +97,10 @@ def parse_size(text: str) -> int:
     except ValueError:
         value = None
     if value is None:
-        raise ValueError(f"shard size {text!r}: give bytes, or a number with K, M or G, below 4 EB")
+        raise argparse.ArgumentTypeError(f"{text!r}: allowed: bytes, or a number with K, M or G, from "
+                                         f"{_BLOCK} bytes to 4 EB")
     if value < _BLOCK:
-        raise ValueError(f"shard size {text!r}: at least {_BLOCK} bytes")
+        raise argparse.ArgumentTypeError(f"{text!r}: allowed: at least {_BLOCK} bytes")
     return value
 
 
@@ -255,10 +264,8 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
             raise ValueError(f"{name} {value}: at least 1")
     if precision not in PRECISIONS:
         raise ValueError(f"--precision {precision!r}: choose one of {', '.join(PRECISIONS)}")
+    out = check_writable_folder(out, "OUT")  # a file, a read-only or missing parent: one line, first
     source = ds.open_dataset(dataset_dir, verify=verify)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a folder; give a new or empty folder for the shards")
     scenes = source.scenes if split is None else source.split(split)
     if not scenes:
         raise ds.FormatError(f"{dataset_dir}: no scenes to export (split {split!r})")
@@ -274,7 +281,7 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
             raise ds.FormatError(f"{out}: already holds a finished export of other data or options "
                                  f"(index.json); choose an empty or new folder")
         return ExportResult(out, index["shards"], resumed=len(index["shards"]))
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     done = _done_shards(out, plan)
     skip = sum(s["samples"] for s in done)
     writer = _ShardWriter(out, shard_bytes, samples_per_shard, done,
@@ -321,11 +328,9 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
 
 def run(args: argparse.Namespace) -> int:
     channels = [c.strip() for c in args.channels.split(",") if c.strip()] if args.channels else None
-    result = export_webdataset(args.dataset, args.out,
-                               parse_size(args.shard_size) if args.shard_size is not None else None,
-                               args.split, verify=not args.no_verify, channels=channels,
-                               precision=args.precision, samples_per_shard=args.samples_per_shard,
-                               shards=args.shards)
+    result = export_webdataset(args.dataset, args.out, args.shard_size, args.split,
+                               verify=not args.no_verify, channels=channels, precision=args.precision,
+                               samples_per_shard=args.samples_per_shard, shards=args.shards)
     print(f"exported {result.line()}")
     return 0
 
@@ -341,8 +346,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--data` and `dotsim eval --data` take OUT, its shards or their URLs. docs/VIEWING.md has the "
         "sizes and the codecs.")
     parser.add_argument("dataset", metavar="DIR", help="sealed dotsim dataset directory")
-    parser.add_argument("out", metavar="OUT", help="folder for the shards (new, empty, or an "
-                        "unfinished export to resume)")
+    add_output_or_positional(parser, "folder for the shards (new, empty, or an unfinished export to resume)")
     parser.add_argument("--format", choices=("webdataset",), default="webdataset",
                         help="webdataset (the only one so far)")
     parser.add_argument("--channels", metavar="A,B,...",
@@ -353,7 +357,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "column as a 16-bit fixed-point PNG, to 1/32 projector px (a seventh of its "
                         "lossless size)")
     size = parser.add_mutually_exclusive_group()
-    size.add_argument("--shard-size", default=None, metavar="BYTES",
+    size.add_argument("--shard-size", type=parse_size, default=None, metavar="BYTES",
                       help="most bytes of samples per shard, e.g. 64M, 1G (default 256M)")
     size.add_argument("--samples-per-shard", type=integer(1), default=None, metavar="N",
                       help="N samples (frames) per shard")

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from dotsim.command_options import add_output
 from dotsim.config_schema import bounds_of
 from dotsim.file_io import atomic_write_json
 from dotsim.option_types import integer, number
@@ -18,8 +19,8 @@ from dotsim.patterns import (
     load_pattern,
     pattern_statistics,
 )
-from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
-from generator.config import PatternConfig
+from dotsim.rig import DEFAULT_PRESET, PRESETS
+from generator.config import PatternConfig, rig_from_options
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -37,9 +38,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Write a reproducible Poisson-disc dot pattern as a 16-bit grey PNG at the "
         "projector resolution of a rig preset, plus OUTPUT.json with its parameters and sha256.",
     )
-    make.add_argument("--rig", default=DEFAULT_PRESET, choices=sorted(PRESETS),
-                      help="rig preset whose projector resolution the pattern gets "
-                      f"(default {DEFAULT_PRESET})")
+    make.add_argument("--rig", default=None, metavar="PRESET_OR_FILE",
+                      help="the rig whose projector resolution the pattern gets, as every --rig takes it: a "
+                      f"preset ({', '.join(PRESETS)}; default {DEFAULT_PRESET}), a rig file or a generator "
+                      "config (.toml; docs/GEOMETRY.md \"Rig files\")")
     make.add_argument("--scale", type=number(0.0, 1.0, low_open=True), default=1.0,
                       help="scale the rig first (as Rig.scaled, e.g. 0.25 for tiny test renders; default 1)")
     make.add_argument("--seed", type=integer(0), default=0, help="random seed (default 0)")
@@ -51,7 +53,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                       help="least distance between dot centres in pattern px (default 3)")
     make.add_argument("--sigma", type=number(**bounds_of(PatternConfig, "dot_sigma")), default=0.8,
                       help="Gaussian dot standard deviation in pattern px (default 0.8)")
-    make.add_argument("-o", "--output", required=True, type=Path, help="output .png path")
+    add_output(make, "output .png path", metavar="PNG", old=("--output",), dest="output", type=Path)
     make.set_defaults(func=_make)
 
     stats = actions.add_parser(
@@ -65,9 +67,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     stats.add_argument("--window", type=integer(1), default=9, help="window side in px (default 9)")
     stats.add_argument("--search", type=integer(1), default=128,
                        help="horizontal search range in px (default 128)")
-    stats.add_argument("--rig", choices=sorted(PRESETS),
-                       help="read --window and --search as camera px of this rig (converted with its "
-                       "projector/camera focal ratio); without it they are pattern px")
+    stats.add_argument("--rig", default=None, metavar="PRESET_OR_FILE",
+                       help="read --window and --search as camera px of this rig (a preset, a rig file or a "
+                       "generator config, as for `pattern make`; converted with its projector/camera focal "
+                       "ratio); without it they are pattern px")
     stats.add_argument("--ncc-threshold", type=number(-1.0, 1.0), default=0.9,
                        help="a window is unique when its best NCC is below this (default 0.9)")
     stats.add_argument("--json", action="store_true", help="print the statistics as JSON")
@@ -76,7 +79,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def _make(args: argparse.Namespace) -> int:
     try:
-        rig = get_preset(args.rig)
+        rig = rig_from_options(args.rig).rig
         if args.scale != 1.0:
             rig = rig.scaled(args.scale)
         start = time.perf_counter()
@@ -97,15 +100,15 @@ def _make(args: argparse.Namespace) -> int:
 
 def _stats(args: argparse.Namespace) -> int:
     window, search = args.window, args.search
-    if args.rig:
-        rig = get_preset(args.rig)
-        ratio = rig.projector.fx / rig.camera.fx
-        window = round(window * ratio) | 1  # keep the window odd so it has a centre pixel
-        search = round(search * ratio)
     try:
+        if args.rig:
+            rig = rig_from_options(args.rig).rig
+            ratio = rig.projector.fx / rig.camera.fx
+            window = round(window * ratio) | 1  # keep the window odd so it has a centre pixel
+            search = round(search * ratio)
         stats = pattern_statistics(load_pattern(args.pattern), window=window, search=search,
                                    ncc_threshold=args.ncc_threshold)
-    except PatternError as error:
+    except (PatternError, ValueError) as error:
         print(f"dotsim pattern stats: error: {error}", file=sys.stderr)
         return 2
     if args.json:

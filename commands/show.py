@@ -1,12 +1,14 @@
 """`dotsim show`: a labelled contact sheet of every pass of every frame of a scene (PNG), an
 overview of the IR of many scenes, and a frame's ground-truth point cloud (PLY).
 
-Sheet: rows are frames, columns the stored passes (docs/FORMAT.md), each column on its own scale,
-written above it: IR linear on the sensor's full scale, ambient and flood each as the square root
+Sheet: rows are frames, columns the stored passes (docs/FORMAT.md; as dotsim.channels declares how
+each is shown), each column on its own scale, written above it: IR (and a stereo pair's right IR)
+linear on the sensor's full scale, ambient and flood each as the square root
 of value / its own 99th percentile (ambient is often 50x darker than flood, and radiance falls as
 1 / r^2, so a linear scale shows near objects only), depth, projector column and disparity
-colour-mapped (turbo) with a colour bar in their units under the grid, the visibility and edge
-masks white where set. Black in a colour-mapped tile means no value there (no hit / invalid).
+colour-mapped (turbo) with a colour bar in their units under the grid (and a stereo pair's stereo
+disparity), the visibility and edge masks (and a stereo pair's stereo visibility) white where set.
+Black in a colour-mapped tile means no value there (no hit / invalid).
 numpy + OpenCV only.
 """
 
@@ -20,6 +22,8 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.channels import CHANNEL, CHANNELS
+from dotsim.command_options import add_output
 from dotsim.false_colour import (
     BACKGROUND,
     FONT,
@@ -32,22 +36,18 @@ from dotsim.false_colour import (
 from dotsim.images import write_image
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
+from dotsim.prediction_file import prediction_source
 from dotsim.rig import Rig
 
-COLUMNS = ("ir", "ambient", "flood", "depth", "visibility", "edge", "projector_column", "disparity")
-TITLES = {"ir": "IR", "ambient": "ambient", "flood": "flood", "depth": "depth",
-          "visibility": "visibility", "edge": "edge", "projector_column": "projector column",
-          "disparity": "disparity"}
-UNITS = {"depth": "m", "projector_column": "projector px", "disparity": "camera px"}
-# One line under each column's title, for a reader who has not read docs/FORMAT.md.
-MEANINGS = {"ir": "what the sensor sees", "ambient": "projector off", "flood": "uniform projector",
-            "depth": "ground truth", "visibility": "white: dots seen", "edge": "white: depth edge",
-            "projector_column": "ground truth", "disparity": "ground truth"}
-GREY_CHANNELS = ("ir", "ambient", "flood")
+# The sheet's columns and how each is drawn: the channels' one declaration (dotsim.channels).
+COLUMNS = tuple(c.name for c in CHANNELS if c.display is not None)
+GREY_CHANNELS = tuple(c.name for c in CHANNELS if c.display in ("linear", "radiance"))
+COLOUR_MAPPED = tuple(c.name for c in CHANNELS if c.display == "colour")
+# Under the columns of a `dotsim infer` output (dotsim.prediction_file): a network's estimate.
+PREDICTED = "predicted (dotsim infer)"
 FOOTNOTE = ("Each grey pass has its own scale, written above its column: IR linear on the sensor's full "
             "scale; ambient and flood (linear radiance) as the square root of value / white, white at "
             "their own 99th percentile. Masks: white = 1.")
-COLOUR_MAPPED = ("depth", "projector_column", "disparity")
 GAP = 6  # between tiles, px
 LABEL_WIDTH = 70  # left column with the frame labels, px
 BAR_HEIGHT = 14
@@ -86,8 +86,8 @@ def _grey_scale(frames: list[dict], name: str) -> float:
     """Display scale (the value shown white) of a grey pass: IR its full scale; ambient and flood
     each its own 99th percentile over the frames (its maximum where that is 0), so a dark pass is
     not shown black; 0 for a pass that is 0 everywhere."""
-    if name == "ir":
-        return full_scale(frames[0]["ir"])
+    if CHANNEL[name].display == "linear":
+        return full_scale(frames[0][name])
     values = np.concatenate([f[name][np.isfinite(f[name])].ravel() for f in frames]).astype(np.float64)
     if values.size == 0:
         return 0.0
@@ -99,12 +99,12 @@ def grey_for_display(image: np.ndarray, name: str) -> np.ndarray:
     """(H, W) uint8 of one grey pass as the sheet shows it, scaled by this image alone: IR linear on
     full scale, ambient and flood as the square root of value over their own 99th percentile."""
     scale = _grey_scale([{name: image}], name)
-    return _grey(image, scale or 1.0, root=name != "ir")[..., 0]
+    return _grey(image, scale or 1.0, root=CHANNEL[name].display == "radiance")[..., 0]
 
 
 def scale_caption(name: str, scale: float) -> str:
     """The scale written above a grey column: the value its white stands for."""
-    if name == "ir":
+    if CHANNEL[name].display == "linear":
         return "linear, white = full scale"
     if scale == 0:
         return "0 everywhere (no light)"
@@ -124,11 +124,13 @@ def _wrap(text: str, width: int) -> list[str]:
 
 
 def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: int = 320,
-                  frame_labels: list[str] | None = None) -> tuple[np.ndarray, SheetLayout]:
+                  frame_labels: list[str] | None = None,
+                  meanings: dict[str, str] | None = None) -> tuple[np.ndarray, SheetLayout]:
     """Draw the sheet (BGR uint8) for frames (channel -> (H, W) array, as read_frame returns).
 
-    Columns follow COLUMNS, keeping the channels the frames have. Returns the image and where
-    each tile is, so callers (and tests) can find a pass in it.
+    Columns follow COLUMNS, keeping the channels the frames have, each under its title and its
+    meaning (its declaration's in dotsim.channels, or `meanings`' for the channels it names). Returns
+    the image and where each tile is, so callers (and tests) can find a pass in it.
     """
     if not frames:
         raise ValueError("contact_sheet needs at least one frame")
@@ -143,6 +145,7 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     ranges = {c: _finite_range([f[c] for f in frames]) for c in channels if c in COLOUR_MAPPED}
     scales = {c: _grey_scale(frames, c) for c in channels if c in GREY_CHANNELS}
     labels = frame_labels or [f"frame {k}" for k in range(len(frames))]
+    meanings = {**{c.name: c.meaning for c in CHANNELS}, **(meanings or {})}
 
     top = 4 * LINE + GAP  # title line, column title, meaning, scale
     grid_w = len(channels) * (tile_w + GAP)
@@ -156,12 +159,13 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
     tiles = {}
     for j, name in enumerate(channels):
         x = LABEL_WIDTH + j * (tile_w + GAP)
-        put_text(sheet, TITLES[name], x, 2 * LINE - 4, width=tile_w)
-        put_text(sheet, MEANINGS[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
+        put_text(sheet, CHANNEL[name].title, x, 2 * LINE - 4, width=tile_w)
+        put_text(sheet, meanings[name], x, 3 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
         if name in scales:
             caption = scale_caption(name, scales[name])
         elif name in ranges:
-            caption = f"{short_number(ranges[name][0])}..{short_number(ranges[name][1])} {UNITS[name]}"
+            low, high = ranges[name]
+            caption = f"{short_number(low)}..{short_number(high)} {CHANNEL[name].unit}"
         else:
             caption = "mask 0 / 1"
         put_text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
@@ -170,9 +174,9 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             image = frame[name]
             if name in COLOUR_MAPPED:
                 tile = colourise(image, *ranges[name])
-            elif name in ds.MASK_CHANNELS:
+            elif CHANNEL[name].display == "mask":
                 tile = _grey(image, 1.0)
-            elif name == "ir":
+            elif CHANNEL[name].display == "linear":
                 tile = _grey(image, scales[name])
             else:  # radiance falls off as 1 / r^2: a square root shows far walls beside near objects
                 tile = _grey(image, scales[name] or 1.0, root=True)
@@ -184,7 +188,7 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
 
     y = top + len(frames) * (tile_h + GAP) + LINE
     for name, (low, high) in ranges.items():
-        put_text(sheet, f"{TITLES[name]} ({UNITS[name]}), black = none", LABEL_WIDTH, y)
+        put_text(sheet, f"{CHANNEL[name].title} ({CHANNEL[name].unit}), black = none", LABEL_WIDTH, y)
         bar_w = min(grid_w - GAP, 512)
         ramp = np.linspace(low, high, bar_w)[None, :].repeat(BAR_HEIGHT, axis=0)
         sheet[y + 4:y + 4 + BAR_HEIGHT, LABEL_WIDTH:LABEL_WIDTH + bar_w] = colourise(ramp, low, high)
@@ -221,21 +225,28 @@ def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:
 
 
 def load_for_sheet(path: str | Path, scene_index: int | None = None,
-                   verify: bool = True) -> tuple[list[dict], str, list[str]]:
-    """Frames, a title and row labels for PATH: a dataset dir (scene `scene_index`, default the
-    first), a scene dir, or one frame EXR."""
+                   verify: bool = True) -> tuple[list[dict], str, list[str], dict[str, str]]:
+    """Frames, a title, row labels and the meanings of the columns that differ from their declared ones, for
+    PATH: a dataset dir (scene `scene_index`, default the first), a scene dir, one frame EXR, or one
+    output EXR of `dotsim infer` (its disparity and depth labelled as predictions)."""
     path = Path(path)
     if path.is_file():
         frame = ds.read_frame(path, verify=verify)
         h, w = next(iter(frame.values())).shape
-        return [frame], f"{path}  ({w} x {h})", [path.stem]
+        source = prediction_source(path)
+        if source is None:
+            return [frame], f"{path}  ({w} x {h})", [path.stem], {}
+        names = {key: Path(str(source.get(key, "?"))).name for key in ("checkpoint", "input")}
+        title = (f"{path.name}  ({w} x {h}): PREDICTED by {names['checkpoint']} from {names['input']} "
+                 f"(dotsim infer), not ground truth")
+        return [frame], title, [path.stem], {name: PREDICTED for name in frame}
     scene_path = scene_path_of(path, scene_index)
     scene = ds.read_scene(scene_path, verify=verify)
     meta = scene.meta
     h, w = ds.camera_size(meta)
     title = (f"{scene_path}  scene {meta['scene_index']} ({meta['split']}), rig "
              f"{meta['rig'].get('name', '?')}, {w} x {h}, format {meta['format_version']}")
-    return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))]
+    return scene.frames, title, [f"frame {k}" for k in range(len(scene.frames))], {}
 
 
 def overview_sheet(tiles: list[tuple[str, np.ndarray]], title: str, tile_width: int = 240,
@@ -322,8 +333,8 @@ def run(args: argparse.Namespace) -> int:
         out = write_image(args.output, sheet)
         print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): IR of {len(tiles)} scene(s)")
         return 0
-    frames, title, labels = load_for_sheet(args.path, args.scene, verify=verify)
-    sheet, layout = contact_sheet(frames, title, args.tile_width, labels)
+    frames, title, labels, meanings = load_for_sheet(args.path, args.scene, verify=verify)
+    sheet, layout = contact_sheet(frames, title, args.tile_width, labels, meanings)
     out = write_image(args.output, sheet)
     print(f"wrote {out} ({sheet.shape[1]} x {sheet.shape[0]}): {len(frames)} frame(s) x "
           f"{len({c for _, c in layout.tiles})} pass(es)")
@@ -334,14 +345,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "show", help="contact sheet of a scene's passes, an IR overview of many scenes, or a GT point cloud",
         description="Draw a labelled contact sheet: one row per frame, one column per stored pass "
-        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity), each on "
+        "(IR, ambient, flood, depth, visibility and edge masks, projector column, disparity; of a stereo "
+        "pair also the right IR, the stereo visibility mask and the stereo disparity), each on "
         "its own scale written above it, colour bars in metres / pixels for the colour-mapped passes. "
         "PATH is a dataset directory (shows its first scene, or --scene N), a scene directory "
-        "(shard_*/scene_*), or one frame EXR. --overview draws the IR of many scenes of a dataset in "
+        "(shard_*/scene_*), one frame EXR, or an output EXR of `dotsim infer` (its columns labelled as "
+        "predictions). --overview draws the IR of many scenes of a dataset in "
         "one grid instead; --ply writes a frame's ground-truth point cloud instead.")
     parser.add_argument("path", metavar="PATH", help="dataset dir, scene dir, or frame_K.exr")
-    parser.add_argument("-o", "--output", default="contact_sheet.png",
-                        help="image to write, .png or .jpg (default: contact_sheet.png)")
+    add_output(parser, "image to write, .png or .jpg (default: contact_sheet.png)", metavar="FILE",
+               required=False, old=("--output",), dest="output", default="contact_sheet.png")
     parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
                         help="scene index to show when PATH is a dataset (default: the first)")
     parser.add_argument("--frame", type=integer(0), default=0, metavar="K",

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
+from dotsim.command_options import add_output
 from dotsim.file_io import atomic_write_json
 from dotsim.images import write_image
 from dotsim.option_types import integer
@@ -330,7 +331,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "Prints a summary, draws a PNG and writes the figures as JSON.")
     parser.add_argument("path", metavar="DIR", help="sealed dotsim dataset")
     parser.add_argument("--split", default="all", help="scene split: all (default), train or test")
-    parser.add_argument("-o", "--output", default="stats.png", help="PNG to draw (default: stats.png)")
+    add_output(parser, "PNG to draw (default: stats.png)", metavar="PNG", required=False, old=("--output",),
+               dest="output", default="stats.png")
     parser.add_argument("--json", default=None, metavar="FILE",
                         help="JSON to write (default: the PNG's name with .json)")
     parser.add_argument("--max-frames", type=integer(0), default=0, metavar="N",

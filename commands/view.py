@@ -4,16 +4,22 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
 
 - `world/pose_K` (static): the rig at frame K's pose (world_from_camera), its IR camera frustum
   `world/pose_K/camera` and projector frustum `world/pose_K/projector` (placed by the rig's
-  projector_translation and projector_rotation); a capture without poses shows them at the origin;
+  projector_translation and projector_rotation), and for a scene of a stereo pair the right
+  camera's frustum `world/pose_K/camera_right` (at the rig's second_camera_translation); a capture
+  without poses shows them at the origin;
 - `world/pose_K/ground_truth`: the frame's ground-truth depth as points in the rig (camera) frame,
-  shaded by the flood pass (as `camera/flood`; by the IR where a frame has no flood);
-- `camera/ir` (float values as stored), `camera/ambient`, `camera/flood` (uint8 as `dotsim show`
-  draws them: square root of value over the frame's 99th percentile), `camera/depth` (metres),
-  `camera/visibility`, `camera/edge` (0 / 255): the frame's passes, the IR sequence over frames;
-- with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr): the predicted
-  cloud `world/pose_K/prediction` beside the truth (up to the rig's max_depth), coloured by its
-  disparity error, and
-  `camera/error`, that error as an image (turbo over 0..5 camera px, black where no ground truth).
+  shaded by the flood pass (as `world/camera/flood`; by the IR where a frame has no flood);
+- `world/camera`: the IR camera of the current frame, its pose (world_from_camera) on the timeline and
+  its Pinhole, with the frame's passes under it, so that the viewer draws them in its frustum and
+  back-projects the depth into 3D: `world/camera/ir` (float values as stored), `.../ambient`,
+  `.../flood` (uint8 as `dotsim show` draws them: square root of value over the frame's 99th
+  percentile), `.../depth` (a DepthImage in metres), `.../visibility`, `.../edge` (0 / 255), and of a
+  stereo pair `.../ir_right` and `.../stereo_visibility`: the frame's channels (VIEWED, those the
+  scene has), the IR sequence over frames;
+- with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr, for any of the
+  scene's frames): the predicted cloud `world/pose_K/prediction` beside the truth (up to the rig's
+  max_depth), coloured by its disparity error, and `world/camera/error`, that error as an image
+  (turbo over 0..5 camera px, black where no ground truth), cleared on frames without a prediction.
 """
 
 from __future__ import annotations
@@ -25,17 +31,22 @@ import numpy as np
 
 from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
+from dotsim.channels import CHANNEL, CHANNELS
+from dotsim.command_options import add_output
 from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
+from dotsim.prediction_file import prediction_path
 from dotsim.rig import Rig
 
-# Shown as the contact sheet shows them: linear radiance spans 1 / r^2, which the viewer's automatic
-# range shows as a few bright objects on black.
-DISPLAYED_PASSES = ("ambient", "flood")
+# The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
+# as a depth image (the other colour-mapped channels are what the clouds show).
+VIEWED = tuple(c.name for c in CHANNELS
+               if c.display in ("linear", "radiance", "mask") or (c.display == "colour" and c.unit == "m"))
 ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
 FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
+CAMERA = "world/camera"  # the current frame's camera: its Pinhole, with the frame's images under it
 
 
 class ViewError(ValueError):
@@ -50,11 +61,6 @@ def _rerun():
     return rerun
 
 
-def prediction_path(predictions: Path, scene_index: int, frame_index: int) -> Path:
-    """`dotsim infer`'s output for a frame of a scene directory (trainer.infer names it so)."""
-    return predictions / f"{ds.scene_name(scene_index)}_frame_{frame_index}.exr"
-
-
 def disparity_error(predicted: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """|predicted - truth| in camera px; nan where either is missing."""
     return np.abs(predicted.astype(np.float64) - truth.astype(np.float64))
@@ -64,29 +70,56 @@ def _rgb(bgr: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(bgr[..., ::-1])
 
 
-def log_rig(rr, rec, k: int, pose, rig: Rig) -> None:
-    """Static: the rig at pose K with its camera and projector frusta."""
-    pose = np.eye(4) if pose is None else np.asarray(pose, np.float64)
+def _pose(pose) -> np.ndarray:
+    """A frame's world_from_camera (4 x 4); the identity where a capture has none."""
+    return np.eye(4) if pose is None else np.asarray(pose, np.float64)
+
+
+def _pinhole(rr, intrinsics):
+    return rr.Pinhole(image_from_camera=intrinsics.K, resolution=[intrinsics.width, intrinsics.height],
+                      camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=FRUSTUM_DEPTH)
+
+
+def viewer_image(rr, image: np.ndarray, name: str):
+    """A channel as the viewer shows it: linear ones (IR) as stored; radiance as the contact sheet
+    draws it (its automatic range would show 1 / r^2 light as a few bright objects on black); masks
+    0 / 255; metres as a depth image (0 where nothing is hit)."""
+    display = CHANNEL[name].display
+    if display == "linear":
+        return rr.Image(image.astype(np.float32), color_model="L")
+    if display == "radiance":
+        return rr.Image(grey_for_display(image, name), color_model="L")
+    if display == "mask":
+        return rr.Image(image * np.uint8(255), color_model="L")
+    return rr.DepthImage(np.where(np.isfinite(image), image, 0), meter=1.0)
+
+
+def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False) -> None:
+    """Static: the rig at pose K with its camera and projector frusta, and with `stereo` its right
+    camera's."""
+    pose = _pose(pose)
     base = f"world/pose_{k}"
     rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
-    for name, intr in (("camera", rig.camera), ("projector", rig.projector)):
+    frusta = [("camera", rig.camera), ("projector", rig.projector)]
+    if stereo:
+        rec.log(f"{base}/camera_right", rr.Transform3D(translation=rig.second_camera_translation),
+                static=True)
+        frusta.append(("camera_right", rig.camera))
+    for name, intr in frusta:
         if name == "projector":  # X_proj = R (X_cam - t): camera_from_projector = (R^T, t)
             rec.log(f"{base}/projector", rr.Transform3D(translation=rig.t, mat3x3=rig.R.T), static=True)
-        rec.log(f"{base}/{name}", rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
-                                             camera_xyz=rr.ViewCoordinates.RDF,
-                                             image_plane_distance=FRUSTUM_DEPTH), static=True)
+        rec.log(f"{base}/{name}", _pinhole(rr, intr), static=True)
 
 
-def layout(rr, with_predictions: bool):
-    """The viewer's opening layout: the 3D world large, the passes in a grid beside it."""
+def layout(rr, passes: list[str], with_predictions: bool):
+    """The viewer's opening layout: the 3D world large, the scene's `passes` in a grid beside it."""
     import rerun.blueprint as rrb
 
-    passes = ["ir", "ambient", "flood", "depth", "visibility", "edge"]
-    passes += ["error"] if with_predictions else []
+    passes = passes + (["error"] if with_predictions else [])
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
                                                  else "ground truth") + " in the world (z up)"),
-        rrb.Grid(*(rrb.Spatial2DView(origin=f"/camera/{p}", name=p) for p in passes)),
+        rrb.Grid(*(rrb.Spatial2DView(origin=f"/{CAMERA}/{p}", name=p) for p in passes)),
         column_shares=[3, 2]), collapse_panels=True)
 
 
@@ -101,38 +134,40 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
     for k in frames:
         if not 0 <= k < count:
             raise ViewError(f"{scene_path}: no frame {k}; it has {count}")
+    predicted = {}  # frame -> its prediction file, for the frames that have one
     if predictions is not None:
-        wanted = [prediction_path(predictions, meta["scene_index"], k) for k in frames]
-        missing = [p for p in wanted if not p.is_file()]
-        if missing:
-            raise ViewError(f"{missing[0]}: missing; --predictions takes the folder `dotsim infer` wrote "
-                            f"for this scene's frames")
-    rec.send_blueprint(layout(rr, predictions is not None))
+        wanted = {k: prediction_path(predictions, meta["scene_index"], k) for k in frames}
+        predicted = {k: path for k, path in wanted.items() if path.is_file()}
+        if not predicted:
+            raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
+                            f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
+                            f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
+    passes = [name for name in VIEWED if name in meta["channels"]]
+    rec.send_blueprint(layout(rr, passes, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log(CAMERA, _pinhole(rr, rig.camera), static=True)
     sizes = {}
     for k in frames:
-        log_rig(rr, rec, k, meta["poses"][k], rig)
+        log_rig(rr, rec, k, meta["poses"][k], rig, stereo="ir_right" in meta["channels"])
     for k in frames:
         f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
         rec.set_time("frame", sequence=k)
-        rec.log("camera/ir", rr.Image(f["ir"].astype(np.float32), color_model="L"))
-        for name in DISPLAYED_PASSES:
-            if name in f:
-                rec.log(f"camera/{name}", rr.Image(grey_for_display(f[name], name), color_model="L"))
-        rec.log("camera/depth", rr.DepthImage(np.where(np.isfinite(f["depth"]), f["depth"], 0), meter=1.0))
-        for name in ds.MASK_CHANNELS:
-            rec.log(f"camera/{name}", rr.Image(f[name] * np.uint8(255), color_model="L"))
+        pose = _pose(meta["poses"][k])
+        rec.log(CAMERA, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        for name in (name for name in VIEWED if name in f):
+            rec.log(f"{CAMERA}/{name}", viewer_image(rr, f[name], name))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
         points, colours = depth_points(f["depth"], rig.camera, grey)
         rec.log(f"world/pose_{k}/ground_truth", rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
                                                             radii=rr.Radius.ui_points(1.5)))
         sizes[f"world/pose_{k}/ground_truth"] = len(points)
-        if predictions is not None:
-            pred = ds.read_frame(prediction_path(predictions, meta["scene_index"], k), verify=False,
-                                 channels=("disparity", "depth"))
+        if predictions is not None and k not in predicted:
+            rec.log(f"{CAMERA}/error", rr.Clear(recursive=False))  # not the error of an earlier frame
+        elif predictions is not None:
+            pred = ds.read_frame(predicted[k], verify=False, channels=("disparity", "depth"))
             error = disparity_error(pred["disparity"], f["disparity"])
-            rec.log("camera/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
+            rec.log(f"{CAMERA}/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
             # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
             # beyond the rig's range are left out (a few near-zero disparities would put points
             # hundreds of metres away and the viewer's camera with them)
@@ -184,10 +219,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
         "view", help="a scene in the Rerun 3D viewer: passes, GT point clouds, frusta, predictions",
         description="Show a scene in Rerun (pip install \"dotsim[view]\"): the IR sequence, ambient, flood, "
-        "depth, visibility and edge masks over the `frame` timeline; the ground-truth depth as a point cloud "
-        "in the rig frame at each of the scene's poses (world frame, z up); the camera and projector frusta "
-        "at every pose; with --predictions, the predicted cloud beside the truth and the disparity error "
-        "image. Without --save it spawns the viewer; --save OUT.rrd writes a recording instead (open it "
+        "depth, visibility and edge masks (and of a stereo pair the right IR and its mask) over the `frame` "
+        "timeline; the ground-truth depth as a point cloud in the rig frame at each of the scene's poses "
+        "(world frame, z up); the camera and projector frusta at every pose (and the right camera's of a "
+        "stereo pair); with --predictions, the predicted cloud beside the truth and the disparity error "
+        "image. Without -o it spawns the viewer; -o OUT.rrd writes a recording instead (open it "
         "with `rerun OUT.rrd`, or `rerun --web-viewer OUT.rrd` in a browser).")
     parser.add_argument("path", metavar="DIR", help="dataset dir (first scene, or --scene N) or scene dir")
     parser.add_argument("--scene", type=integer(0), default=None, metavar="N",
@@ -195,9 +231,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--frame", type=integer(0), default=None, metavar="K",
                         help="only frame K (default: all)")
     parser.add_argument("--predictions", default=None, metavar="EVAL_DIR",
-                        help="folder of `dotsim infer` outputs for the scene's frames "
+                        help="folder of `dotsim infer` outputs for any of the scene's frames "
                         "(scene_SSSSSSS_frame_K.exr)")
-    parser.add_argument("--save", default=None, metavar="OUT.rrd", help="write a recording; spawn no viewer")
+    add_output(parser, "write a recording (.rrd); spawn no viewer", metavar="OUT.rrd", required=False,
+               old=("--save",), dest="save")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
     parser.set_defaults(func=run, errors={ViewError: 1, ds.FormatError: 1})
     return parser

@@ -62,6 +62,9 @@ FISHEYE = "fisheye"  # equidistant k1 k2 k3 k4 (cv2.fisheye)
 DISTORTION_MODELS = {"plumb_bob": RADTAN, "radtan": RADTAN, "rational_polynomial": RADTAN,
                      "equidistant": FISHEYE, "fisheye": FISHEYE, "none": RADTAN}
 COEFFICIENT_COUNTS = {RADTAN: (0, 4, 5, 8, 12, 14), FISHEYE: (4,)}
+# The largest |R R^T - I| of a file's rotation that is taken, as the nearest rotation (proper_rotation):
+# calibration tools and people round rotations to 4-6 decimals, which leaves them 1e-6 to 1e-5 off.
+ROTATION_TOLERANCE = 1e-4
 STEREO_CALIB_PAIR = ("intrinsics", "extrinsics")  # the stereo_calib sample's fixed file names
 
 
@@ -99,6 +102,7 @@ class Calibration:
     name: str | None = None
     max_depth: float | None = None
     rig: object | None = None  # a dotsim rig JSON: the dotsim.rig.Rig itself
+    notes: tuple[str, ...] = ()  # what was adjusted on reading (a rounded rotation), one line each
 
 
 class _Keys:
@@ -390,18 +394,43 @@ def _opencv(tree: dict, path: Path, where: str) -> Calibration:
     projector = _opencv_camera(keys, "projector")
     _, rotation = _matrix(keys, ("R",), (3, 3), required=False)
     _, translation = _matrix(keys, ("T",), (3,), required=False)
+    rotation, notes = proper_rotation(rotation, f"{where}: R") if rotation is not None else (None, ())
     name_key, value = keys.get(("rectification_matrix",))
     if name_key is not None and not np.allclose(numbers(value, f"{where}: {name_key}").ravel(),
                                                 np.eye(3).ravel()):
         raise RigFileError(f"{where}: rectification_matrix is not the identity: the camera_info of one "
                                "camera of a rectified stereo pair; allowed: a monocular calibration "
                                "(identity), dotsim rectifies the camera to its own pinhole model")
-    calibration = Calibration(path, camera, projector, rotation, translation, *_name_and_depth(keys))
+    calibration = Calibration(path, camera, projector, rotation, translation, *_name_and_depth(keys),
+                              notes=notes)
     keys.refuse_unknown()
     if camera is None and projector is None:
         raise RigFileError(f"{where}: no camera in it; allowed names of the camera matrix: "
                                f"{' or '.join(CAMERA_MATRIX_KEYS)} (or a Kalibr camchain's cam0)")
     return calibration
+
+
+def proper_rotation(matrix: np.ndarray, where: str) -> tuple[np.ndarray, tuple[str, ...]]:
+    """A file's rotation as dotsim takes it, and what was done to it (one line, or nothing): as it is
+    when a Rig takes it (dotsim.rig.is_rotation), else the nearest rotation (the SVD's U V^T) when R R^T
+    differs from the identity by at most ROTATION_TOLERANCE (rounded values) and det R > 0. RigFileError
+    naming `where` (the file and key) otherwise."""
+    from dotsim.rig import is_rotation
+
+    if is_rotation(matrix):
+        return matrix, ()
+    off = float(np.abs(matrix @ matrix.T - np.eye(3)).max())
+    det = float(np.linalg.det(matrix))
+    if det <= 0 or off > ROTATION_TOLERANCE:
+        raise RigFileError(f"{where} is not a rotation (|R R^T - I| = {off:.2g}, det {det:.6g}); allowed: a "
+                           f"proper rotation (det +1), orthonormal to {ROTATION_TOLERANCE:g} (rounded values "
+                           "are re-orthonormalised)")
+    u, _, vt = np.linalg.svd(matrix)
+    nearest = u @ vt
+    return nearest, (f"{where}: the rotation is orthonormal to {off:.1e} only (rounded); re-orthonormalised "
+                     f"to the nearest rotation, which differs from it by at most "
+                     f"{float(np.abs(nearest - matrix).max()):.1e} (allowed: |R R^T - I| up to "
+                     f"{ROTATION_TOLERANCE:g})",)
 
 
 def _name_and_depth(keys: _Keys) -> tuple[str | None, float | None]:
@@ -453,6 +482,7 @@ def _kalibr(tree: dict, cams: list[str], path: Path, where: str) -> Calibration:
                                "optionally cam1 (the projector)")
     camera, _ = _kalibr_camera(keys.get(("cam0",))[1], "cam0", where)
     projector = rotation = translation = None
+    notes = ()
     if "cam1" in cams:
         projector, transform = _kalibr_camera(keys.get(("cam1",))[1], "cam1", where)
         if transform is None:
@@ -460,7 +490,9 @@ def _kalibr(tree: dict, cams: list[str], path: Path, where: str) -> Calibration:
         if transform[3].tolist() != [0.0, 0.0, 0.0, 1.0]:
             raise RigFileError(f"{where}: cam1: T_cn_cnm1 bottom row {transform[3].tolist()}; allowed: a "
                                "homogeneous rigid transform, bottom row [0, 0, 0, 1]")
-        rotation, translation = transform[:3, :3], transform[:3, 3]
-    calibration = Calibration(path, camera, projector, rotation, translation, *_name_and_depth(keys))
+        rotation, notes = proper_rotation(transform[:3, :3], f"{where}: cam1: T_cn_cnm1")
+        translation = transform[:3, 3]
+    calibration = Calibration(path, camera, projector, rotation, translation, *_name_and_depth(keys),
+                              notes=notes)
     keys.refuse_unknown()
     return calibration

@@ -2,11 +2,17 @@
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
 arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
-`split` and `meta` (the scene.json dict: rig, pattern, poses). It needs no trainer config:
+`split` and `meta` (the scene.json dict: rig, pattern, poses; a SceneMeta). It needs no trainer config,
+and PyTorch's default collate batches it (the channels as tensors, `meta` as a list: collate_meta):
 
     from torch.utils.data import DataLoader
     from dotsim.data import Frames
-    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=None, num_workers=4)
+    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=4, num_workers=4)
+
+The webdataset library's own pipelines read the shards too: `decode_webdataset` turns one of its raw
+samples into the same frame dict, without `meta` (each sample decodes alone from its frame.json):
+
+    wds.WebLoader(wds.WebDataset(urls).map(decode_webdataset).batched(4), batch_size=None, num_workers=4)
 
 A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
 commands.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
@@ -35,11 +41,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.data._utils.collate import default_collate_fn_map
 
 from dotsim import dataset as ds
+from dotsim.dataset.frames import DERIVATIONS, derivable_channels
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
-from dotsim.rig import Rig, depth_to_disparity, projector_column_to_depth
+from dotsim.rig import Rig, projector_column_to_depth
 from dotsim.shard_format import (
     INDEX_NAME,
     PATTERN_NAME,
@@ -211,25 +219,54 @@ def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str =
     """A frame dict from a sample's files (any export format version); channels: keep only these.
 
     `metas` (scene index -> scene.json dict) supplies the metadata of a 2.x sample that does not carry
-    it (it is stored once per scene and shard) and learns it from one that does. `disparity` is
-    derived on read as from a dataset folder: from depth, or, when the sample has no depth, from the
-    projector column (at its stored precision)."""
+    it (it is stored once per scene and shard) and learns it from one that does. The derived channels
+    (`disparity`, `stereo_disparity`) come on read as from a dataset folder: from depth, or, when the
+    sample has no depth, from the depth its projector column gives (at the column's stored precision)."""
     where = f"{where}: sample {key}"
-    if "frame.json" not in files:
-        raise ds.FormatError(f"{where} has no frame.json (not a dotsim export)")
     metas = {} if metas is None else metas
     scene = _scene_of(key, where)
-    if "scene.json" in files or "scene.json.gz" in files:  # format 1.0, 2.0
-        text = files.get("scene.json") or gzip.decompress(files["scene.json.gz"])
-        metas[scene] = json.loads(text)
+    own = _own_scene_json(files)
+    if own is not None:
+        metas[scene] = own
     if scene not in metas:
         raise ds.FormatError(f"{where} has no scene.json, nor has an earlier sample of its scene in "
                              f"this shard")
+    return {**_decode_frame(key, files, channels, where, metas[scene]), "meta": metas[scene]}
+
+
+def decode_webdataset(sample: dict, channels=None) -> dict:
+    """One raw sample of the webdataset library ({"__key__": KEY, "__url__": shard, "ir.png": bytes,
+    "frame.json": bytes, ...}, as `webdataset.WebDataset(urls)` yields it without `.decode()`) as the
+    frame dict Frames yields, without `meta`: the channels (PNG codes decoded as its frame.json says,
+    .npy.gz unpacked, `disparity` derived) and key, scene_index, frame_index, split. It needs no other
+    sample: frame.json carries the rig and the codecs, so it suits a shuffled pipeline, in which a
+    scene's scene.json.gz (in its first sample per shard only) may come later, or in another worker.
+    FormatError naming the shard and the sample."""
+    key = sample.get("__key__")
+    if not isinstance(key, str):
+        raise ds.FormatError(f"{sample.get('__url__', '?')}: a sample without __key__ (not a raw "
+                             f"webdataset sample: leave out .decode() before this map)")
+    files = {ext: data for ext, data in sample.items() if not ext.startswith("__")}
+    where = f"{sample.get('__url__', '')}: sample {key}"
+    return _decode_frame(key, files, channels, where, _own_scene_json(files))
+
+
+def _own_scene_json(files: dict[str, bytes]) -> dict | None:
+    """The scene.json a sample carries itself (format 1.0: every sample; 2.0: a scene's first per shard)."""
+    if "scene.json" not in files and "scene.json.gz" not in files:
+        return None
+    return json.loads(files.get("scene.json") or gzip.decompress(files["scene.json.gz"]))
+
+
+def _decode_frame(key: str, files: dict[str, bytes], channels, where: str, meta: dict | None) -> dict:
+    """The channels of one sample and its key, scene_index, frame_index and split; the rig (for the
+    derived channels) from its frame.json, else from its scene's `meta`."""
+    if "frame.json" not in files:
+        raise ds.FormatError(f"{where} has no frame.json (not a dotsim export)")
     info = json.loads(files["frame.json"])
-    meta, encoding = metas[scene], info.get("encoding", {})
+    encoding = info.get("encoding", {})
     names = [n for n in ds.FRAME_CHANNELS if channel_member(files, n)]
-    derivable = [c for c in ds.DERIVED_CHANNELS if c not in names
-                 and ("depth" in names or "projector_column" in names)]
+    derivable = derivable_channels(names, "depth" in names or "projector_column" in names)
     wanted = names + derivable if channels is None else list(channels)
     missing = [c for c in wanted if c not in names and c not in derivable]
     if missing:
@@ -244,15 +281,41 @@ def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str =
         return decoded[name]
 
     out = {"key": key, "scene_index": info["scene_index"], "frame_index": info["frame_index"],
-           "split": info["split"], "meta": meta}
+           "split": info["split"]}
     for name in wanted:
         if name in names:
             out[name] = channel(name)
             continue
-        rig = Rig.from_dict(info.get("rig") or meta["rig"])  # disparity, the one derived channel
-        out[name] = (ds.ground_truth_disparity(channel("depth"), rig) if "depth" in names else
-                     depth_to_disparity(projector_column_to_depth(channel("projector_column"), rig), rig))
+        rig_dict = info.get("rig") or (meta or {}).get("rig")
+        if rig_dict is None:
+            raise ds.FormatError(f"{where}: {name!r} is derived from the rig, which neither its frame.json "
+                                 f"nor a scene.json gives")
+        rig = Rig.from_dict(rig_dict)
+        # a training export may hold the projector column instead of depth: depth follows from it
+        depth = (channel("depth") if "depth" in names
+                 else projector_column_to_depth(channel("projector_column"), rig))
+        try:
+            out[name] = DERIVATIONS[name](depth, rig)
+        except ValueError as error:  # a stereo channel of a rig without a stereo pair
+            raise ds.FormatError(f"{where}: channel {name!r}: {error}") from None
     return out
+
+
+class SceneMeta(dict):
+    """The scene.json dict of a Frames sample. Its own type so that PyTorch's default collate batches
+    it with collate_meta (registered in torch's default_collate_fn_map, PyTorch's documented way to
+    extend default_collate, when this module is imported): scene.json holds null values and lists of
+    per-scene lengths (objects, lights), which default_collate cannot stack."""
+
+
+def collate_meta(batch, *, collate_fn_map=None) -> list[dict]:
+    """The collate rule for SceneMeta: a batch's metadata as a list, one scene.json dict per sample,
+    in the batch's order (default_collate uses it for the `meta` of Frames samples; a custom collate_fn
+    can call it on [sample["meta"] for sample in samples])."""
+    return list(batch)
+
+
+default_collate_fn_map[SceneMeta] = collate_meta
 
 
 def rank_and_world() -> tuple[int, int]:
@@ -272,7 +335,8 @@ def share(items: list, rank: int, world: int, worker: int, workers: int) -> list
 class Frames(torch.utils.data.IterableDataset):
     """The frames of a source (see the module docstring) as dicts; `split` keeps one scene split,
     `channels` some channels (default all), `shuffle` with `seed` reorders the shards (or frames of a
-    folder) per epoch (set_epoch)."""
+    folder) per epoch (set_epoch). A sample's `meta` is a SceneMeta, so DataLoader(frames,
+    batch_size=N) batches samples with PyTorch's default collate."""
 
     def __init__(self, source, channels=None, split: str | None = None, shuffle: bool = False,
                  seed: int = 0, rank: int | None = None, world: int | None = None, verify: bool = True):
@@ -309,7 +373,7 @@ class Frames(torch.utils.data.IterableDataset):
                 frame = ds.read_frame(ref.path / ds.frame_name(k), verify=self.verify, channels=self.channels,
                                       meta=meta)
                 yield {"key": sample_key(ref.scene_index, k), "scene_index": ref.scene_index,
-                       "frame_index": k, "split": meta["split"], "meta": meta, **frame}
+                       "frame_index": k, "split": meta["split"], "meta": SceneMeta(meta), **frame}
             return
         checksums = dict(self.source.checksums) if self.verify else {}
         for location in self._units():
@@ -318,7 +382,7 @@ class Frames(torch.utils.data.IterableDataset):
                 for key, files in iter_tar_samples(stream, location):
                     sample = decode_sample(key, files, self.channels, location, metas)
                     if self.split is None or sample["split"] == self.split:
-                        yield sample
+                        yield {**sample, "meta": SceneMeta(sample["meta"])}
 
 
 def default_cache_dir() -> Path:

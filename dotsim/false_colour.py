@@ -1,14 +1,17 @@
 """False colour that a reader can read without the docs: a value range as the turbo colour map, and
 the legend strip stacked under such an image ('low [bar] high unit', then what special colours
 mean). `dotsim show`'s sheets, `dotsim view`'s error images, `dotsim eval`'s error strips and `dotsim
-infer`'s disparity images all draw with these, in one text style (the constants below).
-numpy + OpenCV only.
+infer`'s disparity images all draw with these, in one text style (the constants below). An image
+narrower than a legend or a label needs is scaled up by a whole factor first (legible), so that the
+text beside it is readable and never drawn over it. numpy + OpenCV only.
 
 >>> import numpy as np
 >>> image = colourise(np.array([[0.0, 5.0, np.nan]]), 0.0, 5.0)
 >>> image.shape, image.dtype, image[0, 2].tolist()  # BGR; no value -> black
 ((1, 3, 3), dtype('uint8'), [0, 0, 0])
->>> with_legend(image, 0.0, 5.0, "px").shape[:2] == (1 + LINE + 4, 3)
+>>> legible(image).shape  # 3 px wide: each pixel a 160 x 160 block
+(160, 480, 3)
+>>> with_legend(image, 0.0, 5.0, "px").shape[:2] == (160 + LINE + 4, 480)
 True
 """
 
@@ -22,6 +25,8 @@ TEXT_SCALE = 0.45
 LINE = 18  # text line height, px
 LEGEND_BAR_WIDTH = 160  # the colour bar of legend_strip, px
 SWATCH = 12  # a legend swatch's side, px
+# The narrowest image a legend is stacked under (legible): a legend row at TEXT_SCALE needs about this.
+LEGIBLE_WIDTH = 480
 BACKGROUND = (40, 40, 40)
 TEXT_COLOUR = (235, 235, 235)
 
@@ -70,7 +75,27 @@ def legend_strip(width: int, low: float, high: float, unit: str,
     return strip
 
 
+def legible(image: np.ndarray, width: int = LEGIBLE_WIDTH) -> np.ndarray:
+    """`image` scaled up by the smallest whole factor that makes it at least `width` px wide, by nearest
+    neighbour (each pixel a square block: no value blended with its neighbours), or as it is when it is
+    that wide already."""
+    factor = -(-width // image.shape[1])
+    if factor <= 1:
+        return image
+    return cv2.resize(image, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
+
+
+def titled(image: np.ndarray, text: str, width: int) -> np.ndarray:
+    """`image` (BGR) made legible at `width` px, under a LINE-high bar holding `text` (never drawn
+    over the image)."""
+    image = legible(image, width)
+    bar = np.full((LINE, image.shape[1], 3), BACKGROUND, np.uint8)
+    put_text(bar, text, 4, LINE - 5, width=image.shape[1] - 8)
+    return np.concatenate([bar, image], axis=0)
+
+
 def with_legend(image: np.ndarray, low: float, high: float, unit: str,
                 swatches: tuple[tuple[tuple[int, int, int], str], ...] = ()) -> np.ndarray:
-    """image (H, W, 3) BGR with legend_strip(...) stacked under it."""
+    """image (H, W, 3) BGR, made legible, with legend_strip(...) stacked under it."""
+    image = legible(image)
     return np.concatenate([image, legend_strip(image.shape[1], low, high, unit, swatches)], axis=0)

@@ -8,6 +8,8 @@ light in the image (visibility_mask, capture/dots.py). The edge mask comes from 
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import cv2
 import numpy as np
 
@@ -70,16 +72,16 @@ def visibility_mask(ambient: np.ndarray, flood: np.ndarray, threshold: float = 0
         return signal > threshold  # NaN compares False
 
 
-def noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float) -> np.ndarray:
-    """The sensor noise's standard deviation at `level` (fraction of full scale): read noise and
-    shot noise whose variance grows linearly with the level (generator/sensor_model.py)."""
-    return np.sqrt(read_noise**2 + shot_noise**2 * np.maximum(level, 0.0))
+class SensorNoise(Protocol):
+    """What the visibility mask needs of a sensor model (generator.sensor_model.SensorModel): the
+    standard deviation of the noise it adds at a level (fraction of full scale)."""
+
+    def sigma(self, level: np.ndarray) -> np.ndarray: ...
 
 
 def direct_visibility_mask(projector_direct: np.ndarray, flood_direct: np.ndarray,
-                           background: np.ndarray, gain: float, read_noise: float,
-                           shot_noise: float, margin: float = 3.0, blur_sigma: float = 0.0,
-                           window: int = 5) -> np.ndarray:
+                           background: np.ndarray, gain: float, noise: SensorNoise,
+                           margin: float = 3.0, blur_sigma: float = 0.0, window: int = 5) -> np.ndarray:
     """Where the sensor sees the projector's direct light: bool (H, W).
 
     A pixel is visible where (1) the projector lights it directly, flood_direct > 0 (the flood
@@ -87,20 +89,19 @@ def direct_visibility_mask(projector_direct: np.ndarray, flood_direct: np.ndarra
     image, whatever light bounces there), and (2) a dot of the projector's direct light within
     `window` x `window` pixels stands `margin` noise sigmas above the sensor's noise at this pixel.
     Dots are gain x projector_direct, blurred like the sensor image (blur_sigma px) and taken at
-    their brightest in the window; the noise is noise_sigma(gain x background). So a wall far
+    their brightest in the window; the noise is noise.sigma(gain x background). So a wall far
     behind bright near objects, which the frame's exposure leaves below the noise, is not visible.
 
     projector_direct, flood_direct, background: radiance (H, W) in one unit; background is the
     light the dots stand on (ambient and the projector's indirect light). gain: the frame's
-    exposure, level per unit radiance (generator.sensor_model.exposure_gain). read_noise,
-    shot_noise: the sensor's noise in levels (full scale 1). Non-finite pixels are not visible.
+    exposure, level per unit radiance (generator.sensor_model.SensorModel.exposure_gain). noise:
+    the sensor model, whose sigma(level) is the noise it adds. Non-finite pixels are not visible.
     """
     shapes = {np.shape(a) for a in (projector_direct, flood_direct, background)}
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"projector_direct, flood_direct and background must be (H, W) of one shape, "
                          f"got {shapes}")
-    for name, value in (("gain", gain), ("margin", margin), ("blur_sigma", blur_sigma),
-                        ("read_noise", read_noise), ("shot_noise", shot_noise)):
+    for name, value in (("gain", gain), ("margin", margin), ("blur_sigma", blur_sigma)):
         if not np.isfinite(value) or value < 0:
             raise ValueError(f"{name} must be a finite number >= 0, got {value}")
     if int(window) != window or window < 1 or window % 2 == 0:
@@ -111,7 +112,7 @@ def direct_visibility_mask(projector_direct: np.ndarray, flood_direct: np.ndarra
     nearby = cv2.dilate(dots, np.ones((int(window), int(window)), np.uint8), borderType=cv2.BORDER_REPLICATE)
     level = gain * np.asarray(background, np.float64)
     with np.errstate(invalid="ignore"):
-        return (np.asarray(flood_direct) > 0) & (nearby > margin * noise_sigma(level, read_noise, shot_noise))
+        return (np.asarray(flood_direct) > 0) & (nearby > margin * noise.sigma(level))
 
 
 def depth_gradient(depth: np.ndarray) -> np.ndarray:

@@ -94,6 +94,13 @@ def rotation_matrix(rx: float, ry: float, rz: float) -> Matrix3:
     return tuple(tuple(float(v) for v in row) for row in r_z @ r_y @ r_x)  # type: ignore[return-value]
 
 
+def is_rotation(matrix) -> bool:
+    """Whether a 3x3 matrix is what a Rig takes as projector_rotation: orthonormal (R R^T = I to
+    numpy.allclose with atol 1e-6) and proper (det > 0)."""
+    matrix = np.asarray(matrix, np.float64)
+    return bool(np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) and np.linalg.det(matrix) > 0)
+
+
 @dataclass(frozen=True)
 class Rig(Checked):
     """An IR camera with a dot projector (and optionally a second IR camera) rigidly beside it,
@@ -116,8 +123,7 @@ class Rig(Checked):
         for name in ("camera", "projector"):
             if not isinstance(getattr(self, name), Intrinsics):
                 raise ValueError(f"rig {name} must be Intrinsics, got {type(getattr(self, name)).__name__}")
-        matrix = np.array(self.projector_rotation)
-        if not np.allclose(matrix @ matrix.T, np.eye(3), atol=1e-6) or np.linalg.det(matrix) <= 0:
+        if not is_rotation(self.projector_rotation):
             raise ValueError(f"projector_rotation must be a proper rotation (orthonormal, det +1), "
                              f"got {[list(row) for row in self.projector_rotation]!r}")
 

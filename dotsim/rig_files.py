@@ -28,6 +28,8 @@ from dotsim.calibration_files import (
 )
 from dotsim.rig import (
     DEFAULT_MAX_DEPTH,
+    DEFAULT_PRESET,
+    PRESETS,
     Intrinsics,
     Rig,
     check_square_pixels,
@@ -67,16 +69,28 @@ class Lens:
                 "model": self.model}
 
 
+# The parts of a rig whose sources CalibratedRig records (`dotsim rig show` names them), in its order.
+RIG_PARTS = ("camera", "projector", "pose", "second camera", "max depth")
+
+
 @dataclass(frozen=True)
 class CalibratedRig:
-    """A rig, and the lens real frames are rectified from (None: frames are the rig camera's
-    pinhole images already)."""
+    """A rig, the lens real frames are rectified from (None: frames are the rig camera's pinhole
+    images already), where each of its RIG_PARTS came from (part -> a preset, a file, a config key) and
+    what reading it noted (one line each: a rounded rotation re-orthonormalised, a camera-only
+    calibration completed by another rig's projector), for the commands to say."""
 
     rig: Rig
     lens: Lens | None = None
+    sources: tuple[tuple[str, str], ...] = ()
+    notes: tuple[str, ...] = ()
 
     def scaled(self, factor: float) -> CalibratedRig:
-        return CalibratedRig(self.rig.scaled(factor), self.lens and self.lens.scaled(factor))
+        return replace(self, rig=self.rig.scaled(factor), lens=self.lens and self.lens.scaled(factor))
+
+    def source(self, part: str) -> str:
+        """Where part `part` (of RIG_PARTS) came from; "" when unknown."""
+        return dict(self.sources).get(part, "")
 
     def rectification_note(self, where: str) -> str | None:
         """The one line generation prints for a calibrated lens, or None."""
@@ -98,18 +112,35 @@ class _Parts:
     projector: CameraPart
     rotation: np.ndarray  # dotsim's pose: X_projector = R (X_camera - t)
     translation: np.ndarray  # t, the projector centre in the camera frame
-    name: str
+    names: tuple[str, str]  # whose camera, whose projector (rig_name)
     max_depth: float
     second_camera_translation: tuple | None = None
+    sources: tuple[tuple[str, str], ...] = ()  # RIG_PARTS -> where from
+    notes: tuple[str, ...] = ()
+
+
+def rig_name(camera: str, projector: str) -> str:
+    """The name of a rig whose camera is `camera`'s and projector `projector`'s: one name when they are
+    one rig's, else both, so that a rig put together from a calibration and a preset says so.
+
+    >>> rig_name("structure_core", "structure_core"), rig_name("ir_camera", "structure_core")
+    ('structure_core', 'ir_camera (camera) + structure_core (projector)')
+    """
+    return camera if camera == projector else f"{camera} (camera) + {projector} (projector)"
 
 
 def _rig_parts(rig: Rig, where: str) -> _Parts:
-    """A dotsim rig's parts, taken as they are (its camera is its own pinhole model, never a lens)."""
+    """A dotsim rig's parts, taken as they are (its camera is its own pinhole model, never a lens);
+    `where` names it (a preset, a file) as every part's source."""
     def part(intrinsics: Intrinsics) -> CameraPart:
         return CameraPart(intrinsics.K, (intrinsics.width, intrinsics.height), (), PINHOLE, where)
 
-    return _Parts(part(rig.camera), part(rig.projector), rig.R, rig.t, rig.name, rig.max_depth,
-                  rig.second_camera_translation)
+    return _Parts(part(rig.camera), part(rig.projector), rig.R, rig.t, (rig.name, rig.name), rig.max_depth,
+                  rig.second_camera_translation, tuple((name, where) for name in RIG_PARTS))
+
+
+def _preset_parts(name: str) -> _Parts:
+    return _rig_parts(get_preset(name), f"preset {name}")
 
 
 def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
@@ -133,9 +164,13 @@ def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
         rotation = calibration.rotation
         # OpenCV: X_projector = R X_camera + T, so the projector centre is t = -R^T T
         translation = None if rotation is None else -rotation.T @ calibration.translation
-        parts = _Parts(calibration.camera, calibration.projector, rotation, translation,
-                       calibration.name or path.stem,
-                       calibration.max_depth if calibration.max_depth is not None else DEFAULT_MAX_DEPTH)
+        name = calibration.name or path.stem
+        depth = (str(path) if calibration.max_depth is not None
+                 else f"{path} (it gives none: the default, {DEFAULT_MAX_DEPTH:g} m)")
+        parts = _Parts(calibration.camera, calibration.projector, rotation, translation, (name, name),
+                       calibration.max_depth if calibration.max_depth is not None else DEFAULT_MAX_DEPTH,
+                       sources=(*((part, str(path)) for part in RIG_PARTS[:4]), ("max depth", depth)),
+                       notes=calibration.notes)
         if calibration.projector is not None and calibration.projector.distorted:
             raise RigFileError(f"{calibration.projector.where}: projector distortion "
                                f"{list(calibration.projector.distortion)} is not zero; dotsim's projector is "
@@ -147,7 +182,46 @@ def _file_parts(path, roles: tuple[str, ...], base: _Parts | None) -> _Parts:
     taken = {"camera": {"camera": parts.camera},
              "projector": {"projector": parts.projector, "rotation": parts.rotation,
                            "translation": parts.translation}}
-    return replace(base, **{key: value for role in roles for key, value in taken[role].items()})
+    names = (parts.names[0] if "camera" in roles else base.names[0],
+             parts.names[1] if "projector" in roles else base.names[1])
+    from_file = {"camera"} if roles == ("camera",) else {"projector", "pose"}
+    sources = tuple((part, str(path) if part in from_file else where) for part, where in base.sources)
+    return replace(base, names=names, sources=sources, notes=base.notes + parts.notes,
+                   **{key: value for role in roles for key, value in taken[role].items()})
+
+
+def _composed(base: _Parts, camera_file: str = "", projector_file: str = "") -> _Parts:
+    """`base` with the camera of `camera_file` and the projector and pose of `projector_file` (either
+    may be ""); a camera file completed by another rig's projector says so in a note. RigFileError
+    naming the key (camera_file, projector_file) and the file."""
+    parts = base
+    for key, path, roles in (("camera_file", camera_file, ("camera",)),
+                             ("projector_file", projector_file, ("projector",))):
+        if path:
+            try:
+                parts = _file_parts(path, roles, parts)
+            except RigFileError as error:
+                raise RigFileError(f"{key}: {error}") from None
+    if camera_file:
+        projector = dict(parts.sources)["projector"]
+        parts = replace(parts, notes=parts.notes + (
+            f"{camera_file} calibrates the camera alone: the projector and its pose are those of {projector} "
+            f"(rig {rig_name(*parts.names)!r})",))
+    return parts
+
+
+def _calibrated(parts: _Parts, where: str, sizes=(None, None)) -> CalibratedRig:
+    camera, lens = _camera(parts.camera, sizes[0], "camera")
+    projector, _ = _camera(parts.projector, sizes[1], "projector")
+    try:
+        # OpenCV: X_projector = R X_camera + T; dotsim: X_projector = R (X_camera - t)
+        rig = Rig(name=rig_name(*parts.names), camera=camera, projector=projector,
+                  projector_translation=tuple(parts.translation.tolist()),
+                  projector_rotation=tuple(tuple(row) for row in parts.rotation.tolist()),
+                  second_camera_translation=parts.second_camera_translation, max_depth=parts.max_depth)
+    except ValueError as error:
+        raise RigFileError(f"{where}: {error}") from None
+    return CalibratedRig(rig, lens, parts.sources, parts.notes)
 
 
 def _camera(part: CameraPart, size: tuple[int, int] | None, role: str) -> tuple[Intrinsics, Lens | None]:
@@ -172,20 +246,6 @@ def _camera(part: CameraPart, size: tuple[int, int] | None, role: str) -> tuple[
     return Intrinsics(size[0], size[1], focal, focal, cx, cy), Lens(calibrated, part.distortion, part.model)
 
 
-def _calibrated(parts: _Parts, where: str, sizes=(None, None)) -> CalibratedRig:
-    camera, lens = _camera(parts.camera, sizes[0], "camera")
-    projector, _ = _camera(parts.projector, sizes[1], "projector")
-    try:
-        # OpenCV: X_projector = R X_camera + T; dotsim: X_projector = R (X_camera - t)
-        rig = Rig(name=parts.name, camera=camera, projector=projector,
-                  projector_translation=tuple(parts.translation.tolist()),
-                  projector_rotation=tuple(tuple(row) for row in parts.rotation.tolist()),
-                  second_camera_translation=parts.second_camera_translation, max_depth=parts.max_depth)
-    except ValueError as error:
-        raise RigFileError(f"{where}: {error}") from None
-    return CalibratedRig(rig, lens)
-
-
 def load_rig_file(path) -> CalibratedRig:
     """The whole rig a file describes (camera, projector and pose; any layout of
     dotsim.calibration_files), checked by check_rig. Raises RigFileError naming the file and key."""
@@ -194,28 +254,49 @@ def load_rig_file(path) -> CalibratedRig:
     return calibrated
 
 
+def holds_camera_only(path) -> bool:
+    """Whether the rig file at `path` calibrates a camera and no projector (OpenCV's calibration sample,
+    ROS camera_info, a Kalibr chain of cam0 alone). RigFileError naming the file when it is unreadable."""
+    calibration = read_calibration(path)
+    return calibration.rig is None and calibration.projector is None and calibration.rotation is None
+
+
+def composed_rig(base: str | Rig = DEFAULT_PRESET, camera_file: str = "", projector_file: str = "",
+                 base_name: str = "") -> CalibratedRig:
+    """A rig as it is, not through a config's [rig]: `base` (a preset's name, a rig file's path, or a
+    Rig as a device reports it, named `base_name` as a source) with the camera of `camera_file` and
+    the projector and pose of `projector_file`, the base's own max_depth; checked (check_rig). Raises
+    RigFileError naming the file and the key."""
+    if isinstance(base, Rig):
+        base_name = base_name or f"rig {base.name}"
+        parts = _rig_parts(base, base_name)
+    else:
+        parts = _preset_parts(base) if base in PRESETS else _file_parts(base, ("camera", "projector"), None)
+    where = camera_file or projector_file or base_name or str(base)
+    calibrated = _calibrated(_composed(parts, camera_file, projector_file), where)
+    check_rig(calibrated.rig, where)
+    return calibrated
+
+
 def configured_rig(settings, where: str) -> CalibratedRig:
     """The rig of the generator's [rig] settings (generator.config.RigConfig; docs/CONFIG.md): the
     preset or `file`; the camera of `camera_file`; the projector and its pose of `projector_file`;
     sizes a file lacks from <role>_width / <role>_height; explicit camera / projector intrinsics,
     projector offsets and rotation, max_depth; checked (check_rig, and square camera pixels, which the
-    renderer needs), then scaled.
+    renderer needs), then scaled. Its sources name the preset, files and keys each part came from.
 
     Zero means "keep": a non-zero offset replaces the base rig's, non-zero angles replace its
     rotation. Raises RigFileError naming `where` and the key.
     """
-    parts = None
-    for key, path, roles in (("file", settings.file, ("camera", "projector")),
-                             ("camera_file", settings.camera_file, ("camera",)),
-                             ("projector_file", settings.projector_file, ("projector",))):
-        if path:
-            try:
-                base = None if key == "file" else parts or _rig_parts(get_preset(settings.preset),
-                                                                    settings.preset)
-                parts = _file_parts(path, roles, base)
-            except RigFileError as error:
-                raise RigFileError(f"{where} {key}: {error}") from None
-    parts = parts or _rig_parts(get_preset(settings.preset), settings.preset)
+    try:
+        base = (_file_parts(settings.file, ("camera", "projector"), None) if settings.file
+                else _preset_parts(settings.preset))
+    except RigFileError as error:
+        raise RigFileError(f"{where} file: {error}") from None
+    try:
+        parts = _composed(base, settings.camera_file, settings.projector_file)
+    except RigFileError as error:
+        raise RigFileError(f"{where} {error}") from None
     # <role>_width, _height, _fx, _fy, _cx, _cy (_INTRINSICS_KEYS) of each role
     explicit = {"camera": (settings.camera_width, settings.camera_height, settings.camera_fx,
                            settings.camera_fy, settings.camera_cx, settings.camera_cy),
@@ -228,9 +309,9 @@ def configured_rig(settings, where: str) -> CalibratedRig:
     except RigFileError as error:
         raise RigFileError(f"{where}: {error}") from None
     base = calibrated.rig
+    offsets = (settings.baseline, settings.projector_y, settings.projector_z)
     translation = [value if value != 0.0 else kept for value, kept in
-                   zip((settings.baseline, settings.projector_y, settings.projector_z),
-                       base.projector_translation, strict=True)]
+                   zip(offsets, base.projector_translation, strict=True)]
     angles = (settings.projector_rotation_x, settings.projector_rotation_y, settings.projector_rotation_z)
     rotation = rotation_matrix(*np.radians(angles)) if any(angles) else base.projector_rotation
     camera = _explicit_intrinsics("camera", explicit["camera"], where)
@@ -246,7 +327,15 @@ def configured_rig(settings, where: str) -> CalibratedRig:
         check_square_pixels(rig.camera.fx, rig.camera.fy)
     except ValueError as error:
         raise RigFileError(f"{where}: {error}") from None
-    calibrated = CalibratedRig(rig, None if camera else calibrated.lens)
+    sources = dict(calibrated.sources)
+    for part, given, keys in (("camera", camera, "camera_width, camera_height, camera_fx ..."),
+                              ("projector", projector, "projector_width, projector_height, projector_fx ..."),
+                              ("pose", any(offsets) or any(angles), "baseline, projector_y ... (non-zero)")):
+        if given:
+            sources[part] = f"{sources[part]}, then {where} {keys}" if part == "pose" else f"{where} {keys}"
+    sources["max depth"] = f"{where} max_depth"
+    calibrated = CalibratedRig(rig, None if camera else calibrated.lens, tuple(sources.items()),
+                               calibrated.notes)
     return calibrated.scaled(settings.scale) if settings.scale != 1.0 else calibrated
 
 

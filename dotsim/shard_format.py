@@ -6,19 +6,19 @@ are named KEY.EXT (the WebDataset convention), KEY = scene_SSSSSSS_frame_K. Form
 channel in the first codec of this list that holds it:
 
 - ``CHANNEL.png``: a PNG of integer codes, which every image tool opens, decoded as the sample's
-  frame.json `encoding` entry says. Masks: a 1-bit PNG (nonzero = 1). `ir`: a 16-bit PNG of the
-  sensor's codes k = ir * (2^bits - 1), used only where that gives back the stored float16 bit for
-  bit (generated frames: always). `projector_column` with precision "training": a 16-bit PNG of
-  round((column - offset) / step) + 1, 0 where the column is nan or outside the codes' range
-  (such pixels never see the pattern: docs/FORMAT.md), step 1/16 projector px for projectors up to
-  3967 px wide (coarser, by powers of two, for wider ones).
+  frame.json `encoding` entry says. Masks: a 1-bit PNG (nonzero = 1). The IR images (`ir`,
+  `ir_right`): a 16-bit PNG of the sensor's codes k = ir * (2^bits - 1), used only where that gives
+  back the stored float16 bit for bit (generated frames: always). `projector_column` with precision
+  "training": a 16-bit PNG of round((column - offset) / step) + 1, 0 where the column is nan or
+  outside the codes' range (such pixels never see the pattern: docs/FORMAT.md), step 1/16 projector
+  px for projectors up to 3967 px wide (coarser, by powers of two, for wider ones).
 - ``CHANNEL.npy.gz``: the array `dotsim.dataset.read_frame` returns, as .npy, gzip-compressed
   (lossless; the webdataset library decompresses .gz members itself).
 
 Format 1.0 stored every channel as plain ``CHANNEL.npy`` and the scene's metadata in every sample;
 2.0 stores ``scene.json.gz`` once per scene and shard (in the scene's first sample there; each
-frame.json carries the rig and pattern), never the channels derived on read (`disparity`), and any
-channel subset the exporter chose.
+frame.json carries the rig and pattern), never the channels derived on read (`disparity`,
+`stereo_disparity`), and any channel subset the exporter chose.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import io
 
 import numpy as np
 
+from dotsim.channels import CHANNEL
 from dotsim.dataset import FormatError, scene_name
 
 WEBDATASET_FORMAT = "dotsim-webdataset"
@@ -36,7 +37,6 @@ INDEX_NAME = "index.json"
 SUMS_NAME = "SHA256SUMS"
 PATTERN_NAME = "pattern.png"
 PRECISIONS = ("exact", "training")
-MASKS = ("visibility", "edge")
 # The float16 IR of a generated frame is a code of the sensor's bit depth; these are tried when the
 # scene's config does not name one (captures of 8- to 16-bit sensors).
 IR_BITS = (8, 10, 12, 16)
@@ -126,9 +126,9 @@ def encode_channel(name: str, array: np.ndarray, precision: str, projector_width
 
     precision "exact" keeps every value (masks and IR codes as PNG, the rest as .npy.gz);
     "training" also stores projector_column as fixed-point PNG (column_codec)."""
-    if name in MASKS:
+    if CHANNEL[name].source == "mask":
         return "png", _png(array.astype(np.uint8), bilevel=True), {"codec": "mask"}
-    if name == "ir":
+    if CHANNEL[name].source == "sensor model":  # ir, ir_right: sensor codes
         found = _ir_codes(array, ([bit_depth] if bit_depth else []) + [b for b in IR_BITS if b != bit_depth])
         if found is not None:
             return "png", _png(found[0]), {"codec": "ir_codes", "bits": found[1]}

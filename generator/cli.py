@@ -8,6 +8,7 @@ import signal
 import sys
 from types import ModuleType
 
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.option_types import integer
 from generator.config import ConfigError
@@ -88,10 +89,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "(generator.config.config_json: what a --slurm run's tasks read)")
     parser.add_argument("--rig", metavar="PRESET_OR_FILE", default=None,
                         help="the rig instead of the config's [rig] preset / file: a preset (structure_core, "
-                             "kinect_v1, realsense_d415) or a rig file (dotsim rig JSON, OpenCV, ROS "
-                             "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"); the "
-                             "config's other [rig] keys (scale, camera_file, ...) still apply")
-    parser.add_argument("--out", required=True, metavar="DIR", help="dataset directory (created; resumed)")
+                             "kinect_v1, realsense_d415), a rig file (dotsim rig JSON, OpenCV, ROS "
+                             "camera_info or Kalibr calibration; docs/GEOMETRY.md \"Rig files\"; a file of a "
+                             "camera alone is its camera_file, with the preset's projector, and says so) or "
+                             "a generator config (.toml: its [rig]); the config's other [rig] keys (scale, "
+                             "...) still apply")
+    parser.add_argument("--camera-file", metavar="FILE", default=None,
+                        help="the IR camera from this calibration file (OpenCV's calibration sample, ROS "
+                             "camera_info, Kalibr, or camera 1 of any rig file) instead of the rig's, as "
+                             "[rig] camera_file; the projector and its pose stay the rig's")
+    add_output(parser, "dataset directory (created; resumed)", metavar="DIR")
     parser.add_argument("--split", required=True, choices=SPLITS,
                         help="asset split and clutter density to draw from")
     parser.add_argument("--scenes", required=True, type=integer(1), metavar="N",
@@ -109,7 +116,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--blender", metavar="EXE", default=None,
                         help="render with this Blender executable (`EXE --background --python "
                              "generator/blender/run_in_blender.py`) instead of the bpy module")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_no_progress(parser)
     seal = parser.add_mutually_exclusive_group()
     seal.add_argument("--no-seal", action="store_true",
                       help="seal only the shards wholly inside this range (no index.json), and remove only "
@@ -129,18 +136,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from dotsim.rig_report import summary_line
     from generator import pipeline, run_steps
     from generator.config import load_config, with_rig
     from generator.run_request import RunRequest
 
     executor = executor_from_args(args)
     config = load_config(args.config)
-    if args.rig:
-        config = with_rig(config, args.rig)
+    if args.rig or args.camera_file:
+        config = with_rig(config, args.rig, args.camera_file)
     request = RunRequest(config, args.out, args.split, args.scenes, args.start, args.seed, args.blender,
                          executor, progress=not args.no_progress, seal=not args.no_seal)
-    note = request.rig.rectification_note(f"{config.source}: [rig]")
-    if note:
+    print(summary_line(request.rig), flush=True)  # the rig that renders (`dotsim rig show` lists it)
+    notes = (*request.rig.notes, request.rig.rectification_note(f"{config.source}: [rig]"))
+    for note in filter(None, notes):
         print(note, file=sys.stderr)
     if args.seal_only:
         summary = run_steps.seal_run(request)

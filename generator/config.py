@@ -25,9 +25,17 @@ from typing import TYPE_CHECKING
 from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
-from dotsim.rig import DEFAULT_MAX_DEPTH, PRESETS, Rig
-from dotsim.rig_files import RIG_FILE_SUFFIXES, RigFileError, configured_rig
+from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
+from dotsim.rig_files import (
+    RIG_FILE_SUFFIXES,
+    RigFileError,
+    composed_rig,
+    configured_rig,
+    holds_camera_only,
+)
+from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     MaskParams,
@@ -36,7 +44,7 @@ from generator.scene_spec import (
     RenderConfig,
     SceneSpec,
     SensorConfig,
-    SensorModel,
+    SensorSettings,
     Texture,
 )
 
@@ -62,7 +70,8 @@ class RigConfig(Checked):
                                   "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
                                   path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
-                           "width and height, same field of view)", **bounds_of(SensorModel, "pixel_scale"))
+                           "width and height, same field of view)",
+                           **bounds_of(SensorSettings, "pixel_scale"))
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
                               "file's)",
                               low=-0.5, high=0.5)
@@ -77,6 +86,10 @@ class RigConfig(Checked):
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
     max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
                                **bounds_of(Rig, "max_depth"))
+    stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
+                           "stereo_visibility and stereo_disparity beside the channels of the rig's own "
+                           "camera (docs/FORMAT.md); needs a rig whose second camera sits on the camera's x "
+                           "axis to its right (presets realsense_d415, realsense_d435, structure_core)")
     camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
                                 "set camera_width, camera_height and camera_fx to give one; width and "
                                 "height alone give the size of a file's camera that has none)", low=0,
@@ -198,6 +211,11 @@ class MotionConfig(Checked):
 @dataclass(frozen=True)
 class OutputConfig(Checked):
     scenes_per_shard: int = setting(100, "scenes per shard directory", low=1, high=100000)
+    exr_compression: str = setting("zstd", "lossless compression of the frame EXRs: zstd (the smallest, "
+                                   "fastest to read; OpenEXR >= 3.4 reads it) or zip / piz (1.4x the bytes; "
+                                   "older OpenEXR readers too); neither makes a frame readable by OpenCV or "
+                                   "imageio (docs/FORMAT.md \"Compression\", README \"Reading frames\")",
+                                   choices=tuple(EXR_COMPRESSIONS))
 
 
 @dataclass(frozen=True)
@@ -317,33 +335,80 @@ def _read_saved(path: Path) -> dict:
     return data
 
 
-def rig_settings(spec: str, rig: RigConfig = RigConfig(), also: tuple[str, ...] = ()) -> RigConfig:
-    """[rig] settings `rig` with `--rig SPEC` in place of their preset / file: SPEC is a preset name,
-    or a rig file (any layout dotsim.rig_files reads; made absolute). Raises ConfigError naming
-    --rig and what it allows (`also`: what the caller allows besides, named in that message)."""
+def rig_settings(spec: str, rig: RigConfig = RigConfig(), option: str = "--rig") -> RigConfig:
+    """[rig] settings `rig` with `--rig SPEC` in their place. SPEC is, for every command that takes
+    --rig: a preset's name (its preset, no file); a rig file of a whole rig (its `file`); a rig file of
+    a camera alone, such as OpenCV's calibration sample, a ROS camera_info or a Kalibr chain of cam0 only
+    (its `camera_file`: the projector and pose stay the preset's or file's, and the rig's notes say so);
+    or a generator config (.toml: its whole [rig] table). Raises ConfigError naming `option` and the
+    file, or what it allows."""
     if spec in PRESETS:
         return replace(rig, preset=spec, file="")
-    if Path(spec).suffix.lower() in RIG_FILE_SUFFIXES:
-        return replace(rig, file=str(Path(spec).resolve()))
-    allowed = [f"a preset ({', '.join(PRESETS)})", f"a rig file ({', '.join(RIG_FILE_SUFFIXES)})", *also]
-    raise ConfigError(f"--rig {spec!r}: neither {', '.join(allowed[:-1])} nor {allowed[-1]}")
+    suffix = Path(spec).suffix.lower()
+    if suffix == ".toml":
+        try:
+            return load_config(spec).rig
+        except ConfigError as error:
+            raise ConfigError(f"{option} {error}") from None
+    if suffix in RIG_FILE_SUFFIXES:
+        path = str(Path(spec).resolve())
+        try:
+            camera_only = holds_camera_only(path)
+        except RigFileError as error:
+            raise ConfigError(f"{option} {error}") from None
+        return replace(rig, camera_file=path) if camera_only else replace(rig, file=path, camera_file="")
+    raise ConfigError(f"{option} {spec!r}: neither a preset ({', '.join(PRESETS)}), a rig file "
+                      f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
 
 
-def with_rig(config: Config, spec: str) -> Config:
-    """The config with `dotsim generate --rig SPEC` in place of its [rig] preset / file
-    (rig_settings); its other [rig] keys still apply. Raises ConfigError naming --rig."""
-    config = replace(config, rig=rig_settings(spec, config.rig))
-    _resolve_rig(config, f"--rig {spec}: with ")
+def _options(spec: str | None, camera_file: str | None, option: str = "--rig") -> str:
+    """How the options were given, for messages: '--rig SPEC --camera-file FILE'."""
+    given = (spec and f"{option} {spec}", camera_file and f"--camera-file {camera_file}")
+    return " ".join(text for text in given if text)
+
+
+def with_rig(config: Config, spec: str | None = None, camera_file: str | None = None) -> Config:
+    """The config with `dotsim generate --rig SPEC` (rig_settings) and `--camera-file FILE` (its [rig]
+    camera_file) in place of its own; its other [rig] keys still apply. Raises ConfigError naming the
+    options."""
+    rig = rig_settings(spec, config.rig) if spec else config.rig
+    if camera_file:
+        rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
+    config = replace(config, rig=rig)
+    _resolve_rig(config, f"{_options(spec, camera_file)}: ")
     return config
 
 
-def _resolve_rig(config: Config, prefix: str = "") -> None:
-    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one is a ConfigError,
-    `prefix` before the message that names the config's [rig]."""
+def rig_from_options(spec: str | None = None, camera_file: str | None = None,
+                     option: str = "--rig") -> CalibratedRig:
+    """The rig `--rig SPEC` and `--camera-file FILE` name for a command that takes a rig without a
+    generator config (capture, pattern, `rig show` of a file): rig_settings' SPEC (default the preset
+    structure_core), a preset or rig file as it is (with its own max_depth), a generator config's [rig] at
+    scale 1 (so its camera_file and projector_file combine as in `dotsim generate`); --camera-file
+    replaces its camera. Raises ConfigError naming the options (SPEC's as `option`), the file and the
+    key."""
+    settings = rig_settings(spec or DEFAULT_PRESET, option=option)
+    camera = str(Path(camera_file).resolve()) if camera_file else settings.camera_file
     try:
-        config.calibrated_rig  # noqa: B018 (the property resolves and keeps the rig)
+        if spec and Path(spec).suffix.lower() == ".toml":
+            return configured_rig(replace(settings, scale=1.0, camera_file=camera), f"{spec}: [rig]")
+        return composed_rig(settings.file or settings.preset, camera, settings.projector_file)
+    except RigFileError as error:
+        raise ConfigError(f"{_options(spec, camera_file, option) or option}: {error}") from None
+
+
+def _resolve_rig(config: Config, prefix: str = "") -> None:
+    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one, or a stereo pair asked
+    of a rig without one, is a ConfigError, `prefix` before the message that names the config's [rig]."""
+    try:
+        rig = config.calibrated_rig.rig
     except RigFileError as error:
         raise ConfigError(f"{prefix}{error}") from None
+    if config.rig.stereo:
+        try:
+            stereo_baseline(rig, f"{config.source}: [rig] stereo = true")
+        except ValueError as error:
+            raise ConfigError(f"{prefix}{error}, or stereo = false") from None
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
@@ -430,7 +495,31 @@ def config_reference_markdown() -> str:
         "0.5 m keeps its dots a few tens of levels above black (the published renderer's falloff and "
         "exposure are not described); with the noise off the visibility mask is every pixel the "
         "projector lights directly with a dot within 5 x 5 px, close to GigaDepth's 'any projector "
-        "light'; each scene has four frames from nearby poses ([motion])."))
+        "light'; each scene has four frames from nearby poses ([motion]).\n\n"
+        "## Laser speckle\n\n"
+        "A laser projector's dots are speckled: the light a rough surface scatters interferes at the "
+        "sensor, so a dot's brightness varies from dot to dot and inside a dot, in a pattern that stays "
+        "put while the scene and the sensor stand still and changes when either moves. `[sensor] "
+        "speckle_contrast` = c (0, the default: off, the frames of before bit for bit) multiplies the "
+        "projector's direct light (not its indirect light, not the ambient light, not the flood) by "
+        "1 - c + c S before the sensor model sees it (`generator/sensor_model.py` `speckle_field`). "
+        "Indirect light reaches a pixel over paths metres apart, far beyond the coherence length of "
+        "the laser diodes such projectors use (millimetres), so its many speckle patterns add up "
+        "incoherently and average out. S is fully "
+        "developed speckle: the intensity of a circular complex Gaussian field, with negative-exponential "
+        "statistics (contrast 1) and an intensity autocorrelation that is a Gaussian of full width at half "
+        "maximum `speckle_grain` (full-resolution camera px, scaled by `[rig] scale`; the camera's "
+        "aperture sets it, about the size of its blur); the unspeckled part 1 - c stands for partly "
+        "coherent light (several laser modes). The model's source: J. W. Goodman, *Speckle Phenomena in "
+        "Optics* (2007), chapter 3 (first-order statistics of fully developed speckle, and of speckle "
+        "plus a coherent or incoherent background) and chapter 4 (its autocorrelation, set by the imaging "
+        "aperture). Each frame's speckle is seeded by the scene's seed and the frame's pose "
+        "(`generator.sample_scene.frame_speckle_rng`): frames of one pose (`[motion] translation = 0` "
+        "and `rotation = 0` make a scene a static recording of 4 frames) share it, as a real static "
+        "recording does, while the sensor noise changes from frame to frame. The visibility mask sees the "
+        "speckled direct light: a dot that speckle dims below the noise is not visible. `dotsim capture "
+        "fit-sensor` measures a real sensor's speckle, noise and blur and writes the `[sensor]` table "
+        "that matches it (docs/CAPTURE.md \"Fitting the sensor\")."))
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from dotsim import dataset
 from dotsim.file_io import DiskFullError, atomic_write_bytes, map_in_threads
 from dotsim.process_lifetime import exec_dies_with_parent
 from generator.config import Config
-from generator.post_render import RAW_PASSES, make_frame
+from generator.post_render import frame_channels, make_frame, raw_pass_names
 from generator.resources import check_inputs
 from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
 from generator.scene_spec import AssetMesh, SceneSpec
@@ -121,10 +121,11 @@ def scene_meta(job: RenderJob, spec: SceneSpec) -> dict:
             "versions": job.versions}
 
 
-def read_raw_npz(path: Path, frame_count: int) -> list[dict[str, np.ndarray]]:
-    """Raw frames from run_in_blender.py's npz: arrays named PASS_K (pass name, frame index)."""
+def read_raw_npz(path: Path, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
+    """The raw frames of `spec` from run_in_blender.py's npz: arrays named PASS_K (raw pass name,
+    frame index)."""
     with np.load(path) as data:
-        return [{name: data[f"{name}_{k}"] for name in RAW_PASSES} for k in range(frame_count)]
+        return [{name: data[f"{name}_{k}"] for name in raw_pass_names(spec)} for k in range(len(spec.poses))]
 
 
 def _sample(job: RenderJob, index: int) -> SceneSpec:
@@ -153,10 +154,12 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
                          f"{len(spec.poses)} poses")
     threads = post_render_threads(job.config)
     frames = map_in_threads(lambda k: make_frame(raw_frames[k], spec, frame_sensor_rng(job.seed, index, k),
-                                                 where=f"scene {index} frame {k}"),
+                                                 where=f"scene {index} frame {k}", frame=k,
+                                                 right_rng=frame_sensor_rng(job.seed, index, k, camera=1)),
                             range(len(raw_frames)), threads)
-    dataset.write_scene(job.out, index, scene_meta(job, spec), frames,
-                        scenes_per_shard=job.config.output.scenes_per_shard, threads=threads)
+    dataset.write_scene(job.out, index, scene_meta(job, spec), frames, channels=frame_channels(spec),
+                        scenes_per_shard=job.config.output.scenes_per_shard, threads=threads,
+                        compression=dataset.EXR_COMPRESSIONS[job.config.output.exr_compression])
     return len(frames)
 
 
@@ -218,7 +221,7 @@ def _render_with_blender(job: RenderJob, indices: list[int]) -> list[SceneResult
                     raise RuntimeError(f"blender wrote no {raw_path.name} (exit code {proc.returncode}); "
                                        f"command: {' '.join(command)}\n--- stdout ---\n{proc.stdout[-4000:]}"
                                        f"\n--- stderr ---\n{proc.stderr[-4000:]}")
-                frames = _finish_scene(job, spec, read_raw_npz(raw_path, len(spec.poses)))
+                frames = _finish_scene(job, spec, read_raw_npz(raw_path, spec))
                 _clear_failure_log(job, index)
                 results.append(SceneResult(index, True, frames,
                                            blender_share + time.perf_counter() - scene_start))

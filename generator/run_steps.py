@@ -89,6 +89,21 @@ def _run_record(config: Config, split: str, seed: int) -> dict:
     return {"split": split, "base_seed": seed, "config": settings}
 
 
+def _with_added_defaults(existing: dict, record: dict) -> dict:
+    """`existing` (a dataset's generate.json) with the keys a later dotsim added to the config, where
+    `record` gives them their default: such a key at its default renders as before it existed (e.g.
+    [sensor] speckle_contrast = 0, [rig] stereo = false), so a dataset made before it resumes."""
+    defaults = Config().to_dict()
+    config = {section: dict(values) if isinstance(values, dict) else values
+              for section, values in existing.get("config", {}).items()}
+    for section, values in record["config"].items():
+        if isinstance(values, dict) and isinstance(config.get(section), dict):
+            for key, value in values.items():
+                if key not in config[section] and value == defaults.get(section, {}).get(key, object()):
+                    config[section][key] = value
+    return {**existing, "config": config}
+
+
 def _check_existing_run(out: Path, record: dict) -> None:
     path = out / RUN_FILE
     if not path.exists():
@@ -97,6 +112,7 @@ def _check_existing_run(out: Path, record: dict) -> None:
         existing = json.loads(path.read_text())
     except ValueError as exc:
         raise ConfigError(f"{path}: unreadable ({exc}); remove it or use a new --out") from None
+    existing = _with_added_defaults(existing, record)
     if existing != record:
         changed = [key for key in ("split", "base_seed") if existing.get(key) != record[key]]
         sections = sorted(name for name, value in record["config"].items()

@@ -29,8 +29,9 @@ from generator.scene_spec import (
     RenderSettings,
     SceneObject,
     SceneSpec,
-    SensorModel,
+    SensorSettings,
     Texture,
+    camera_views,
 )
 
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
@@ -50,11 +51,22 @@ def scene_rng(base_seed: int, scene_index: int, stream: int) -> np.random.Genera
     return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=(stream,)))
 
 
-def frame_sensor_rng(base_seed: int, scene_index: int, frame: int) -> np.random.Generator:
-    """The sensor-noise generator of one frame: a stream of its own, so any frame can be
-    post-rendered alone (the Blender add-on's preview) and give what `dotsim generate` stores."""
-    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index),
-                                                        spawn_key=(STREAM_SENSOR, frame)))
+def frame_sensor_rng(base_seed: int, scene_index: int, frame: int, camera: int = 0) -> np.random.Generator:
+    """The sensor-noise generator of one frame of one of the rig's cameras (0: its own, 1: its second):
+    a stream of its own, so any frame can be post-rendered alone (the Blender add-on's preview) and
+    give what `dotsim generate` stores, and the right IR's noise is independent of the left's."""
+    spawn_key = (STREAM_SENSOR, frame) + ((camera,) if camera else ())
+    return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=spawn_key))
+
+
+def frame_speckle_rng(scene_seed: int, pose: np.ndarray, camera: int = 0) -> np.random.Generator:
+    """The laser speckle's generator of one frame as one of the rig's cameras sees it (0: its own, 1:
+    its second): seeded by the scene's seed and the frame's pose (its 4 x 4 world_from_camera, bit
+    for bit), so speckle stays put while the scene and the sensor stand still (two frames of one pose
+    have the same speckle, as a static recording does) and changes with the pose; the sensor noise
+    (frame_sensor_rng) changes from frame to frame."""
+    words = np.ascontiguousarray(pose, np.float64).view(np.uint32).ravel().tolist()
+    return np.random.default_rng(np.random.SeedSequence([scene_seed, *words] + ([camera] if camera else [])))
 
 
 def scene_seed(base_seed: int, scene_index: int) -> int:
@@ -333,12 +345,13 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         world_strength=_log_uniform(rng, *li.world_strength),
         lights=lights,
         poses=_poses(rng, config, base_pose),
+        cameras=camera_views(rig, config.rig.stereo),
         objects=tuple(objects),
-        sensor=sensor_model(config),
+        sensor=sensor_settings(config),
         masks=config.masks,
     )
 
 
-def sensor_model(config: Config) -> SensorModel:
+def sensor_settings(config: Config) -> SensorSettings:
     """The config's [sensor] parameters at its render scale."""
-    return SensorModel(**asdict(config.sensor), pixel_scale=config.rig.scale)
+    return SensorSettings(**asdict(config.sensor), pixel_scale=config.rig.scale)

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
-from dotsim.rig import Rig
+from dotsim.rig import Intrinsics, Rig
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 SPLITS = ("train", "test")
@@ -41,6 +41,8 @@ DIRECT_LIGHT = ("separate", "shared")
 EXPOSURES = ("fixed", "auto")
 # A sampled scene is one static scene seen from this many nearby rig poses (frame 0 and three moves).
 FRAMES_PER_SCENE = 4
+# The IR cameras of a rig a frame can be rendered from: its own camera and its second one.
+CAMERAS = ("left", "right")
 
 Vector3 = tuple[float, float, float]
 Vector4 = tuple[float, float, float, float]
@@ -99,14 +101,28 @@ class SensorConfig(Checked):
                                 low=0.0, high=1.0)
     bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
                              high=16)
+    speckle_contrast: float = setting(0.0, "laser speckle on the projector's direct light: standard "
+                                      "deviation of its factor (mean 1; 0 = off, 1 = fully developed "
+                                      "speckle); fixed "
+                                      "for a scene and pose, another for another pose (\"Laser speckle\" "
+                                      "above)", low=0.0, high=1.0)
+    speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "
+                                   "intensity autocorrelation, full-resolution px", low=0.0, high=100.0,
+                                   low_open=True)
 
 
 @dataclass(frozen=True)
-class SensorModel(SensorConfig):
-    """One scene's sensor model: the config's [sensor] at the render scale."""
+class SensorSettings(SensorConfig):
+    """One scene's sensor settings: the config's [sensor] at the render scale (the sensor model,
+    generator/sensor_model.py, applies them)."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
-                                 "[rig] scale; bloom and blur sizes are full-resolution px)", low=0.02,
-                                 high=1.0)
+                                 "[rig] scale; bloom, blur and speckle sizes are full-resolution px)",
+                                 low=0.02, high=1.0)
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> SensorSettings:
+        """Specs from before the speckle keys read as without speckle."""
+        return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain"))
 
 
 @dataclass(frozen=True)
@@ -241,6 +257,65 @@ def light_from_dict(d: Any, where: str) -> Light:
     return _record_of_kind(d, "type", LIGHT_TYPES, where)
 
 
+@dataclass(frozen=True)
+class CameraView(Checked):
+    """One IR camera a frame is rendered from: the rig's camera ("left", at the rig's origin) or its
+    second camera ("right"), each with the rig's orientation, placed by its centre in the rig's
+    (left camera's) frame; the projector rides on the rig, whichever camera renders."""
+    name: str = setting(REQUIRED, "which camera of the rig", choices=CAMERAS)
+    intrinsics: Intrinsics
+    translation: Vector3 = setting(REQUIRED, "camera centre in the rig's (left camera's) frame, m")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.intrinsics, Intrinsics):
+            raise ConfigError(f"CameraView.intrinsics = {self.intrinsics!r}: not Intrinsics")
+
+    @property
+    def suffix(self) -> str:
+        """What the names of this camera's raw passes and channels end with: nothing for the rig's
+        own camera, "_right" for its second ("projector_right", "ir_right")."""
+        return "" if self.name == CAMERAS[0] else f"_{self.name}"
+
+    def pose(self, world_from_rig: np.ndarray) -> np.ndarray:
+        """world_from_camera (4x4, OpenCV axes) of this camera on a rig at `world_from_rig`."""
+        rig_from_camera = np.eye(4)
+        rig_from_camera[:3, 3] = self.translation
+        return np.asarray(world_from_rig, np.float64) @ rig_from_camera
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "intrinsics": self.intrinsics.to_dict(),
+                "translation": list(self.translation)}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> CameraView:
+        return record_from_dict(cls, d, where, intrinsics=Intrinsics.from_dict)
+
+
+def camera_views(rig: Rig, second: bool = False) -> tuple[CameraView, ...]:
+    """The cameras a frame of `rig` is rendered from: its own, and with `second` its second camera;
+    ConfigError naming the rig when it has none."""
+    left = CameraView(name=CAMERAS[0], intrinsics=rig.camera, translation=(0.0, 0.0, 0.0))
+    if not second:
+        return (left,)
+    if rig.second_camera_translation is None:
+        raise ConfigError(f"rig {rig.name!r} has no second IR camera (second_camera_translation is null)")
+    return left, CameraView(name=CAMERAS[1], intrinsics=rig.camera, translation=rig.second_camera_translation)
+
+
+def _cameras(value: Any, rig: Rig, where: str) -> tuple[CameraView, ...]:
+    """The cameras of a spec, checked against its rig: its own camera, then optionally its second."""
+    cameras = tuple(_items(value, where))
+    if cameras and not all(isinstance(c, CameraView) for c in cameras):
+        cameras = tuple(CameraView.from_dict(c, f"{where}[{k}]") for k, c in enumerate(cameras))
+    if cameras not in {camera_views(rig)} | ({camera_views(rig, True)} if rig.second_camera_translation
+                                            else set()):
+        raise ConfigError(f"{where} = {[c.to_dict() for c in cameras]!r}: not the rig's cameras; allowed: "
+                          f"the rig's camera (left: its intrinsics at the origin) and, on a rig with a "
+                          f"second camera, that one (right: at second_camera_translation)")
+    return cameras
+
+
 def _pose(value: Any, where: str) -> np.ndarray:
     rows = value.tolist() if isinstance(value, np.ndarray) else value
     return np.array(check(rows, Matrix4, where), np.float64)
@@ -261,7 +336,9 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "objects", "sensor", "masks")
+              "lights", "poses", "cameras", "objects", "sensor", "masks")
+# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone.
+_OPTIONAL = ("cameras",)
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -286,14 +363,16 @@ class SceneSpec(Checked):
     flood_power: float = setting(REQUIRED, "flood rectangle power, W", low=0.0)
     world_strength: float = setting(REQUIRED, "constant ambient light", low=0.0, high=100.0)
     lights: tuple[Light, ...]
-    poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera per frame
+    poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera (the rig's, its left camera's) per frame
+    cameras: tuple[CameraView, ...]  # the rig's cameras each frame is rendered from
     objects: tuple[SceneObject, ...]
-    sensor: SensorModel
+    sensor: SensorSettings
     masks: MaskParams
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "poses", _poses(self.poses, "SceneSpec.poses"))
+        object.__setattr__(self, "cameras", _cameras(self.cameras, self.rig, "SceneSpec.cameras"))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
@@ -312,6 +391,7 @@ class SceneSpec(Checked):
             "world": {"strength": self.world_strength},
             "lights": [light.to_dict() for light in self.lights],
             "poses": [[[float(v) for v in row] for row in pose] for pose in self.poses],
+            "cameras": [camera.to_dict() for camera in self.cameras],
             "objects": [obj.to_dict() for obj in self.objects],
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
@@ -324,7 +404,7 @@ class SceneSpec(Checked):
         if not isinstance(d, dict):
             raise ConfigError(f"{_WHERE} = {d!r}: not a mapping; allowed: a mapping with the keys "
                               f"{', '.join(_TOP_LEVEL)}")
-        if missing := [key for key in _TOP_LEVEL if key not in d]:
+        if missing := [key for key in _TOP_LEVEL if key not in d and key not in _OPTIONAL]:
             raise ConfigError(f"{_WHERE}: {missing[0]} is missing")
         if unknown := [key for key in d if key not in _TOP_LEVEL]:
             raise ConfigError(f"{_WHERE}: {unknown[0]} is not a field; allowed: {', '.join(_TOP_LEVEL)}")
@@ -348,9 +428,10 @@ class SceneSpec(Checked):
             lights=tuple(light_from_dict(light, f"{_WHERE}: lights[{k}]")
                          for k, light in enumerate(_items(d["lights"], f"{_WHERE}: lights"))),
             poses=_poses(d["poses"], f"{_WHERE}: poses"),
+            cameras=_cameras(d.get("cameras", camera_views(rig)), rig, f"{_WHERE}: cameras"),
             objects=tuple(SceneObject.from_dict(obj, f"{_WHERE}: objects[{k}]")
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
-            sensor=SensorModel.from_dict(d["sensor"], f"{_WHERE}: sensor"),
+            sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             **one_key,
         )

@@ -1,31 +1,33 @@
 """The infrared sensor model: rendered radiance (ambient + projector) -> the IR image the sensor sees.
 
 Pure numpy/scipy and seeded. Levels are fractions of the sensor's full scale (1.0 = saturation).
-Steps, in the order light meets a sensor: exposure, bloom (over-bright light spreading into its
-surroundings), optical blur, shot and read noise, clipping, quantisation to the bit depth.
+Steps, in the order light meets a sensor: laser speckle on the projector's direct light
+(speckle_field, applied by the post-render to the projector's passes), exposure, bloom (over-bright
+light spreading into its surroundings), optical blur, shot and read noise, clipping, quantisation to
+the bit depth.
 The ambient and flood passes get none of this (as in GigaDepth's renders).
+
+`SensorModel` is the one place that knows the model: it applies it (`apply`) and says how much
+noise it adds at a level (`sigma`), which the visibility mask (dotsim.masks.direct_visibility_mask)
+compares dots with; so the mask and the image cannot disagree on the noise.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from generator.scene_spec import SensorConfig
+from generator.scene_spec import SensorSettings
+
+# Full width at half maximum of a Gaussian over its standard deviation: 2 sqrt(2 ln 2).
+FWHM_PER_SIGMA = 2.3548200450309493
 
 
-def exposure_gain(signal: np.ndarray, params: SensorConfig) -> float:
-    """Level (full scale 1) per unit radiance for this frame. fixed: params.gain. auto: the
-    auto_percentile of the signal maps to auto_target (a black image keeps gain 1)."""
-    if params.exposure == "fixed":
-        return params.gain
-    reference = float(np.percentile(np.asarray(signal, np.float64), params.auto_percentile))
-    return params.auto_target / reference if reference > 0 else 1.0
-
-
-def expose(signal: np.ndarray, params: SensorConfig, gain: float | None = None) -> np.ndarray:
-    """Radiance -> level (full scale 1): signal times the gain (default: exposure_gain's)."""
-    return np.asarray(signal, np.float64) * (exposure_gain(signal, params) if gain is None else gain)
+def expose(signal: np.ndarray, gain: float) -> np.ndarray:
+    """Radiance -> level (full scale 1): signal times the gain."""
+    return np.asarray(signal, np.float64) * gain
 
 
 def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) -> np.ndarray:
@@ -36,12 +38,33 @@ def bloom(level: np.ndarray, threshold: float, strength: float, sigma: float) ->
     return level + strength * gaussian_filter(excess, sigma, mode="nearest")
 
 
-def add_noise(level: np.ndarray, shot_noise: float, read_noise: float,
-              rng: np.random.Generator) -> np.ndarray:
-    """Gaussian approximation of shot + read noise: variance = read_noise**2 + shot_noise**2 * level
-    (shot noise is Poisson in photo-electrons, so its variance grows linearly with the signal)."""
-    variance = read_noise**2 + shot_noise**2 * np.maximum(level, 0.0)
-    return level + rng.standard_normal(level.shape) * np.sqrt(variance)
+def speckle_field(shape: tuple[int, int], contrast: float, grain_px: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Laser speckle as a factor (H, W) on the projector's direct light: mean 1, standard deviation
+    `contrast`.
+
+    Coherent light scattered by a rough surface and imaged by a lens is speckled: the field at the
+    sensor is a sum of many random phasors, a circular complex Gaussian, and its intensity S = |E|^2
+    has negative-exponential statistics (mean = standard deviation: contrast 1, "fully developed").
+    E here is complex white noise blurred by a Gaussian of sigma s = grain_px / 2.3548 (the lens's
+    aperture sets the grain), so S's autocorrelation is exp(-r^2 / 2 s^2): grain_px is its full width
+    at half maximum. Light that is only partly coherent (several laser modes, a moving diffuser)
+    adds an unspeckled part; the factor is 1 - contrast + contrast x S (J. W. Goodman, Speckle
+    Phenomena in Optics, 2007, chapters 3 and 4). Never negative; periodic at the image border.
+
+    >>> rng = np.random.default_rng(0)
+    >>> field = speckle_field((512, 512), 0.4, 3.0, rng)
+    >>> round(float(field.mean()), 1), round(float(field.std()), 1), bool(field.min() >= 0.6)
+    (1.0, 0.4, True)
+    """
+    sigma = grain_px / FWHM_PER_SIGMA
+    # white noise of variance 1 per part, blurred: each part's variance is then the kernel's energy
+    impulse = np.zeros(2 * int(np.ceil(4 * sigma)) + 1)
+    impulse[impulse.size // 2] = 1.0
+    energy = float((gaussian_filter(impulse, sigma, mode="constant") ** 2).sum()) ** 2
+    parts = [gaussian_filter(rng.standard_normal(shape), sigma, mode="wrap") for _ in range(2)]
+    intensity = (parts[0] ** 2 + parts[1] ** 2) / (2 * energy)
+    return 1.0 - contrast + contrast * intensity
 
 
 def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
@@ -50,17 +73,63 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
     return np.round(np.clip(level, 0.0, 1.0) * steps) / steps
 
 
-def apply_sensor_model(signal: np.ndarray, params: SensorConfig, rng: np.random.Generator,
-                       pixel_scale: float = 1.0, gain: float | None = None) -> np.ndarray:
-    """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).
+@dataclass(frozen=True)
+class SensorModel:
+    """The IR sensor of one scene, from its settings (the config's [sensor] at the render scale).
 
-    pixel_scale: render resolution / full sensor resolution; bloom and blur sizes are given in
-    full-resolution pixels and shrink with it so a scaled-down render looks like a scaled-down
-    sensor image. gain: the frame's exposure_gain when the caller has it already.
+    >>> import numpy as np
+    >>> model = SensorModel(SensorSettings(shot_noise=0.02, read_noise=0.01))
+    >>> [round(float(s), 4) for s in model.sigma(np.array([0.0, 0.25, 1.0]))]
+    [0.01, 0.0141, 0.0224]
     """
-    level = expose(signal, params, gain)
-    level = bloom(level, params.bloom_threshold, params.bloom_strength, params.bloom_sigma * pixel_scale)
-    if params.blur_sigma > 0:
-        level = gaussian_filter(level, params.blur_sigma * pixel_scale, mode="nearest")
-    level = add_noise(level, params.shot_noise, params.read_noise, rng)
-    return quantise(level, params.bit_depth).astype(np.float32)
+    settings: SensorSettings
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.settings, SensorSettings):
+            raise TypeError(f"SensorModel needs SensorSettings, got {type(self.settings).__name__}")
+
+    @property
+    def blur_px(self) -> float:
+        """The optical blur's Gaussian sigma in render pixels (blur_sigma is in full-resolution px)."""
+        return self.settings.blur_sigma * self.settings.pixel_scale
+
+    @property
+    def has_speckle(self) -> bool:
+        return self.settings.speckle_contrast > 0
+
+    def speckle(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+        """The laser speckle factor (H, W) of one frame (speckle_field at the render scale); rng: a
+        stream fixed for the scene and the pose (generator.sample_scene.frame_speckle_rng)."""
+        s = self.settings
+        return speckle_field(shape, s.speckle_contrast, s.speckle_grain * s.pixel_scale, rng)
+
+    def exposure_gain(self, signal: np.ndarray) -> float:
+        """Level (full scale 1) per unit radiance for this frame. fixed: the settings' gain. auto: the
+        auto_percentile of the signal maps to auto_target (a black image keeps gain 1)."""
+        s = self.settings
+        if s.exposure == "fixed":
+            return s.gain
+        reference = float(np.percentile(np.asarray(signal, np.float64), s.auto_percentile))
+        return s.auto_target / reference if reference > 0 else 1.0
+
+    def sigma(self, level: np.ndarray) -> np.ndarray:
+        """The standard deviation of the noise apply() adds at `level` (before quantisation): read
+        noise and shot noise, whose variance grows linearly with the level (shot noise is Poisson in
+        photo-electrons): sqrt(read_noise**2 + shot_noise**2 * level)."""
+        s = self.settings
+        return np.sqrt(s.read_noise**2 + s.shot_noise**2 * np.maximum(level, 0.0))
+
+    def apply(self, signal: np.ndarray, rng: np.random.Generator, gain: float | None = None) -> np.ndarray:
+        """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).
+
+        Bloom and blur sizes are full-resolution pixels, scaled by the settings' pixel_scale, so a
+        scaled-down render looks like a scaled-down sensor image. rng draws the noise (Gaussian
+        with sigma()); gain: the frame's exposure_gain when the caller has it already.
+        """
+        s = self.settings
+        level = expose(signal, self.exposure_gain(signal) if gain is None else gain)
+        level = bloom(level, s.bloom_threshold, s.bloom_strength, s.bloom_sigma * s.pixel_scale)
+        if s.blur_sigma > 0:
+            level = gaussian_filter(level, self.blur_px, mode="nearest")
+        level = level + rng.standard_normal(level.shape) * self.sigma(level)
+        return quantise(level, s.bit_depth).astype(np.float32)

@@ -6,6 +6,7 @@ import argparse
 from dataclasses import replace
 from functools import partial
 
+from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.file_io import check_writable_folder
 from dotsim.option_types import integer, number
@@ -28,7 +29,7 @@ def _train(args: argparse.Namespace) -> None:
     with disk_full_in(args.out):
         run(cfg, args.data, args.out, resume=args.resume, device=args.device, split=args.split,
             max_seconds=args.minutes * 60, val_data=args.val_data, val_split=args.val_split,
-            val_frames=args.val_frames)
+            val_frames=args.val_frames, progress_bar=not args.no_progress)
 
 
 def _eval(args: argparse.Namespace) -> None:
@@ -37,23 +38,27 @@ def _eval(args: argparse.Namespace) -> None:
     check_writable_folder(args.out, "--out")
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
              max_frames=args.max_frames, images=args.images, precision=args.precision,
-             val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames)
+             val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames,
+             progress_bar=not args.no_progress)
 
 
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
     check_writable_folder(args.out, "--out")
-    infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision)
+    infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision,
+          progress_bar=not args.no_progress)
 
 
 def _add_inference_device(p: argparse.ArgumentParser) -> None:
+    """--device, --precision and --no-progress of eval and infer."""
     from trainer.checkpoint import PRECISIONS
 
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cpu (default) or cuda")
     p.add_argument("--precision", choices=PRECISIONS, default="float32",
                    help="float32 (default), or float16 / bfloat16 autocast (docs/TRAINER.md: their "
                    "disparity differences against float32)")
+    add_no_progress(p)
 
 
 def add_parser(subparsers) -> None:
@@ -74,7 +79,7 @@ def add_parser(subparsers) -> None:
                    "export folder, a shard, a brace pattern (shards/shard-{000000..000009}.tar) or URLs "
                    "(http(s)://, pipe:; copied once to $DOTSIM_CACHE, default ~/.cache/dotsim); both forms "
                    "give the same run")
-    p.add_argument("--out", required=True, metavar="RUN", help="run directory for checkpoint.pt and tb/")
+    add_output(p, "run directory for checkpoint.pt and tb/", metavar="RUN")
     p.add_argument("--resume", action="store_true",
                    help="continue RUN/checkpoint.pt (same config and rig required); without it an existing "
                    "checkpoint is an error")
@@ -97,6 +102,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--val-split", default="all", help="split of --val-data (default all)")
     p.add_argument("--val-frames", type=integer(1), default=4, metavar="N",
                    help="validation frames, spread over the split (default 4)")
+    add_no_progress(p)
     p.set_defaults(func=_train, errors=EXPECTED_ERRORS)
 
     p = subparsers.add_parser(
@@ -114,7 +120,7 @@ def add_parser(subparsers) -> None:
         "black, no GT grey).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("--data", required=True, metavar="DIR", help="sealed dotsim dataset with ground truth")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for eval.md, eval.csv, errors/")
+    add_output(p, "folder for eval.md, eval.csv, errors/", metavar="DIR")
     p.add_argument("--split", default="test", help="scene split to evaluate: test (default), train or all")
     p.add_argument("--max-frames", type=integer(0), default=0, metavar="N",
                    help="evaluate the first N frames only (default 0: all)")
@@ -139,6 +145,6 @@ def add_parser(subparsers) -> None:
         "metres, camera frame).")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_output(p, "output folder", metavar="DIR")
     _add_inference_device(p)
     p.set_defaults(func=_infer, errors=EXPECTED_ERRORS)

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from dotsim.false_colour import with_legend
+from dotsim.false_colour import titled, with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
 from dotsim.rig import (
@@ -82,10 +82,9 @@ def error_image(err: np.ndarray, valid: np.ndarray, max_px: float = 5.0) -> np.n
     return img
 
 
-def _labelled(img: np.ndarray, text: str) -> np.ndarray:
-    img = img.copy()
-    cv2.putText(img, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-    return img
+# The narrowest panel of an error strip (IR | network | SGBM): smaller frames are scaled up by a whole
+# factor (dotsim.false_colour.titled), so that the title over each panel is readable.
+PANEL_WIDTH = 240
 
 
 def load_reference(data, rig: Rig) -> np.ndarray:
@@ -210,10 +209,11 @@ def joint_table(joint: dict[tuple[str, float], np.ndarray], sgbm_method: str) ->
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
-             val_split: str = "train", val_frames: int = 8) -> list[dict]:
+             val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM (plain and LCN) on `split` of data_dir; write OUT/eval.md,
     OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a
-    legend). Returns the table rows.
+    legend). Returns the table rows. progress: print the table, with a progress bar (progress_bar=False:
+    without).
 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
@@ -252,7 +252,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     counts: dict[tuple[str, str], np.ndarray] = {}
     joint: dict[tuple[str, float], np.ndarray] = {}
     infeasible = dict.fromkeys(methods, 0)
-    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not progress)):
+    for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not (progress and progress_bar))):
         f = ref.read(EVAL_CHANNELS)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f["visibility"], f["disparity"])
@@ -282,10 +282,11 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
                 joint[(name, t)] = joint.get((name, t), 0) + np.array(both)
         if n < images:
             grey = cv2.cvtColor(_to_grey(ir), cv2.COLOR_GRAY2BGR)
-            panels = [_labelled(grey, "IR")] + [
-                _labelled(error_image(preds[m] - gt, valid), f"{m} |err|") for m in ("network", sgbm_chosen)
+            panels = [titled(grey, "IR", PANEL_WIDTH)] + [
+                titled(error_image(preds[m] - gt, valid), f"{m} |err|", PANEL_WIDTH)
+                for m in ("network", sgbm_chosen)
             ]
-            sep = np.full((ir.shape[0], 2, 3), 255, np.uint8)
+            sep = np.full((panels[0].shape[0], 2, 3), 255, np.uint8)
             strip = np.concatenate([p for panel in panels for p in (panel, sep)][:-1], axis=1)
             strip = with_legend(strip, 0.0, 5.0, "px |disparity error|", ERROR_SWATCHES)
             name = f"scene_{ref.scene_index:07d}_frame_{ref.frame_index}.png"

@@ -2,15 +2,16 @@
 
 Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
-Outputs per input, named after it: NAME.exr (float32 channels disparity [camera px] and depth [m], nan
-where no estimate), NAME.png (disparity, turbo colour map over its 1st..99th percentile, black = none,
-with a legend under it), NAME.ply (dotsim.pointcloud: binary, through trimesh; x, y, z in metres in the
-OpenCV camera frame, IR grey as red/green/blue; only depths within the rig's max_depth).
+Outputs per input, named after it (dotsim.prediction_file): NAME.exr (float32 channels disparity
+[camera px] and depth [m], nan where no estimate; marked in its header as a prediction of this checkpoint
+for this input), NAME.png (disparity, turbo colour map over its
+1st..99th percentile, black = none, with a legend under it), NAME.ply (dotsim.pointcloud: binary,
+through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue; only depths
+within the rig's max_depth).
 """
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +19,10 @@ from tqdm import tqdm
 
 from dotsim.dataset import FormatError, read_frame
 from dotsim.false_colour import colourise, with_legend
-from dotsim.file_io import atomic_write_bytes, make_folder
+from dotsim.file_io import make_folder
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
+from dotsim.prediction_file import output_name, write_prediction
 from dotsim.rig import Rig
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.data import DataError
@@ -51,34 +53,27 @@ def read_ir(path: str | Path, rig: Rig) -> np.ndarray:
     return np.asarray(ir, np.float32)
 
 
-def write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
-    import OpenEXR
-
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    pixels = {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}
-    stream = io.BytesIO()
-    OpenEXR.File(header, pixels).write(stream)
-    atomic_write_bytes(path, stream.getvalue())
-
-
 DISPARITY_SWATCHES = (((0, 0, 0), "black: no estimate"),)
 
 
 def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path, device: str = "cpu",
-          progress: bool = True, precision: str = "float32") -> list[Path]:
+          progress: bool = True, precision: str = "float32", progress_bar: bool = True) -> list[Path]:
     """Run the network on each input in `precision` (trainer.checkpoint.PRECISIONS); returns the written
-    EXR paths (PNG and PLY lie beside them)."""
+    EXR paths (PNG and PLY lie beside them). progress: say what was written, with a progress bar
+    (progress_bar=False: without)."""
     model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
-    names = [_output_name(Path(p)) for p in inputs]
+    names = [output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
     out_dir = make_folder(out_dir)
     written = []
-    todo = list(zip(names, irs, strict=True))
-    for name, ir in tqdm(todo, desc="infer", unit="frame", disable=not progress):
+    todo = list(zip(names, irs, inputs, strict=True))
+    for name, ir, path in tqdm(todo, desc="infer", unit="frame", disable=not (progress and progress_bar)):
         disparity, depth = predict_disparity(model, rig, ir, device, precision)
-        write_exr(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth})
+        write_prediction(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth},
+                         {"checkpoint": str(Path(checkpoint).resolve()), "input": str(Path(path).resolve()),
+                          "precision": precision})
         finite = np.isfinite(disparity)
         lo, hi = np.percentile(disparity[finite], [1, 99]) if finite.any() else (0.0, 1.0)
         write_image(out_dir / f"{name}.png", with_legend(colourise(disparity, lo, hi), lo, hi,
@@ -90,10 +85,3 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     if progress:
         print(f"wrote disparity/depth EXR, PNG and PLY for {len(written)} frame(s) to {out_dir}")
     return written
-
-
-def _output_name(path: Path) -> str:
-    """frame_2.exr inside scene_0000007 -> scene_0000007_frame_2; other files keep their stem."""
-    if path.parent.name.startswith("scene_") and path.stem.startswith("frame_"):
-        return f"{path.parent.name}_{path.stem}"
-    return path.stem

@@ -237,7 +237,8 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
 
 def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
           device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0,
-          val_data: str | Path | None = None, val_split: str = "all", val_frames: int = 4) -> dict:
+          val_data: str | Path | None = None, val_split: str = "all", val_frames: int = 4,
+          progress_bar: bool = True) -> dict:
     """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds",
     "validation" (the last validation's rates, {} without val_data)}.
 
@@ -245,7 +246,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     of the same run: each takes its share of every global batch, and rank 0 alone writes and prints.
     max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time.
     val_data: `val_frames` frames spread over its `val_split` (held out from the training frames) are
-    scored every [train].val_every steps and at the end (Validation), into TensorBoard."""
+    scored every [train].val_every steps and at the end (Validation), into TensorBoard.
+    progress: print warnings and the summary, with a progress bar (progress_bar=False: without)."""
     from torch.utils.tensorboard import SummaryWriter
 
     out_dir = Path(out_dir)
@@ -321,7 +323,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     start = time.perf_counter()
     model.train()
     progress = progress and ranks.main
-    bar = tqdm(total=total_steps, initial=step, desc="train", unit="step", disable=not progress)
+    bar = tqdm(total=total_steps, initial=step, desc="train", unit="step",
+               disable=not (progress and progress_bar))
     while step < total_steps:
         epoch, within = divmod(step, steps_per_epoch)
         loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,

@@ -34,7 +34,8 @@ class DeviceFrame:
 
     ir: raw 2-D image (uint8 / uint16); depth: the device's own depth in metres (float32, nan =
     no reading) or None; emitter: the projector state the frame reports (metadata) or None when
-    it does not say; timestamp_ms and frame_number as the device counts them.
+    it does not say; timestamp_ms and frame_number as the device counts them; ir_right: the right IR
+    camera's image of the same frame when the device records its stereo pair, else None.
     """
 
     ir: np.ndarray
@@ -42,13 +43,16 @@ class DeviceFrame:
     frame_number: int
     emitter: bool | None = None
     depth: np.ndarray | None = None
+    ir_right: np.ndarray | None = None
 
 
 class Device:
     """What recording needs from a sensor; each backend fills it in.
 
     name: "kind:id" as given to --device; info: model, serial, firmware, stream mode (JSON-safe);
-    white_level: the raw value of a saturated pixel; can_switch_emitter, has_depth: capabilities.
+    white_level: the raw value of a saturated pixel; can_switch_emitter, has_depth: capabilities;
+    stereo: it gives the right IR camera's image of every frame too (opened so: a RealSense with
+    --stereo).
     """
 
     name: str
@@ -56,6 +60,7 @@ class Device:
     white_level: float
     can_switch_emitter: bool = False
     has_depth: bool = False
+    stereo: bool = False
 
     def camera(self) -> Intrinsics | None:
         """The IR camera's intrinsics as the device reports them, or None when it reports none."""
@@ -120,18 +125,20 @@ def parse_device(spec: str) -> tuple[str, str]:
 
 
 def open_device(spec: str, *, size: tuple[int, int] | None = None, fps: int | None = None,
-                exposure: float | None = None, gain: float | None = None, ir_format: str = "y8") -> Device:
+                exposure: float | None = None, gain: float | None = None, ir_format: str = "y8",
+                stereo: bool = False) -> Device:
     """Open the device named by --device (DEVICE_SYNTAX) with an optional stream mode (width, height,
-    fps; ir_format y8 / y16 for a RealSense) and fixed exposure / gain. Raises DeviceError naming the
-    device and what is allowed."""
+    fps; ir_format y8 / y16 for a RealSense), fixed exposure / gain and (stereo, a RealSense) both IR
+    streams. Raises DeviceError naming the device and what is allowed."""
     kind, ident = parse_device(spec)
-    if ir_format != "y8" and kind != "realsense":
-        raise DeviceError(f"--ir-format {ir_format}: only a RealSense offers a choice; leave it out for "
-                          f"{kind}")
+    for option, value, default in (("--ir-format", ir_format, "y8"), ("--stereo", stereo, False)):
+        if value != default and kind != "realsense":
+            raise DeviceError(f"{option}: only a RealSense offers it; leave it out for {kind}")
     if kind == "realsense":
         from capture.devices.realsense import open_realsense
 
-        return open_realsense(ident, size=size, fps=fps, exposure=exposure, gain=gain, ir_format=ir_format)
+        return open_realsense(ident, size=size, fps=fps, exposure=exposure, gain=gain, ir_format=ir_format,
+                              stereo=stereo)
     if kind == "openni2":
         from capture.devices.openni2 import open_openni2
 

@@ -1,8 +1,9 @@
 """Intel RealSense (D400 family) through pyrealsense2 (extra `realsense`).
 
 One sensor (the stereo module) carries the left IR stream (infrared index 1), the depth stream (in
-the left IR camera's frame, so pixel-aligned with it) and the projector's `emitter_enabled`
-option; both streams are opened on it and paired by frame number with an rs.syncer. The frame
+the left IR camera's frame, so pixel-aligned with it), the right IR stream (infrared index 2, opened
+with stereo=True: `capture record --stereo`) and the projector's `emitter_enabled` option; the
+streams are opened on it and paired by frame number with an rs.syncer. The frame
 metadata `frame_emitter_mode` says whether the projector lit a frame, so recording waits for the
 state it asked for rather than guessing a settling time. The same code drives a
 pyrealsense2 `software_device` fed with rendered frames (tests/capture/test_capture_record.py).
@@ -10,6 +11,7 @@ pyrealsense2 `software_device` fed with rendered frames (tests/capture/test_capt
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -51,11 +53,12 @@ def _mode(profile) -> str:
 
 
 class RealSenseDevice(Device):
-    """An opened RealSense (or software_device) streaming left IR and, where it has it, depth."""
+    """An opened RealSense (or software_device) streaming left IR, where it has it depth, and with
+    `stereo` the right IR too (the same mode; its extrinsics are recorded in `info`)."""
 
     def __init__(self, device, *, size: tuple[int, int] | None = None, fps: int | None = None,
                  exposure: float | None = None, gain: float | None = None, ir_format: str = "y8",
-                 timeout_s: float = 5.0):
+                 timeout_s: float = 5.0, stereo: bool = False):
         rs = self._rs = _rs()
         serial = device.get_info(rs.camera_info.serial_number)
         self.name = f"realsense:{serial}"
@@ -87,7 +90,11 @@ class RealSenseDevice(Device):
         self._depth = next((p for p in same_mode if p.stream_type() == rs.stream.depth
                             and p.format() == rs.format.z16), None)
         self._ir2 = next((p for p in same_mode if p.stream_type() == rs.stream.infrared
-                          and p.stream_index() == 2), None)
+                          and p.stream_index() == 2 and p.format() == fmt), None)
+        if stereo and self._ir2 is None:
+            raise DeviceError(f"{self.name}: --stereo: no right infrared stream (index 2) {ir_mode} in "
+                              f"{ir_format}; leave --stereo out")
+        self.stereo = stereo
         self.has_depth = self._depth is not None
         self.can_switch_emitter = self._sensor.supports(rs.option.emitter_enabled)
         self.white_level = IR_FORMATS[ir_format]
@@ -99,8 +106,11 @@ class RealSenseDevice(Device):
                      "firmware": self._info(rs.camera_info.firmware_version),
                      "stream": {"width": video.width(), "height": video.height(), "fps": self._ir.fps(),
                                 "format": ir_format, "depth": self.has_depth}}
+        if stereo:
+            self.info["right_ir"] = self._right_extrinsics()
         self._syncer = rs.syncer()
-        self._sensor.open([self._ir] + ([self._depth] if self._depth is not None else []))
+        self._sensor.open([self._ir] + ([self._ir2] if stereo else [])
+                          + ([self._depth] if self._depth is not None else []))
         self._sensor.start(self._syncer)
 
     def _info(self, field) -> str | None:
@@ -131,15 +141,32 @@ class RealSenseDevice(Device):
         return Intrinsics(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.ppx,
                           intrinsics.ppy)
 
-    def rig(self) -> Rig:
-        """The left IR camera, with the projector (and second camera) at the right IR camera's place:
-        the D400's own projector is not calibrated, so it stands where the stereo partner is."""
+    def _right_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, T) with X_right = R X_left + T (metres), as the device reports its IR pair's extrinsics."""
         if self._ir2 is None:
             raise DeviceError(f"{self.name}: no right infrared stream whose position would place the "
                               "projector; pass a rig file with --rig")
         extrinsics = self._ir.get_extrinsics_to(self._ir2)
         rotation = np.array(extrinsics.rotation).reshape(3, 3).T  # librealsense stores it column-major
-        centre = tuple((-rotation.T @ np.array(extrinsics.translation)).tolist())  # X2 = R X1 + T
+        return rotation, np.array(extrinsics.translation)
+
+    def _right_extrinsics(self) -> dict:
+        """The right IR stream and its extrinsics from the left one, for `info`; DeviceError unless the
+        pair is rectified (the D400 rectifies its IR streams: same orientation)."""
+        rotation, translation = self._right_pose()
+        if not np.allclose(rotation, np.eye(3), atol=1e-6):
+            raise DeviceError(f"{self.name}: --stereo: its IR pair is not rectified (rotation "
+                              f"{np.round(rotation, 6).tolist()} from the left to the right camera); dotsim "
+                              "stores rectified pairs only")
+        return {"stream_index": 2, "extrinsics_from_left": {
+            "rotation": rotation.ravel().tolist(), "translation": translation.tolist(),
+            "convention": "X_right = R X_left + T, metres, R row-major"}}
+
+    def rig(self) -> Rig:
+        """The left IR camera, with the projector (and second camera) at the right IR camera's place:
+        the D400's own projector is not calibrated, so it stands where the stereo partner is."""
+        rotation, translation = self._right_pose()
+        centre = tuple((-rotation.T @ translation).tolist())  # X2 = R X1 + T
         return device_rig(f"realsense_{self.info['serial']}", self.camera(), centre, centre)
 
     def settings(self) -> dict:
@@ -154,7 +181,7 @@ class RealSenseDevice(Device):
 
     def read(self) -> DeviceFrame:
         rs = self._rs
-        ir, depth = self._frames()
+        ir, right, depth = self._frames()
         emitter = None
         if ir.supports_frame_metadata(rs.frame_metadata_value.frame_emitter_mode):
             emitter = ir.get_frame_metadata(rs.frame_metadata_value.frame_emitter_mode) != 0
@@ -162,19 +189,23 @@ class RealSenseDevice(Device):
         if depth is not None:
             raw = np.asanyarray(depth.get_data()).astype(np.float32) * np.float32(self._depth_scale)
             metres = np.where(raw > 0, raw, np.nan).astype(np.float32)
+        right_ir = None if right is None else np.asanyarray(right.get_data()).copy()
         return DeviceFrame(np.asanyarray(ir.get_data()).copy(), float(ir.get_timestamp()),
-                           int(ir.get_frame_number()), emitter, metres)
+                           int(ir.get_frame_number()), emitter, metres, right_ir)
 
     def _frames(self):
-        """The next left IR frame and its depth frame (None without depth), from one frameset."""
+        """The next left IR frame, its right IR frame (None unless stereo) and its depth frame (None
+        without depth), from one frameset."""
         deadline = time.monotonic() + self._timeout_s
         while True:
-            ir, depth = self._frameset(deadline)
-            if ir is not None and (depth is not None or not self.has_depth):
-                return ir, depth  # the syncer can hand out a stream alone before its partner arrives
+            ir, right, depth = self._frameset(deadline)
+            # the syncer can hand out a stream alone before its partners arrive
+            if ir is not None and (right is not None or not self.stereo) and (depth is not None
+                                                                             or not self.has_depth):
+                return ir, right, depth
 
     def _frameset(self, deadline: float):
-        """(left IR, depth) frames of the syncer's next frameset, each None when it lacks it;
+        """(left IR, right IR, depth) frames of the syncer's next frameset, each None when it lacks it;
         DeviceGone past the deadline."""
         rs = self._rs
         remaining_ms = int(1000 * (deadline - time.monotonic()))
@@ -185,21 +216,39 @@ class RealSenseDevice(Device):
         except RuntimeError:
             raise DeviceGone(f"{self.name}: no frame for {self._timeout_s:g} s (unplugged or stopped)") \
                 from None
-        ir = depth = None
+        ir = right = depth = None
         for k in range(frames.size()):
             frame = frames[k]
-            if frame.profile.stream_type() == rs.stream.infrared and frame.profile.stream_index() == 1:
-                ir = frame
+            if frame.profile.stream_type() == rs.stream.infrared:
+                if frame.profile.stream_index() == 1:
+                    ir = frame
+                elif frame.profile.stream_index() == 2:
+                    right = frame
             elif frame.profile.stream_type() == rs.stream.depth:
                 depth = frame
-        return ir, depth
+        return ir, right, depth
 
     def close(self) -> None:
+        # Frames the syncer still holds are taken while the sensor stops: a played-back recording
+        # hands out frames only as they are taken, and its stop waited on them forever (three
+        # streams of a recording, measured).
+        stopped = threading.Event()
+
+        def drain() -> None:
+            while not stopped.is_set():
+                self._syncer.poll_for_frames()
+                time.sleep(0.001)
+
+        drainer = threading.Thread(target=drain, daemon=True)
+        drainer.start()
         try:
             self._sensor.stop()
             self._sensor.close()
         except RuntimeError:  # already stopped, or the device is gone
             pass
+        finally:
+            stopped.set()
+            drainer.join()
 
 
 RECORDING_SUFFIXES = (".bag", ".db3")  # ROS1 bags (RealSense Viewer, SDK <= 2.55) and ROS2 (SDK >= 2.56)
@@ -242,12 +291,17 @@ class RealSenseRecording(RealSenseDevice):
     were recorded, else every IR frame.
     """
 
-    def __init__(self, path, timeout_s: float = 2.0, count_poses: bool = True):
+    def __init__(self, path, timeout_s: float = 2.0, count_poses: bool = True, stereo: bool = False):
         path = Path(path)
         states = self._emitter_states(path) if count_poses else []
-        self._irs, self._depths = {}, {}  # frames waiting for their partner, by frame number
+        # frames waiting for their partners, by frame number: left IR, right IR, depth
+        self._waiting: tuple[dict, dict, dict] = ({}, {}, {})
         device = _load_recording(path)
-        super().__init__(device, ir_format=_recorded_ir_format(device, path), timeout_s=timeout_s)
+        try:
+            super().__init__(device, ir_format=_recorded_ir_format(device, path), timeout_s=timeout_s,
+                             stereo=stereo)
+        except DeviceError as error:
+            raise DeviceError(f"--bag {path}: {error}") from None
         self.name = f"recording:{path.name}"
         self.can_switch_emitter = {True, False} <= set(states)
         self.poses = _pose_count(states) if self.can_switch_emitter else len(states)
@@ -271,18 +325,21 @@ class RealSenseRecording(RealSenseDevice):
         """A recording's exposure is what it was: nothing to set."""
 
     def _frames(self):
-        """The next left IR frame and the depth frame of the same frame number: played back, IR and
-        depth may come in framesets of their own (ROS1 bags do), so they are paired by number."""
+        """The next left IR frame and the right IR (when stereo) and depth frames of the same frame
+        number: played back, the streams may come in framesets of their own (ROS1 bags do), so they
+        are paired by number."""
         deadline = time.monotonic() + self._timeout_s
+        wanted = (True, self.stereo, self.has_depth)
+        needed = [store for store, want in zip(self._waiting, wanted, strict=True) if want]
         while True:
-            common = sorted(set(self._irs) & set(self._depths)) if self.has_depth else sorted(self._irs)
+            common = sorted(set.intersection(*(set(store) for store in needed)))
             if common:
                 number = common[0]
-                for store in (self._irs, self._depths):  # unmatched older frames never pair any more
+                for store in self._waiting:  # unmatched older frames never pair any more
                     for older in [key for key in store if key < number]:
                         del store[older]
-                return self._irs.pop(number), self._depths.pop(number, None)
-            for store, frame in zip((self._irs, self._depths), self._frameset(deadline), strict=True):
+                return tuple(store.pop(number, None) for store in self._waiting)
+            for store, frame in zip(self._waiting, self._frameset(deadline), strict=True):
                 if frame is not None:
                     store[frame.get_frame_number()] = frame
 

@@ -31,6 +31,7 @@ The dataset's pattern file (store_pattern, pattern_entry) lives in dotsim.patter
 from dotsim.dataset.frames import (
     DERIVED_CHANNELS,
     EXR_COMPRESSION,
+    EXR_COMPRESSIONS,
     FRAME_CHANNELS,
     MASK_CHANNELS,
     RENDERED_CHANNELS,
@@ -92,8 +93,8 @@ from dotsim.dataset.writer import (
 from dotsim.file_io import TMP_PREFIX
 
 __all__ = [
-    "CAPTURED", "DEFAULT_SCENES_PER_SHARD", "DERIVED_CHANNELS", "EXR_COMPRESSION", "FORMAT_VERSION",
-    "FRAME_CHANNELS",
+    "CAPTURED", "DEFAULT_SCENES_PER_SHARD", "DERIVED_CHANNELS", "EXR_COMPRESSION", "EXR_COMPRESSIONS",
+    "FORMAT_VERSION", "FRAME_CHANNELS",
     "INDEX_FILE",
     "LAYOUT_FILE", "RENDERED_CHANNELS", "MASK_CHANNELS", "PATTERN_FILE", "REQUIRED_META_KEYS", "SCENE_FILE",
     "SHARD_FILE",

@@ -2,9 +2,11 @@
 
 FRAME_CHANNELS gives each channel's dtype as read (why each: docs/FORMAT.md). write_frame_file
 validates and converts a frame dict and writes it; decode_frame checks a file's channels, shapes
-and pixel types and returns them. Format 2.x stores no `disparity`: it is fx * b / depth exactly,
-so the writer checks a given one and the reader computes it from `depth` and the rig the header
-carries (DERIVED_CHANNELS); format 1.x files store it and are read as they are.
+and pixel types and returns them. Format 2.x stores no `disparity` (nor, 2.1 on, `stereo_disparity`):
+each is one division of depth (DERIVATIONS), so the writer checks a given one and the reader computes
+it from `depth` and the rig the header carries (DERIVED_CHANNELS); format 1.x files store
+`disparity` and are read as they are. A file records the oldest format version that has all of its
+channels (frame_format_version).
 """
 
 from __future__ import annotations
@@ -16,40 +18,36 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.dataset.layout import FORMAT_VERSION, FormatError, check_format_version
+from dotsim.channels import (
+    CHANNEL,
+    CHANNELS,
+    DERIVED_CHANNELS,
+    MASK_CHANNELS,
+    RENDERED_CHANNELS,
+    stored_channels,
+)
+from dotsim.dataset.layout import FormatError, check_format_version
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
 from dotsim.rig import Rig, depth_to_disparity
+from dotsim.stereo import stereo_disparity
 
-# Lossless, the smallest and the fastest to read of OpenEXR's lossless codecs on rendered frames
-# (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size); needs
-# OpenEXR >= 3.4 to read. Measured in docs/FORMAT.md "Compression" (bench.generate_stages
-# --compression, on rendered frames).
-EXR_COMPRESSION = "ZSTD_COMPRESSION"
+# The lossless compressions a dataset's frames may have ([output] exr_compression -> OpenEXR's name).
+# zstd, the default, is the smallest and the fastest to read of OpenEXR's lossless codecs on rendered
+# frames (zstd over byte-shuffled blocks: float32 ground truth shrinks to 40% of ZIP's size) and needs
+# OpenEXR >= 3.4 to read; zip and piz are read by older OpenEXR versions too. Measured in
+# docs/FORMAT.md "Compression" (bench.generate_stages --compression, bench.exr_readability).
+EXR_COMPRESSIONS = {"zstd": "ZSTD_COMPRESSION", "zip": "ZIP_COMPRESSION", "piz": "PIZ_COMPRESSION"}
+EXR_COMPRESSION = EXR_COMPRESSIONS["zstd"]
 VERSION_ATTRIBUTE = "dotsim_format_version"
 # Format 2.x: the rig (Rig.to_dict() as JSON) the derived channels are computed with.
 RIG_ATTRIBUTE = "dotsim_rig"
 
-# Dtype per channel as read (what read_frame returns). Why each was chosen: docs/FORMAT.md.
-# Masks are uint8 in memory and UINT (32-bit) in the EXR: EXR has no 8-bit pixel type.
-FRAME_CHANNELS: dict[str, np.dtype] = {
-    "ir": np.dtype(np.float16),
-    "ambient": np.dtype(np.float16),
-    "flood": np.dtype(np.float16),
-    "depth": np.dtype(np.float32),
-    "visibility": np.dtype(np.uint8),
-    "edge": np.dtype(np.uint8),
-    "projector_column": np.dtype(np.float32),
-    "disparity": np.dtype(np.float32),
-    # A real sensor's own depth (metres, nan = no reading), stored beside recordings: the sensor's
-    # estimate, never ground truth (which is "depth").
-    "device_depth": np.dtype(np.float32),
-}
-# What the generator renders: every channel but the sensor's own depth; the writer's default.
-RENDERED_CHANNELS = tuple(c for c in FRAME_CHANNELS if c != "device_depth")
-MASK_CHANNELS = ("visibility", "edge")
-# Channels format 2.x computes on read from `depth` and the header's rig instead of storing them,
-# and how far (relative) a writer's own may lie from that: float32 rounding of depth and result.
-DERIVED_CHANNELS = ("disparity",)
+# Dtype per channel as read (what read_frame returns), from the one declaration of the channels
+# (dotsim.channels). Why each was chosen: docs/FORMAT.md. Masks are uint8 in memory and UINT
+# (32-bit) in the EXR: EXR has no 8-bit pixel type.
+FRAME_CHANNELS: dict[str, np.dtype] = {c.name: c.dtype for c in CHANNELS}
+# How far (relative) a writer's own derived channel may lie from what format 2.x computes on read
+# (DERIVED_CHANNELS): float32 rounding of depth and result.
 DERIVED_TOLERANCE = 1e-6
 
 
@@ -59,6 +57,34 @@ def ground_truth_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
     so a derived channel is bit for bit what format 1.x stored."""
     depth = np.asarray(depth, np.float32)
     return depth_to_disparity(np.where(depth <= rig.max_depth, depth, np.nan), rig)
+
+
+# Each derived channel from a frame's stored depth and its rig: the generator's and the reader's one
+# formula, so what the reader derives is bit for bit what a writer would have stored.
+DERIVATIONS = {"disparity": ground_truth_disparity, "stereo_disparity": stereo_disparity}
+# The oldest version a 2.x writer records (2.0: ZSTD frames, disparity derived).
+OLDEST_WRITTEN = "2.0"
+
+
+def derivable_channels(stored, has_depth: bool) -> list[str]:
+    """The derived channels (DERIVATIONS) a frame storing `stored` gives on read: none without a depth
+    to derive them from (`has_depth`); the stereo ones only where the frame stores a channel of the
+    stereo pair (a rig may have a second camera its frames did not use).
+
+    >>> derivable_channels(["ir", "depth"], True), derivable_channels(["ir", "ir_right"], True)
+    (['disparity'], ['disparity', 'stereo_disparity'])
+    """
+    pair = any(CHANNEL[c].stereo for c in stored if c in CHANNEL)
+    return [c for c in DERIVED_CHANNELS if c not in stored and has_depth and (pair or not CHANNEL[c].stereo)]
+
+
+def frame_format_version(channels) -> str:
+    """The format version a frame file and its scene.json record: the oldest (from OLDEST_WRITTEN up
+    to dotsim.dataset.FORMAT_VERSION) that has every one of `channels` (dotsim.channels' `since`), so a scene
+    without the channels a later minor added is byte for byte what that older version wrote."""
+    def key(version: str) -> tuple[int, ...]:
+        return tuple(int(part) for part in version.split("."))
+    return max([OLDEST_WRITTEN, *(CHANNEL[name].since for name in channels)], key=key)
 
 
 def _to_stored(name: str, array, where: str) -> np.ndarray:
@@ -97,34 +123,38 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}: the
     stored channels of `channels`; a derived one the frame carries must match what the reader
     derives (so nothing given is lost unnoticed)."""
-    stored_channels = [c for c in channels if c not in DERIVED_CHANNELS]
-    missing = [c for c in stored_channels if c not in frame]
+    stored = stored_channels(channels)
+    missing = [c for c in stored if c not in frame]
     unknown = [c for c in frame if c not in FRAME_CHANNELS]
     if missing:
-        raise FormatError(f"{where}: missing channel(s) {missing}; required: {stored_channels}")
+        raise FormatError(f"{where}: missing channel(s) {missing}; required: {list(stored)}")
     if unknown:
         raise FormatError(f"{where}: unknown channel(s) {unknown}; known: {list(FRAME_CHANNELS)}")
     extra = [c for c in frame if c not in channels]
     if extra:
         raise FormatError(f"{where}: channel(s) {extra} not in this scene's channel list {list(channels)}")
     pixels = {}
-    for name in stored_channels:
-        stored = _to_stored(name, frame[name], where)
-        if stored.shape != shape:
-            raise FormatError(f"{where}: channel {name!r} has shape {stored.shape}, the rig camera is "
+    for name in stored:
+        array = _to_stored(name, frame[name], where)
+        if array.shape != shape:
+            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the rig camera is "
                               f"{shape} (height, width)")
-        pixels[name] = np.ascontiguousarray(stored)
+        pixels[name] = np.ascontiguousarray(array)
     for name in (c for c in channels if c in DERIVED_CHANNELS):
         if "depth" not in channels or rig is None:
             raise FormatError(f"{where}: channel {name!r} is derived from 'depth' and the rig: the "
                               f"channel list must include 'depth' and the rig must be given")
+        try:
+            derived = DERIVATIONS[name](pixels["depth"], rig)
+        except ValueError as error:  # a stereo channel of a rig without a stereo pair
+            raise FormatError(f"{where}: channel {name!r}: {error}") from None
         # One computed from depth before its rounding to float32 differs by that rounding alone.
-        if name in frame and not np.allclose(_to_stored(name, frame[name], where),
-                                             ground_truth_disparity(pixels["depth"], rig),
+        if name in frame and not np.allclose(_to_stored(name, frame[name], where), derived,
                                              rtol=DERIVED_TOLERANCE, atol=0.0, equal_nan=True):
-            raise FormatError(f"{where}: channel {name!r} differs from fx * b / depth of its 'depth' "
-                              f"channel (nan beyond rig.max_depth; relative tolerance "
-                              f"{DERIVED_TOLERANCE}), which the reader derives; leave it out or pass that")
+            raise FormatError(f"{where}: channel {name!r} differs from what the reader derives from its "
+                              f"'depth' channel and the rig (fx * baseline / depth, nan beyond "
+                              f"rig.max_depth; relative tolerance {DERIVED_TOLERANCE}); leave it out or "
+                              f"pass that")
     return pixels
 
 
@@ -145,7 +175,7 @@ def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] 
     parsed = _parse_rig(rig, where) if rig is not None and derives else None
     pixels = _frame_pixels(frame, channels, shape, where, parsed)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
-              VERSION_ATTRIBUTE: FORMAT_VERSION}
+              VERSION_ATTRIBUTE: frame_format_version(channels)}
     if parsed is not None:
         header[RIG_ATTRIBUTE] = json.dumps(rig, sort_keys=True)
     stream = io.BytesIO()
@@ -189,7 +219,7 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
         check_format_version(version, path)
     rig = header.get(RIG_ATTRIBUTE)
     # Derivable here: format 2.x files with depth and the rig (1.x files store every channel).
-    derivable = [c for c in DERIVED_CHANNELS if c not in stored and rig is not None and "depth" in stored]
+    derivable = derivable_channels(stored, rig is not None and "depth" in stored)
     source = "height, width of the rig camera in scene.json"
     if channels is None:
         channels = [c for c in FRAME_CHANNELS if c in stored or c in derivable]
@@ -210,7 +240,7 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
             raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected {tuple(shape)} "
                               f"({source})")
         if name not in stored:
-            out[name] = _derived_disparity(a, rig, path)
+            out[name] = _derived(name, a, rig, path)
             continue
         want = FRAME_CHANNELS[name]
         if name in MASK_CHANNELS:
@@ -225,12 +255,15 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
     return out
 
 
-def _derived_disparity(depth: np.ndarray, rig_json: str, path: Path) -> np.ndarray:
-    """`disparity` of a format 2.x file (DERIVED_CHANNELS) from its depth and its header's rig."""
+def _derived(name: str, depth: np.ndarray, rig_json: str, path: Path) -> np.ndarray:
+    """Derived channel `name` of a format 2.x file (DERIVATIONS) from its depth and its header's rig."""
     if depth.dtype != np.float32:
         raise FormatError(f"{path}: channel 'depth' stored as {depth.dtype}, expected float32")
     try:
         rig = Rig.from_dict(json.loads(rig_json))
     except (ValueError, TypeError) as e:
         raise FormatError(f"{path}: header attribute {RIG_ATTRIBUTE!r} is not a rig ({e})") from None
-    return ground_truth_disparity(depth, rig)
+    try:
+        return DERIVATIONS[name](depth, rig)
+    except ValueError as error:
+        raise FormatError(f"{path}: channel {name!r}: {error}") from None

@@ -17,10 +17,15 @@ from pathlib import Path
 import numpy as np
 
 from dotsim import __version__ as DOTSIM_VERSION
-from dotsim.dataset.frames import FRAME_CHANNELS, RENDERED_CHANNELS, encode_frame
+from dotsim.dataset.frames import (
+    EXR_COMPRESSION,
+    FRAME_CHANNELS,
+    RENDERED_CHANNELS,
+    encode_frame,
+    frame_format_version,
+)
 from dotsim.dataset.layout import (
     DEFAULT_SCENES_PER_SHARD,
-    FORMAT_VERSION,
     INDEX_FILE,
     LAYOUT_FILE,
     SCENE_FILE,
@@ -58,7 +63,8 @@ def write_dataset_file(dataset_dir: str | os.PathLike, name: str, data: bytes) -
 
 def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, frames: list[dict],
                 scenes_per_shard: int = DEFAULT_SCENES_PER_SHARD,
-                channels: tuple[str, ...] | None = None, threads: int = 1) -> Path:
+                channels: tuple[str, ...] | None = None, threads: int = 1,
+                compression: str = EXR_COMPRESSION) -> Path:
     """Write one scene atomically and return its final directory.
 
     meta: JSON-safe dict with at least REQUIRED_META_KEYS ("rig" is Rig.to_dict(); its camera size
@@ -70,7 +76,8 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
     The scene goes to a temp dir, scene.json last, then one rename: a crash leaves only a
     ``.tmp-*`` dir that remove_partial_scenes deletes. threads: frames encoded at once (the codec
-    and numpy release the GIL; the bytes are the same whatever the number).
+    and numpy release the GIL; the bytes are the same whatever the number). compression: the frames'
+    OpenEXR compression (a value of EXR_COMPRESSIONS; every one is lossless).
     """
     dataset_dir = Path(dataset_dir)
     if not isinstance(scene_index, int | np.integer) or scene_index < 0:
@@ -102,12 +109,13 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
         raise FormatError(f"{final}: scene already exists (check is_scene_complete before writing)")
     # Encoded (and so validated) before anything is written: a bad frame leaves no trace on disk.
     def encode_and_hash(k: int) -> tuple[bytes, str]:
-        data = encode_frame(frames[k], shape, channels, where=f"{where} frame {k}", rig=meta["rig"])
+        data = encode_frame(frames[k], shape, channels, compression, where=f"{where} frame {k}",
+                            rig=meta["rig"])
         return data, sha256_bytes(data)
 
     encoded, checksums = zip(*map_in_threads(encode_and_hash, range(len(frames)), threads), strict=True)
     full_meta = {key: value for key, value in meta.items() if key not in WRITER_META_KEYS}
-    full_meta.update(format_version=FORMAT_VERSION, dotsim_version=DOTSIM_VERSION,
+    full_meta.update(format_version=frame_format_version(channels), dotsim_version=DOTSIM_VERSION,
                      scene_index=scene_index, frame_count=len(frames),
                      channels={c: FRAME_CHANNELS[c].name for c in channels},
                      frames=[{"file": frame_name(k), "sha256": sha} for k, sha in enumerate(checksums)])

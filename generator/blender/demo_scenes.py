@@ -14,8 +14,10 @@ from dataclasses import asdict
 
 import numpy as np
 
+from dotsim.rig import Rig
 from generator.config import Config
-from generator.sample_scene import sensor_model
+from generator.sample_scene import sensor_settings
+from generator.scene_spec import camera_views
 
 IDENTITY_POSE = np.eye(4).tolist()
 
@@ -34,10 +36,12 @@ def base_spec(
     poses: list | None = None,
     threads: int = 0,
     pixel_scale: float = 1.0,
+    stereo: bool = False,
 ) -> dict:
     """A SceneSpec with no objects; add them to spec["objects"]. pixel_scale: the rig's resolution
     over its sensor's full resolution (the sensor model's blur and bloom and the mask's dot blur
-    are in full-resolution pixels), e.g. 0.125 for a rig scaled by 0.125."""
+    are in full-resolution pixels), e.g. 0.125 for a rig scaled by 0.125. stereo: render the rig's
+    second camera too."""
     return {
         "scene_index": 0,
         "split": "test",
@@ -51,8 +55,9 @@ def base_spec(
         "world": {"strength": world_strength},
         "lights": lights or [],
         "poses": poses or [IDENTITY_POSE],
+        "cameras": [camera.to_dict() for camera in camera_views(Rig.from_dict(rig), stereo)],
         "objects": [],
-        "sensor": {**sensor_model(Config()).to_dict(), "pixel_scale": pixel_scale},
+        "sensor": {**sensor_settings(Config()).to_dict(), "pixel_scale": pixel_scale},
         "masks": asdict(Config().masks),
     }
 

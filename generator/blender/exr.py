@@ -46,25 +46,40 @@ def _channels(raw: bytes) -> list[tuple[str, int]]:
     return channels
 
 
+# Bytes read first for the header and the line offsets (Blender's header is under 1 kB, a line's
+# offset 8 bytes); the pixels are then read straight into the image, line by line, so a read holds
+# the image alone, never the whole file besides it (two such files per pose made a render worker's
+# memory peak).
+_HEAD_BYTES = 1 << 16
+
+
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """Channels of an uncompressed float32 scanline EXR as {name: (H, W) float32}, row 0 at the top."""
     path = Path(path)
-    data = path.read_bytes()
-    attributes, offset = _read_header(data, path)
-    if attributes["compression"][1][0] != 0:
-        raise ValueError(f"{path}: compression must be NONE, got code {attributes['compression'][1][0]}")
-    channels = _channels(attributes["channels"][1])
-    if any(pixel_type != _FLOAT for _, pixel_type in channels):
-        raise ValueError(f"{path}: every channel must be 32-bit float, got {channels}")
-    x0, y0, x1, y1 = struct.unpack("<4i", attributes["dataWindow"][1])
-    width, height = x1 - x0 + 1, y1 - y0 + 1
-    line_offsets = np.frombuffer(data, "<u8", count=height, offset=offset).astype(np.int64)
-    # Each chunk: int32 y, int32 byte count, then one line of every channel in name order.
-    chunk = 8 + 4 * width * len(channels)
-    image = np.empty((height, len(channels), width), np.float32)
-    for line_offset in line_offsets.tolist():
-        y = struct.unpack_from("<i", data, line_offset)[0] - y0
-        image[y] = np.frombuffer(data, "<f4", count=chunk // 4 - 2, offset=line_offset + 8).reshape(
-            len(channels), width
-        )
+    with open(path, "rb") as stream:
+        head = stream.read(_HEAD_BYTES)
+        try:
+            attributes, offset = _read_header(head, path)
+        except (IndexError, ValueError, struct.error):
+            if len(head) < _HEAD_BYTES:  # the whole file was read: it is what is wrong
+                raise
+            head += stream.read()  # a header larger than any Blender writes
+            attributes, offset = _read_header(head, path)
+        if attributes["compression"][1][0] != 0:
+            raise ValueError(f"{path}: compression must be NONE, got code {attributes['compression'][1][0]}")
+        channels = _channels(attributes["channels"][1])
+        if any(pixel_type != _FLOAT for _, pixel_type in channels):
+            raise ValueError(f"{path}: every channel must be 32-bit float, got {channels}")
+        x0, y0, x1, y1 = struct.unpack("<4i", attributes["dataWindow"][1])
+        width, height = x1 - x0 + 1, y1 - y0 + 1
+        head += stream.read(max(0, offset + 8 * height - len(head)))
+        line_offsets = np.frombuffer(head, "<u8", count=height, offset=offset).tolist()
+        # Each chunk: int32 y, int32 byte count, then one line of every channel in name order.
+        image = np.empty((height, len(channels), width), "<f4")
+        for line_offset in line_offsets:
+            stream.seek(line_offset)
+            start = stream.read(8)  # int32 y, int32 byte count
+            y = struct.unpack_from("<i", start)[0] - y0 if len(start) == 8 else -1
+            if not 0 <= y < height or stream.readinto(image[y]) != image[y].nbytes:
+                raise ValueError(f"{path}: line at byte {line_offset} is truncated or outside the image")
     return {name: image[:, k, :] for k, (name, _) in enumerate(channels)}

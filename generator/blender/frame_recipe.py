@@ -92,6 +92,10 @@ DIRECT_LIGHT_RENDER = Render(
     bounces=False, extra_lights=False, red_green=None, light_passes=frozenset(),
     image=(("R", "projector_direct"), ("R", "projector"), ("G", "flood_direct"), ("G", "flood")))
 
+# The raw passes of each frame of a dataset, which generator/post_render.py turns into the stored
+# channels: those of the one render above (the two-render recipe gives the same, tested).
+RAW_PASSES = FrameRecipe((ALL_LIGHT_RENDER,), 1.0).raw_passes
+
 # The one-render way from before the spot's direct light had passes (no direct passes, pepper with
 # extra lights), kept to compare against: bench.mask_fidelity's "old".
 WITHOUT_DIRECT_LIGHT = FrameRecipe(

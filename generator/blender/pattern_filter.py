@@ -19,23 +19,33 @@ import zlib
 
 import numpy as np
 
+# Lines filtered at once: every line is filtered on its own, so a block of them at a time gives the
+# same bits as the whole image while the temporaries stay a few MB (the full-size projector pattern
+# is 3072 x 3072: 72 MB per float64 copy, and a render worker's memory peaked here).
+BLOCK_LINES = 256
+
+
+def _integral(cumulative: np.ndarray, lines: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Integral of each line from 0 to t (pixel k spans [k, k+1]); cumulative: the lines' cumulative
+    sums along axis 0, a row of zeros first."""
+    n = lines.shape[0]
+    t = np.clip(t, 0, n)
+    k = np.minimum(np.floor(t).astype(np.intp), n - 1)
+    return cumulative[k] + (t - k)[:, None] * lines[k]
+
 
 def _box_along(image: np.ndarray, width: float, axis: int) -> np.ndarray:
-    """Mean of `image` over a window `width` pixels wide centred on each pixel, along `axis`; the
-    window may be fractional (partial pixels weigh by their covered length); the image is taken as
-    zero outside its bounds, as the projector's CLIP texture is."""
+    """Mean of `image` (H, W) over a window `width` pixels wide centred on each pixel, along `axis`;
+    the window may be fractional (partial pixels weigh by their covered length); the image is taken
+    as zero outside its bounds, as the projector's CLIP texture is."""
     moved = np.moveaxis(np.asarray(image, np.float64), axis, 0)
-    n = moved.shape[0]
-    cumulative = np.concatenate([np.zeros((1,) + moved.shape[1:]), np.cumsum(moved, axis=0)])
-
-    def integral(t: np.ndarray) -> np.ndarray:  # integral of the image from 0 to t (pixel k spans [k, k+1])
-        t = np.clip(t, 0, n)
-        k = np.minimum(np.floor(t).astype(np.intp), n - 1)
-        fraction = (t - k).reshape((-1,) + (1,) * (moved.ndim - 1))
-        return cumulative[k] + fraction * moved[k]
-
-    centres = np.arange(n) + 0.5
-    out = (integral(centres + width / 2) - integral(centres - width / 2)) / width
+    centres = np.arange(moved.shape[0]) + 0.5
+    out = np.empty(moved.shape)
+    for start in range(0, moved.shape[1], BLOCK_LINES):
+        lines = moved[:, start:start + BLOCK_LINES]
+        cumulative = np.concatenate([np.zeros((1, lines.shape[1])), np.cumsum(lines, axis=0)])
+        out[:, start:start + BLOCK_LINES] = (_integral(cumulative, lines, centres + width / 2)
+                                             - _integral(cumulative, lines, centres - width / 2)) / width
     return np.moveaxis(out, 0, axis)
 
 

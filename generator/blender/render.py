@@ -15,6 +15,11 @@ Direct light: which renders a frame takes, which passes they switch on and what 
 writes is the frame recipe's to say (frame_recipe.py, pure); the renderer sets the bpy scene up for
 each render of it in turn, renders every frame through it and adds up the raw passes it names.
 
+Cameras: the spec says which of the rig's cameras each frame is rendered from (SceneSpec.cameras):
+its own camera, and for a stereo pair its second one. One Blender camera is placed at each in turn,
+the projector staying on the rig; the raw passes of a camera other than the rig's own are named with
+its suffix ("projector_right").
+
 Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
 replaced and meshes, materials and the pattern image are cached, so memory stays flat.
@@ -23,6 +28,7 @@ replaced and meshes, materials and the pattern image are cached, so memory stays
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import os
 import shutil
 import sys
@@ -34,7 +40,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from generator.scene_spec import RenderSettings, SceneSpec
+from generator.scene_spec import CameraView, RenderSettings, SceneSpec
 
 from .exr import read_exr
 from .frame_recipe import LIGHT_PASSES, FrameRecipe, Render, frame_recipe
@@ -204,6 +210,8 @@ class SceneRenderer:
         # The render whose passes and compositor the bpy scene holds; None after passes were off.
         self._composited: Render | None = None
         self.recipe: FrameRecipe | None = None  # the built spec's, set by setup()
+        self.cameras: tuple[CameraView, ...] = ()  # the built spec's, set by setup()
+        self._intrinsics = None  # of the Blender camera now
         self.content = SceneContent(self.scene)
         self.projector = ProjectorLight(self.scene.collection)
         self.device = "CPU"
@@ -295,7 +303,9 @@ class SceneRenderer:
         self._apply_render_settings(spec.render)
         self.projector.sampling_boost = recipe.sampling_boost
         rig = spec.rig
-        self.content.set_camera(rig.camera)
+        self.cameras = spec.cameras
+        self._intrinsics = self.cameras[0].intrinsics
+        self.content.set_camera(self._intrinsics)
         self.projector.set_intrinsics(astuple(rig.projector))
         self._rig = rig
         width = footprint_width(rig.projector.fx, rig.camera.fx, self.scene.cycles.samples)
@@ -315,12 +325,17 @@ class SceneRenderer:
         self.scene.render.use_persistent_data = False
         self.scene.render.use_persistent_data = True
 
-    def place_rig(self, world_from_camera: np.ndarray) -> None:
-        """Move the camera to `world_from_camera` (4x4, OpenCV axes) and the projector with it, as
-        the built spec's rig says."""
-        self.content.set_camera_pose(world_from_camera)
+    def place_rig(self, world_from_rig: np.ndarray, camera: CameraView | None = None) -> None:
+        """Put the rig at `world_from_rig` (4x4, OpenCV axes: its own camera's pose): the projector as
+        the built spec's rig says, and the Blender camera at `camera` of its cameras (default the
+        rig's own)."""
+        camera = self.cameras[0] if camera is None else camera
+        if camera.intrinsics != self._intrinsics:
+            self._intrinsics = camera.intrinsics
+            self.content.set_camera(camera.intrinsics)
+        self.content.set_camera_pose(camera.pose(world_from_rig))
         self.projector.set_pose(blender_matrix_from_opencv_pose(
-            projector_pose(world_from_camera, self._rig.R, self._rig.t)))
+            projector_pose(world_from_rig, self._rig.R, self._rig.t)))
 
     def _render_channels(self) -> dict[str, np.ndarray]:
         output = Path(self.scene.render.filepath)
@@ -329,27 +344,33 @@ class SceneRenderer:
             bpy.ops.render.render(write_still=True)
         if not output.is_file():
             raise RuntimeError(f"Cycles wrote no image to {output}")
-        return read_exr(output)
+        channels = read_exr(output)
+        _return_freed_memory()  # the render's buffers: a scene's poses would stack them otherwise
+        return channels
 
     def _render_through(self, render: Render, poses: list[np.ndarray] | tuple[np.ndarray, ...],
                         frames: list[dict[str, np.ndarray]]) -> None:
-        """Render every pose through `render` and add the raw passes it gives to its frame."""
+        """Render every pose from each camera through `render` and add the raw passes it gives to its
+        frame."""
         with self._set_for(render):
             for frame, pose in zip(frames, poses, strict=True):
-                self.place_rig(pose)
-                if render.direct_file:
-                    self._direct_file.unlink(missing_ok=True)
-                _add_passes(frame, self._render_channels(), render.image)
-                if render.direct_file:
-                    if not self._direct_file.is_file():
-                        raise RuntimeError(f"Cycles' compositor wrote no direct light to {self._direct_file}")
-                    _add_passes(frame, read_exr(self._direct_file), render.direct_file)
+                for camera in self.cameras:
+                    self.place_rig(pose, camera)
+                    if render.direct_file:
+                        self._direct_file.unlink(missing_ok=True)
+                    _add_passes(frame, self._render_channels(), render.image, camera.suffix)
+                    if render.direct_file:
+                        if not self._direct_file.is_file():
+                            raise RuntimeError(f"Cycles' compositor wrote no direct light to "
+                                               f"{self._direct_file}")
+                        _add_passes(frame, read_exr(self._direct_file), render.direct_file, camera.suffix)
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth,
         projector_direct, flood_direct} float32 (H, W); depth is planar (metres), inf where nothing
         is hit; projector and flood hold direct + indirect light, the *_direct passes the spot's
-        direct light alone (the recipe's raw_passes: frame_recipe.WITHOUT_DIRECT_LIGHT has none)."""
+        direct light alone (the recipe's raw_passes: frame_recipe.WITHOUT_DIRECT_LIGHT has none); the
+        same of each further camera of the spec, named with its suffix (CameraView.suffix)."""
         return self.render_poses([world_from_camera])[0]
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
@@ -359,20 +380,39 @@ class SceneRenderer:
         for render in self.recipe.renders:
             self._render_through(render, poses, frames)
         for frame in frames:
-            frame["depth"][frame["depth"] >= NO_HIT_DEPTH] = np.inf
+            for camera in self.cameras:
+                depth = frame["depth" + camera.suffix]
+                depth[depth >= NO_HIT_DEPTH] = np.inf
         return frames
 
     def render(self, spec: SceneSpec, recipe: FrameRecipe | None = None) -> list[dict[str, np.ndarray]]:
         """All frames of `spec`, rendered as `recipe` says (frame_recipe(spec) unless given): a list
-        (one per pose) of render_frame's passes."""
-        return self.render_poses(self.setup(spec, recipe))
+        (one per pose) of render_frame's passes. Cycles' kept scene is freed once the last pose is
+        rendered (the next setup syncs the whole scene again in any case), so the worker
+        post-renders the frames with that memory given back (bench.generate_cost)."""
+        frames = self.render_poses(self.setup(spec, recipe))
+        self.scene.render.use_persistent_data = False  # setup() switches it on again (refresh)
+        _return_freed_memory()
+        return frames
+
+
+def _return_freed_memory() -> None:
+    """Give the memory the process freed back to the system (glibc's malloc_trim; nothing
+    elsewhere). glibc keeps freed memory in the process for reuse, and the worker's next
+    allocations come partly from elsewhere (the post-render threads' own arenas), so without this
+    a worker's peak grows with every render of a scene (bench.generate_cost measures it)."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _add_passes(frame: dict[str, np.ndarray], channels: dict[str, np.ndarray],
-                passes: tuple[tuple[str, str], ...]) -> None:
-    """Add each (channel, raw pass) of `passes` to the frame: a copy of the channel, or its sum with
-    what an earlier render gave."""
+                passes: tuple[tuple[str, str], ...], suffix: str) -> None:
+    """Add each (channel, raw pass) of `passes` to the frame, the pass named with the camera's
+    `suffix`: a copy of the channel, or its sum with what an earlier render gave."""
     for channel, name in passes:
+        name += suffix
         if name in frame:
             frame[name] += channels[channel]
         else:

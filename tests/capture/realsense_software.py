@@ -46,12 +46,16 @@ def depth_z16(depth: np.ndarray) -> np.ndarray:
 
 class SoftwareStereoModule:
     """poses: list of (ir_on uint8, ir_off uint8, depth z16) frames; rig: its camera gives the
-    streams' intrinsics, its baseline the right IR camera's place."""
+    streams' intrinsics, its baseline the right IR camera's place. stream_right: push right IR frames
+    too, the left ones' images (a recorder records their extrinsics), or with right_poses (per pose
+    the right camera's (on, off) uint8 images) those."""
 
     def __init__(self, rig: Rig, poses: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 interrupt_at_pose: int | None = None, stream_right: bool = False):
+                 interrupt_at_pose: int | None = None, stream_right: bool = False,
+                 right_poses: list[tuple[np.ndarray, np.ndarray]] | None = None):
         self.poses = poses
-        self.stream_right = stream_right  # push the right IR frames too (a recorder records their extrinsics)
+        self.right_poses = right_poses
+        self.stream_right = stream_right or right_poses is not None
         self.interrupt_at_pose = interrupt_at_pose  # press Ctrl-C (in the main thread) at this pose
         self.device = rs.software_device()
         self.device.register_info(rs.camera_info.serial_number, SERIAL)
@@ -116,5 +120,7 @@ class SoftwareStereoModule:
             self._push(self.ir, ir_on if on else ir_off, self.pushed, on)
             self._push(self.depth, depth, self.pushed, on)
             if self.stream_right:
-                self._push(self.right, ir_on if on else ir_off, self.pushed, on)
+                right_on, right_off = (self.right_poses[self.pose] if self.right_poses is not None
+                                       else (ir_on, ir_off))
+                self._push(self.right, right_on if on else right_off, self.pushed, on)
             time.sleep(0.01)

@@ -32,10 +32,11 @@ def poses(count: int):
              np.full(shape, 1000 + 250 * k, np.uint16)) for k in range(count)]
 
 
-def record_bag(path, frames, switch: bool):
+def record_bag(path, frames, switch: bool, right=None):
     """Record the software module's streams (left and right IR, depth) into `path`; with `switch` the
-    emitter goes off and on again once per pose, so every pose has on frames then off frames."""
-    module = SoftwareStereoModule(RIG, frames, stream_right=True)
+    emitter goes off and on again once per pose, so every pose has on frames then off frames. right:
+    per pose the right IR's (on, off) images (default: the left ones)."""
+    module = SoftwareStereoModule(RIG, frames, stream_right=True, right_poses=right)
     recorder = rs.recorder(str(path), module.device)
     sensor = recorder.query_sensors()[0]
     sensor.open(list(sensor.get_stream_profiles()))
@@ -96,6 +97,24 @@ def test_import_recording_with_emitter_switching(tmp_path, capsys):
     assert numbers == sorted(numbers)
 
 
+def test_import_recording_of_both_ir_streams(tmp_path, capsys):
+    """--stereo: the recording's infrared 2 frames of the same frame numbers come back as ir_right,
+    and its extrinsics in scene.json."""
+    frames = poses(2)
+    right = [(np.roll(on, -4, axis=1), np.roll(off, -4, axis=1)) for on, off, _ in frames]
+    bag = tmp_path / "pair.db3"
+    record_bag(bag, frames, switch=True, right=right)
+    assert main(["capture", "import", "--bag", str(bag), "--stereo", "--out", str(tmp_path / "data"),
+                 "--frames-per-scene", "2"]) == 0
+    assert "channels ir, ir_right, ambient, visibility, device_depth" in capsys.readouterr().out
+    scenes, stored = read_back(tmp_path / "data")
+    for (on, _, _), (right_on, _), frame in zip(frames, right, stored, strict=True):
+        np.testing.assert_array_equal(frame["ir"], (on / 255.0).astype(np.float16))
+        np.testing.assert_array_equal(frame["ir_right"], (right_on / 255.0).astype(np.float16))
+    translation = scenes[0].meta["capture"]["device"]["right_ir"]["extrinsics_from_left"]["translation"]
+    np.testing.assert_allclose(translation, [-RIG.baseline, 0.0, 0.0], rtol=1e-6)
+
+
 def test_import_recording_without_switching_and_with_a_preset_rig(tmp_path, capsys):
     frames = poses(1)
     bag = tmp_path / "on_only.db3"
@@ -117,6 +136,8 @@ def test_import_recording_errors(tmp_path, capsys):
             (["--bag", str(tmp_path / "missing.db3")], "missing.db3: file not found"),
             (["--bag", str(tmp_path / "rec.mp4")], "rec.mp4: not a RealSense recording; allowed: .bag, .db3"),
             (["--bag", str(tmp_path / "junk.bag"), "--off", "x"], "--bag: leave out --off"),
+            (["--on", "x", "--off", "y", "--stereo"], "--stereo is for --bag; with --on, give the right "
+             "camera's frames: --right"),
             (["--on", "x"], "--on needs --off")):
         assert main(["capture", "import", *args, "--out", str(tmp_path / "data")]) == 2
         assert message in capsys.readouterr().err

@@ -17,7 +17,7 @@ import pytest
 from capture import cli
 from capture.dots import capture_visibility
 from capture.frames import CaptureError
-from capture.import_frames import CAPTURE_CHANNELS, import_frames
+from capture.import_frames import CAPTURE_CHANNELS, PAIR_CHANNELS, import_frames
 from dotsim.dataset import open_dataset
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
@@ -210,7 +210,13 @@ def test_cli_import_records_settings_and_pattern(tmp_path, rig, capsys):
             "--pattern", str(tmp_path / "pattern.png")]
     args = parser.parse_args(argv)
     assert args.func(args) == 0
-    assert "imported 2 frame pairs as 1 scene(s)" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "imported 2 frame pairs as 1 scene(s)" in out and "importing scenes" in err  # the bar
+    quiet = [str(tmp_path / "quiet") if arg == str(tmp_path / "data") else arg for arg in argv]
+    args = parser.parse_args([*quiet, "--no-progress"])
+    assert args.func(args) == 0
+    out, err = capsys.readouterr()
+    assert "imported 2 frame pairs" in out and "importing scenes" not in err and "checking frames" not in err
     data = open_dataset(tmp_path / "data")
     meta = data.read_scene(0).meta
     assert meta["capture"]["settings"] == {"exposure_us": 1600, "gain": 2}
@@ -223,6 +229,44 @@ def test_cli_import_records_settings_and_pattern(tmp_path, rig, capsys):
     generate_dot_pattern(50, 40, seed=1).save_png(tmp_path / "small.png")
     assert args.func(args) == 2
     assert f"{tmp_path / 'small.png'}: pattern is 50x40" in capsys.readouterr().err
+
+
+def test_import_of_a_stereo_pair_stores_the_right_ir(tmp_path, rig):
+    """--right: the right camera's projector-on frames, paired in order with --on, come back as
+    ir_right (value / white level), their files and checksums in scene.json; a rerun from other right
+    files is refused; a count mismatch, or a rig without a second camera, writes nothing."""
+    write_frames(tmp_path / "on", random_frames(rig, 4, np.uint16, 1))
+    write_frames(tmp_path / "off", random_frames(rig, 4, np.uint16, 2))
+    right = random_frames(rig, 4, np.uint16, 3)
+    right_paths = write_frames(tmp_path / "right", right)
+    summary = import_frames(str(tmp_path / "on"), str(tmp_path / "off"), rig, tmp_path / "data",
+                            frames_per_scene=2, progress=False, right_spec=str(tmp_path / "right"))
+    assert summary["written"] == 2
+    data = open_dataset(tmp_path / "data")
+    for s in range(2):
+        scene = data.read_scene(s)
+        assert sorted(scene.meta["channels"]) == sorted(PAIR_CHANNELS)
+        assert scene.meta["format_version"] == "2.1"
+        for f, frame in enumerate(scene.frames):
+            k = 2 * s + f
+            np.testing.assert_array_equal(frame["ir_right"],
+                                          (right[k].astype(np.float64) / 65535).astype(np.float16))
+            source = scene.meta["capture"]["frames"][f]["right"]
+            assert source == {"path": str(right_paths[k].resolve()),
+                              "sha256": hashlib.sha256(right_paths[k].read_bytes()).hexdigest()}
+    write_frames(tmp_path / "other", random_frames(rig, 4, np.uint16, 9))
+    with pytest.raises(CaptureError, match="scene_0000000: was imported from other files"):
+        import_frames(str(tmp_path / "on"), str(tmp_path / "off"), rig, tmp_path / "data",
+                      frames_per_scene=2, progress=False, right_spec=str(tmp_path / "other"))
+    write_frames(tmp_path / "right3", random_frames(rig, 3, np.uint16, 3))
+    for right_spec, message, chosen in (
+            (tmp_path / "right3", "4 projector-on frames .* but 3 right projector-on frames", rig),
+            (tmp_path / "right", "--right: rig 'kinect_v1' has no second IR camera",
+             get_preset("kinect_v1"))):
+        with pytest.raises(CaptureError, match=message):
+            import_frames(str(tmp_path / "on"), str(tmp_path / "off"), chosen, tmp_path / "new",
+                          progress=False, right_spec=str(right_spec))
+        assert not (tmp_path / "new").exists()
 
 
 def test_import_refuses_a_dataset_of_rendered_scenes(tmp_path, rig, capsys):

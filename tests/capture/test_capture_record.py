@@ -8,6 +8,7 @@ the device announced (librealsense keeps them as float32).
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -95,6 +96,46 @@ def test_software_realsense_recording_equals_what_was_fed(rendered, tmp_path):
         assert source["on"]["emitter"] is True and source["off"]["emitter"] is False
         assert source["off"]["frame_number"] > source["on"]["frame_number"]
         assert source["off"]["timestamp_ms"] > source["on"]["timestamp_ms"]
+
+
+def test_software_realsense_records_both_ir_streams_with_their_extrinsics(rendered, tmp_path):
+    """--stereo: infrared 2 is recorded as ir_right, exactly the right images fed (here the left ones
+    moved 3 px left, as a right camera sees a scene), beside every mono channel; the rig's second
+    camera and scene.json's extrinsics are those the device announced (X_right = X_left - b x)."""
+    right = [(np.roll(on, -3, axis=1), np.roll(off, -3, axis=1)) for on, off, _ in rendered[:4]]
+    with SoftwareStereoModule(RIG, rendered[:4], right_poses=right) as module:
+        device = RealSenseDevice(module.device, stereo=True)
+        rig = device.rig()
+        summary = record(device, rig, tmp_path / "rec", scenes=2, frames_per_scene=2, progress=False)
+        device.close()
+    assert summary["stopped"] is None and summary["frames"] == 4
+    assert summary["channels"] == ["ir", "ir_right", "ambient", "visibility", "device_depth"]
+    frames, metas = read_recorded(tmp_path / "rec")
+    check_frames_equal_fed(frames, rendered)
+    for frame, (right_on, _) in zip(frames, right, strict=True):
+        np.testing.assert_array_equal(frame["ir_right"],
+                                      (right_on.astype(np.float32) / 255).astype(np.float16))
+    meta = metas[0]
+    assert meta["format_version"] == "2.1" and "stereo_disparity" not in meta["channels"]
+    assert rig.second_camera_translation == pytest.approx((RIG.baseline, 0.0, 0.0))
+    extrinsics = meta["capture"]["device"]["right_ir"]["extrinsics_from_left"]
+    assert extrinsics["rotation"] == [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    np.testing.assert_allclose(extrinsics["translation"], [-RIG.baseline, 0.0, 0.0], rtol=1e-6)
+
+
+def test_a_stereo_recording_needs_a_rig_with_the_pair(rendered, tmp_path, capsys):
+    with SoftwareStereoModule(RIG, rendered[:1], stream_right=True) as module:
+        device = RealSenseDevice(module.device, stereo=True)
+        mono = replace(device.rig(), second_camera_translation=None)
+        with pytest.raises(CaptureError, match=rf"^--stereo: realsense:{SERIAL}: rig 'realsense_{SERIAL}' "
+                           r"has no second IR camera .*allowed: a rig whose second_camera_translation is "
+                           r"\[B, 0, 0\]"):
+            record(device, mono, tmp_path / "rec", scenes=1, frames_per_scene=1, progress=False)
+        device.close()
+    assert not (tmp_path / "rec").exists()
+    assert cli_main(["capture", "record", "--device", "opencv:0", "--stereo", "--out",
+                     str(tmp_path / "rec")]) == 2
+    assert "--stereo: only a RealSense offers it; leave it out for opencv" in capsys.readouterr().err
 
 
 def test_device_that_stops_mid_recording_keeps_every_complete_frame(rendered, tmp_path):

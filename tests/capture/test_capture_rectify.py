@@ -136,3 +136,43 @@ def test_capture_record_rectifies_ir_and_device_depth(tmp_path, distorted):
     # barrel distortion: every pinhole pixel's source lies inside the recorded image
     assert np.all(depth == np.float32(1500) * np.float32(DEPTH_UNITS))
     assert scene.meta["capture"]["rectified_from"]["model"] == "radtan"
+
+
+def ros_camera_info(path):
+    """The lens as ROS camera_calibration writes its camera_info (plain YAML, no %YAML:1.0 header)."""
+    def matrix(array):
+        array = np.atleast_2d(array)
+        return (f"\n  rows: {array.shape[0]}\n  cols: {array.shape[1]}\n  data: "
+                f"[{', '.join(repr(float(v)) for v in array.ravel())}]")
+
+    path.write_text(f"image_width: {WIDTH}\nimage_height: {HEIGHT}\ncamera_name: ir_camera\n"
+                    f"camera_matrix:{matrix(LENS_K)}\ndistortion_model: plumb_bob\n"
+                    f"distortion_coefficients:{matrix(LENS_D)}\nrectification_matrix:{matrix(np.eye(3))}\n"
+                    f"projection_matrix:{matrix(np.hstack([LENS_K, np.zeros((3, 1))]))}\n")
+    return path
+
+
+@pytest.mark.parametrize("flags", [["--rig", "kinect_v1", "--camera-file", "{ros}"], ["--rig", "{ros}"]])
+def test_capture_import_with_a_ros_camera_info_by_flag(tmp_path, distorted, capsys, flags):
+    """A ROS camera_info, given by --camera-file (with a preset's projector) or as --rig itself (a camera
+    alone: the default preset's projector): the frames are rectified to its pinhole model, the rig is
+    named after both, and the command says so."""
+    ros = ros_camera_info(tmp_path / "ir.yaml")
+    for folder, level in (("on", 1.0), ("off", 0.3)):
+        (tmp_path / folder).mkdir()
+        frame = np.round(distorted * level * 65535).astype(np.uint16)
+        cv2.imwrite(str(tmp_path / folder / "frame_0.png"), frame)
+    status = main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
+                   *(flag.format(ros=ros) for flag in flags), "--out", str(tmp_path / "data"),
+                   "--frames-per-scene", "1"])
+    assert status == 0
+    projector = "kinect_v1" if "kinect_v1" in flags else "structure_core"
+    scene = read_scene(open_dataset(tmp_path / "data").scenes[0].path)
+    assert scene.meta["rig"]["camera"] == PINHOLE.to_dict()
+    assert scene.meta["rig"]["name"] == f"ir_camera (camera) + {projector} (projector)"
+    assert corner_error(scene.frames[0]["ir"].astype(np.float32)) < 0.2
+    out, err = capsys.readouterr()
+    name = f"ir_camera (camera) + {projector} (projector)"
+    assert out.startswith(f"rig {name}: camera 320 x 240 px, f 260.00 px")
+    assert f"{ros} calibrates the camera alone: the projector and its pose are those of preset {projector}" \
+        in err

@@ -6,6 +6,7 @@ import pytest
 
 from commands import cli, show
 from dotsim import dataset as ds
+from dotsim.channels import rendered_channels
 from dotsim.rig import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45
@@ -35,7 +36,8 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     out = tmp_path / "sheet.png"
     assert run_cli(scene, "-o", out, "--tile-width", 122) == 0
     sheet = cv2.imread(str(out))
-    frames, title, labels = show.load_for_sheet(scene)
+    frames, title, labels, meanings = show.load_for_sheet(scene)
+    assert meanings == {}
     drawn, layout = show.contact_sheet(frames, title, 122, labels)
     assert np.array_equal(sheet, drawn)  # the PNG holds exactly the drawn sheet
     tile_w, tile_h = layout.tile_size
@@ -59,6 +61,39 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     # Depth 2, 3, 4 m over frames: turbo's low end is blue, high end red (BGR).
     near, far = tile(0, "depth")[-1, -1], tile(2, "depth")[-1, -1]
     assert near[0] > near[2] and far[2] > far[0]
+
+
+def test_the_columns_are_the_declared_channels_but_a_devices_depth():
+    assert show.COLUMNS == rendered_channels(stereo=True)
+
+
+def test_a_stereo_pair_adds_its_three_columns(tmp_path):
+    """The right IR on the sensor's full scale, the stereo mask white where set, the stereo disparity
+    (fx B / z, derived on read) colour-mapped in camera px: Structure Core's pair, B = 0.07501 m."""
+    frames = [dict(constant_frame(k), ir_right=np.full((H, W), 0.25),
+                   stereo_visibility=np.eye(H, W, dtype=bool)) for k in range(3)]
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [np.eye(4).tolist()] * 3}
+    scene = ds.write_scene(tmp_path, 0, meta, frames, scenes_per_shard=2,
+                           channels=rendered_channels(stereo=True))
+    loaded, title, labels, meanings = show.load_for_sheet(scene)
+    sheet, layout = show.contact_sheet(loaded, title, 122, labels, meanings)
+    assert len(layout.tiles) == 3 * 11
+    assert [name for k, name in layout.tiles if k == 0][-3:] == ["ir_right", "stereo_visibility",
+                                                               "stereo_disparity"]
+
+    def tile(k, name):
+        x, y, w, h = layout.tiles[(k, name)]
+        return sheet[y:y + h, x:x + w].astype(int)
+
+    assert (tile(1, "ir_right") == round(0.25 * 255)).all()
+    mask = tile(0, "stereo_visibility")[..., 0]
+    assert mask[0, 0] == 255 and mask[-1, 0] == 0  # the diagonal, drawn at twice the size
+    # 2, 3, 4 m: the nearest frame has the largest disparity, the red end of turbo (BGR)
+    near, far = tile(0, "stereo_disparity")[-1, -1], tile(2, "stereo_disparity")[-1, -1]
+    assert near[2] > near[0] and far[0] > far[2]
+    np.testing.assert_allclose(loaded[0]["stereo_disparity"][20, 20], RIG.camera.fx * 0.07501 / 2.0,
+                               rtol=1e-6)
 
 
 def test_show_frame_file_and_dataset_and_errors(tmp_path, capsys):
@@ -139,3 +174,35 @@ def test_ground_truth_point_cloud_ply(tmp_path, capsys):
     assert (cloud.colors[:, :3] == 255).all()  # constant IR: its own 99.5th percentile, white
     assert run_cli(scene / "frame_0.exr", "--ply", out) == 1
     assert "--ply needs the scene's rig" in capsys.readouterr().err
+
+
+def test_an_infer_output_is_labelled_as_predictions(tmp_path):
+    """A file `dotsim infer` writes (dotsim.prediction_file, the header naming checkpoint and input): its
+    columns say "predicted", not "ground truth", and the title says whose prediction it is."""
+    from dotsim.prediction_file import write_prediction
+
+    depth = constant_frame(0)["depth"]
+    disparity = RIG.camera.fx * RIG.baseline / depth
+    path = tmp_path / "scene_0000000_frame_0.exr"
+    write_prediction(path, {"disparity": disparity, "depth": depth},
+                     {"checkpoint": "/runs/tiny/checkpoint.pt", "input": "/data/frame_0.exr",
+                      "precision": "float32"})
+    out = tmp_path / "pred.png"
+    assert run_cli(path, "-o", out, "--tile-width", 122) == 0
+    frames, title, labels, meanings = show.load_for_sheet(path)
+    assert meanings == {"depth": show.PREDICTED, "disparity": show.PREDICTED}
+    assert title.startswith("scene_0000000_frame_0.exr  (61 x 45): PREDICTED by checkpoint.pt from "
+                            "frame_0.exr")
+    sheet = cv2.imread(str(out))
+    predicted, layout = show.contact_sheet(frames, title, 122, labels, meanings)
+    as_truth, _ = show.contact_sheet(frames, title, 122, labels)
+    assert np.array_equal(sheet, predicted)
+    x, _, w, _ = layout.tiles[(0, "depth")]
+    row = np.s_[2 * show.LINE:3 * show.LINE + 4]  # the meaning under each column's title, descenders too
+    assert not np.array_equal(predicted[row][:, x:x + w], as_truth[row][:, x:x + w])
+    others = predicted.copy()
+    others[row] = as_truth[row]
+    assert np.array_equal(others, as_truth)  # only the meaning row differs
+    # a dataset frame stays ground truth
+    scene = write_scene(tmp_path / "data")
+    assert show.load_for_sheet(scene / "frame_0.exr")[3] == {}

@@ -1,7 +1,7 @@
 """`dotsim view --save`: the recording read back with Rerun's own dataframe API, entity by entity.
 
 The scene is written with the dataset writer (oracle frames of tests/trainer_fixtures.py) at four
-distinct poses; predictions are files in `dotsim infer`'s format (trainer.infer.write_exr).
+distinct poses; predictions are files in `dotsim infer`'s format (dotsim.prediction_file.write_prediction).
 """
 
 import sys
@@ -9,12 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from commands import cli
+from commands import cli, view
 from dotsim import dataset as ds
+from dotsim.channels import rendered_channels
 from dotsim.patterns import generate_dot_pattern
+from dotsim.prediction_file import write_prediction
 from dotsim.rig import get_preset
 from tests.trainer_fixtures import random_depth, synthetic_frame
-from trainer.infer import write_exr
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
 
@@ -69,7 +70,8 @@ def test_recording_holds_passes_clouds_and_frusta(scene, tmp_path, capsys):
     assert cli.main(["view", str(root), "--scene", "5", "--save", str(out)]) == 0
     assert "points per cloud" in capsys.readouterr().out
     entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
-    expected = {f"/camera/{p}" for p in ("ir", "ambient", "flood", "depth", "visibility", "edge")}
+    # the passes under the current frame's camera (its Pinhole): drawn in its frustum, depth back-projected
+    expected = {f"/world/camera/{p}" for p in ("ir", "ambient", "flood", "depth", "visibility", "edge")}
     for k in range(4):
         expected |= {f"/world/pose_{k}", f"/world/pose_{k}/camera", f"/world/pose_{k}/projector",
                      f"/world/pose_{k}/ground_truth"}
@@ -77,11 +79,16 @@ def test_recording_holds_passes_clouds_and_frusta(scene, tmp_path, capsys):
     meta = ds.read_scene_meta(path)
     for k in range(4):
         frame = ds.read_frame(path / ds.frame_name(k))
-        fmt = component(out, "/camera/ir", "ImageFormat")[k][0].as_py()
+        fmt = component(out, "/world/camera/ir", "ImageFormat")[k][0].as_py()
         assert (fmt["width"], fmt["height"]) == (W, H)
-        ir = image(out, "/camera/ir", k, np.float32)
+        ir = image(out, "/world/camera/ir", k, np.float32)
         assert np.array_equal(ir, frame["ir"].astype(np.float32))  # the IR sequence as stored
-        assert np.array_equal(image(out, "/camera/visibility", k, np.uint8), frame["visibility"] * 255)
+        assert np.array_equal(image(out, "/world/camera/visibility", k, np.uint8), frame["visibility"] * 255)
+        depth_image = image(out, "/world/camera/depth", k, np.float32)
+        assert np.array_equal(depth_image, np.where(np.isfinite(frame["depth"]), frame["depth"], 0))
+        # the camera those images hang under moves with the frame: its pose at frame k is pose k
+        moved = array(component(out, "/world/camera", "Translation3D")[k])
+        np.testing.assert_allclose(moved, np.asarray(meta["poses"][k])[:3, 3], rtol=1e-6)
         # the cloud: every pixel with a hit, backprojected by hand in the camera (rig) frame
         points = array(component(out, f"/world/pose_{k}/ground_truth", "Position3D")[k], width=3)
         depth = frame["depth"].astype(np.float64)
@@ -102,6 +109,8 @@ def test_recording_holds_passes_clouds_and_frusta(scene, tmp_path, capsys):
             pinhole = component(out, f"/world/pose_{k}/{name}", "PinholeProjection", static=True)
             k_matrix = array(pinhole[None])
             np.testing.assert_allclose(k_matrix.reshape(3, 3).T, intr.K, rtol=1e-6)  # stored column-major
+    current = array(component(out, "/world/camera", "PinholeProjection", static=True)[None])
+    np.testing.assert_allclose(current.reshape(3, 3).T, RIG.camera.K, rtol=1e-6)
 
 
 def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
@@ -112,20 +121,65 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
     disparity = frame["disparity"] + 1.0  # 1 px off everywhere
     disparity[0, :5] = 0.01  # and hundreds of metres away: beyond the rig's range, not drawn
     depth = RIG.camera.fx * RIG.baseline / disparity
-    write_exr(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth})
+    write_prediction(preds / "scene_0000005_frame_2.exr", {"disparity": disparity, "depth": depth},
+                     {"checkpoint": "c.pt", "input": str(path / "frame_2.exr"), "precision": "float32"})
     out = tmp_path / "pred.rrd"
     assert cli.main(["view", str(path), "--frame", "2", "--predictions", str(preds), "--save", str(out)]) == 0
     entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
-    assert "/world/pose_2/prediction" in entities and "/camera/error" in entities
+    assert "/world/pose_2/prediction" in entities and "/world/camera/error" in entities
     assert not any(e.startswith("/world/pose_0") for e in entities)  # --frame 2 only
     predicted = array(component(out, "/world/pose_2/prediction", "Position3D")[2], width=3)
     assert len(predicted) == int(np.isfinite(depth).sum()) - 5 and (depth[0, :5] > RIG.max_depth).all()
-    fmt = component(out, "/camera/error", "ImageFormat")[2][0].as_py()
+    fmt = component(out, "/world/camera/error", "ImageFormat")[2][0].as_py()
     assert (fmt["width"], fmt["height"]) == (W, H)
-    # frame 0 has no prediction there
-    assert cli.main(["view", str(path), "--predictions", str(preds), "--save", str(out)]) == 1
+    # any subset of the frames: all four viewed with the prediction of frame 2 alone
+    every = tmp_path / "every.rrd"
+    assert cli.main(["view", str(path), "--predictions", str(preds), "--save", str(every)]) == 0
+    clouds = {e for e in {c.entity_path for c in rr.dataframe.load_recording(str(every)).schema()
+                          .component_columns()} if e.endswith("/prediction")}
+    assert clouds == {"/world/pose_2/prediction"}
+    error = component(every, "/world/camera/error", "ImageBuffer")
+    assert {k for k, value in error.items() if len(value)} == {2}  # cleared (empty) on frames 0, 1 and 3
+    # a folder with no prediction for the scene's frames is one line
+    assert cli.main(["view", str(path), "--frame", "1", "--predictions", str(preds), "--save", str(out)]) == 1
     assert cli.main(["view", str(path), "--save", str(tmp_path / "x.png")]) == 1
     assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
+                           "stereo_visibility")
+
+
+def test_a_stereo_pair_adds_the_right_ir_its_mask_and_the_right_frustum(scene, tmp_path):
+    """A scene of the pair (the oracle frames with a right IR and a mask beside them): its right IR as
+    stored, the mask 0 / 255, the right camera's frustum at the rig's second camera (Structure Core:
+    0.07501 m along x); a scene without the pair has neither."""
+    root = tmp_path / "pair"
+    rng = np.random.default_rng(8)
+    frames = []
+    for frame in (ds.read_frame(scene[1] / ds.frame_name(k)) for k in range(4)):
+        frame.update(ir_right=rng.uniform(0, 1, (H, W)), stereo_visibility=rng.uniform(size=(H, W)) > 0.5)
+        frames.append(frame)
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [pose(k).tolist() for k in range(4)]}
+    path = ds.write_scene(root, 0, meta, frames, channels=rendered_channels(stereo=True))
+    out = tmp_path / "pair.rrd"
+    assert cli.main(["view", str(path), "--save", str(out)]) == 0
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
+    assert {"/world/camera/ir_right", "/world/camera/stereo_visibility",
+            "/world/pose_3/camera_right"} <= entities
+    stored = ds.read_frame(path / ds.frame_name(1))
+    assert np.array_equal(image(out, "/world/camera/ir_right", 1, np.float32),
+                          stored["ir_right"].astype(np.float32))
+    assert np.array_equal(image(out, "/world/camera/stereo_visibility", 1, np.uint8),
+                          stored["stereo_visibility"] * 255)
+    right = array(component(out, "/world/pose_3/camera_right", "Translation3D", static=True)[None])
+    np.testing.assert_allclose(right, [0.07501, 0.0, 0.0], rtol=1e-6)
+    mono = tmp_path / "mono.rrd"
+    assert cli.main(["view", str(scene[1]), "--save", str(mono)]) == 0
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(mono)).schema().component_columns()}
+    assert not any("right" in entity for entity in entities)
 
 
 def test_missing_rerun_is_one_clear_line(scene, monkeypatch, capsys):
@@ -141,3 +195,4 @@ def test_without_save_it_spawns_the_viewer(scene, monkeypatch, capsys, tmp_path)
     assert cli.main(["view", str(scene[0]), "--frame", "1"]) == 0
     assert len(spawned) == 1 and "sent to the Rerun viewer" in capsys.readouterr().out
     assert not list(tmp_path.iterdir())  # nothing written
+

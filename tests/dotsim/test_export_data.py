@@ -20,7 +20,9 @@ from commands import cli
 from commands import export as export_module
 from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
-from dotsim.data import Frames, index_shards, read_indexed
+from dotsim import file_io
+from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
+from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, tiny_config
 from trainer.data import DataError, list_frames
 from trainer.evaluate import evaluate
@@ -100,10 +102,9 @@ def test_samples_per_shard_and_shard_count(data, tmp_path):
     assert cli.main(["export", str(data), str(tmp_path / "four"), "--shards", "4"]) == 0
     index = ds.layout.load_json(tmp_path / "four" / "index.json")
     assert [s["samples"] for s in index["shards"]] == [2, 2, 2, 2]
-    for bad in (["--shards", "0"], ["--samples-per-shard", "-1"]):
-        with pytest.raises(SystemExit):  # argparse: "allowed: an integer >= 1"
+    for bad in (["--shards", "0"], ["--samples-per-shard", "-1"], ["--shard-size", "1e400M"]):
+        with pytest.raises(SystemExit):  # argparse: "allowed: ..."
             cli.main(["export", str(data), str(tmp_path / "bad"), *bad])
-    assert cli.main(["export", str(data), str(tmp_path / "bad"), "--shard-size", "1e400M"]) == 1
     assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,disparity"]) == 1
     assert cli.main(["export", str(data), str(tmp_path / "ch"), "--channels", "ir,nope"]) == 1
 
@@ -275,3 +276,145 @@ def test_training_and_eval_from_shards_give_the_folders_figures(data, export, tm
     on_folder = evaluate(checkpoint, data, tmp_path / "e1", progress=False, images=1, val_data=data)
     on_shards = evaluate(checkpoint, export, tmp_path / "e2", progress=False, images=1, val_data=export)
     assert json.dumps(on_folder) == json.dumps(on_shards) and on_folder[0]["pixels"] > 0  # nan == nan
+
+
+def test_default_collate_batches_frames_with_workers_and_their_metadata_as_a_list(data, tmp_path):
+    """DataLoader(Frames(...), batch_size=N) with PyTorch's default collate: channels as tensors, keys
+    and splits as lists, the scene.json dicts (which hold nulls) as a list (dotsim.data.collate_meta)."""
+    out = tmp_path / "two"
+    assert cli.main(["export", str(data), str(out), "--shards", "2"]) == 0
+    expected = {key: (meta, frame) for key, meta, frame in folder_frames(data)}
+    for source in (out, data):
+        loader = torch.utils.data.DataLoader(Frames(source, channels=("ir", "depth", "visibility")),
+                                             batch_size=3, num_workers=2)
+        seen = []
+        for batch in loader:
+            assert isinstance(batch["ir"], torch.Tensor) and batch["ir"].dtype == torch.float16
+            assert isinstance(batch["meta"], list) and len(batch["meta"]) == len(batch["key"]) <= 3
+            for n, key in enumerate(batch["key"]):
+                meta, frame = expected[key]
+                assert batch["meta"][n] == meta and batch["split"][n] == meta["split"]
+                assert batch["scene_index"][n].item() == meta["scene_index"]
+                for name in ("ir", "depth", "visibility"):
+                    assert np.array_equal(batch[name][n].numpy(), frame[name], equal_nan=True), (key, name)
+                seen.append(key)
+        assert sorted(seen) == sorted(expected)
+    # scene.json holds nulls (a capture's poses, a rig without a second camera), which default_collate
+    # cannot batch in a plain dict; a SceneMeta it keeps as a list
+    with pytest.raises(TypeError):
+        torch.utils.data.default_collate([{"poses": [None]}] * 2)
+    assert torch.utils.data.default_collate([SceneMeta({"poses": [None]})] * 2) == [{"poses": [None]}] * 2
+
+
+@pytest.mark.parametrize("precision, channels", [
+    ("exact", None),
+    ("training", "ir,projector_column,visibility,edge"),
+])
+def test_the_webdataset_library_loads_an_export_into_batches_with_two_workers(data, tmp_path, precision,
+                                                                              channels):
+    """An export read by the webdataset library's own pipeline and WebLoader(num_workers=2), each raw
+    sample decoded alone by dotsim.data.decode_webdataset (shuffled, so a scene's scene.json.gz may come
+    after its other frames), batched by webdataset, against the folder read by dotsim.dataset."""
+    import webdataset as wds
+
+    out = tmp_path / precision
+    argv = ["export", str(data), str(out), "--shards", "2", "--precision", precision]
+    assert cli.main(argv + (["--channels", channels] if channels else [])) == 0
+    shards = sorted(str(p) for p in out.glob("shard-*.tar"))
+    pipeline = (wds.WebDataset(shards, shardshuffle=False, nodesplitter=wds.split_by_node)
+                .shuffle(8, seed=1).map(decode_webdataset).batched(3, partial=True))
+    batches = list(wds.WebLoader(pipeline, batch_size=None, num_workers=2))
+    expected = {key: frame for key, _, frame in folder_frames(data)}
+    seen = []
+    for batch in batches:  # WebLoader hands numpy arrays on as tensors
+        assert "meta" not in batch and len(batch["key"]) <= 3 and isinstance(batch["ir"], torch.Tensor)
+        batch = {name: value.numpy() if isinstance(value, torch.Tensor) else value
+                 for name, value in batch.items()}
+        for n, key in enumerate(batch["key"]):
+            frame = expected[key]
+            scene, _, k = key.removeprefix("scene_").partition("_frame_")
+            assert (batch["scene_index"][n], batch["frame_index"][n]) == (int(scene), int(k))
+            for name in ("ir", "edge"):
+                assert np.array_equal(batch[name][n], frame[name]), (key, name)
+            if precision == "exact":
+                for name in ("depth", "projector_column", "disparity", "flood"):
+                    assert np.array_equal(batch[name][n], frame[name], equal_nan=True), (key, name)
+            else:  # the fixed-point column, and disparity derived from it, to their precision
+                lit = frame["visibility"] > 0
+                assert np.all(np.abs(batch["projector_column"][n][lit] - frame["projector_column"][lit])
+                              <= 1 / 32 + 1e-6)
+                assert np.allclose(batch["disparity"][n][lit], frame["disparity"][lit], atol=0.02)
+                assert "depth" not in batch
+            seen.append(key)
+    assert sorted(seen) == sorted(expected)
+    with pytest.raises(ds.FormatError, match="without __key__"):
+        decode_webdataset({"ir.png": b""})
+
+
+def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_disparity(tmp_path):
+    """ir_right as 10-bit codes and stereo_visibility as a 1-bit PNG, like their left twins;
+    stereo_disparity derived on read from depth (exact export) or from the column (training export)."""
+    from dotsim.channels import rendered_channels
+    from dotsim.patterns import generate_dot_pattern
+    from dotsim.rig import get_preset
+    from tests.trainer_fixtures import TINY_SCALE, random_depth, synthetic_frame
+
+    rig = get_preset("structure_core").scaled(TINY_SCALE)
+    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    root = tmp_path / "stereo"
+    root.mkdir()
+    dots.save_png(ds.pattern_path(root))
+    rng = np.random.default_rng(7)
+    frames = []
+    for _ in range(2):
+        frame = synthetic_frame(random_depth(rig, rng), rig, dots.image.astype(np.float64), rng, ir_bits=10)
+        frame["ir_right"] = np.roll(frame["ir"], -3, axis=1)
+        frame["stereo_visibility"] = frame["visibility"] & (rng.uniform(size=frame["ir"].shape) > 0.2)
+        frames.append(frame)
+    meta = {"split": "train", "seed": 0, "rig": rig.to_dict(), "poses": [np.eye(4).tolist()] * 2,
+            "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
+                        "height": rig.projector.height, "params": dots.params},
+            "render": {"kind": "oracle (tests/trainer_fixtures.py)"}}
+    ds.write_scene(root, 0, meta, frames, channels=rendered_channels(stereo=True))
+    ds.seal_dataset(root)
+    exact = export_webdataset(root, tmp_path / "exact")
+    training = export_webdataset(root, tmp_path / "training", precision="training", channels=[
+        "ir", "ir_right", "projector_column", "visibility", "stereo_visibility"])
+    names = {m.name for m in members(exact.out / exact.shards[0]["name"])}
+    assert {"scene_0000000_frame_0.ir_right.png", "scene_0000000_frame_0.stereo_visibility.png"} <= names
+    folder = [f for _, _, f in folder_frames(root)]
+    for sample, frame in zip(Frames(exact.out), folder, strict=True):
+        assert_same_frame(sample, sample["meta"], frame)
+        assert "stereo_disparity" in sample
+    for sample, frame in zip(Frames(training.out), folder, strict=True):
+        assert np.array_equal(sample["ir_right"], frame["ir_right"])
+        seen = frame["stereo_visibility"] > 0
+        assert np.allclose(sample["stereo_disparity"][seen], frame["stereo_disparity"][seen], atol=0.02)
+
+
+def test_unusable_output_folders_are_one_line_and_a_full_disk_resumes(data, tmp_path, read_only_folder,
+                                                                       monkeypatch, capsys):
+    assert cli.main(["export", str(data), "-o", str(read_only_folder / "wds")]) == 1
+    assert_one_line_error(capsys.readouterr().err, read_only_folder / "wds", "not writable")
+    with pytest.raises(SystemExit):
+        cli.main(["export", str(data), "-o", str(tmp_path / "x"), "--shard-size", "1e400M"])
+    assert "'1e400M': allowed: bytes, or a number with K, M or G" in capsys.readouterr().err
+    out = tmp_path / "full"
+    real, calls = file_io.os.fsync, {"n": 0}
+
+    def full_after_two(fd):  # two shards reach the disk, then it is full
+        calls["n"] += 1
+        if calls["n"] > 4:  # each shard: the shard, then .progress.json
+            raise OSError(28, "No space left on device")
+        return real(fd)
+
+    monkeypatch.setattr(file_io.os, "fsync", full_after_two)
+    assert cli.main(["export", str(data), "-o", str(out), "--samples-per-shard", "2"]) == 1
+    assert_one_line_error(capsys.readouterr().err, "no space left on device")
+    assert not leftovers(out) and len(list(out.glob("shard-*.tar"))) == 2
+    monkeypatch.setattr(file_io.os, "fsync", real)  # space freed: the same command finishes the export
+    assert cli.main(["export", str(data), "-o", str(out), "--samples-per-shard", "2"]) == 0
+    assert "2 found done by an earlier run" in capsys.readouterr().out
+    unbroken = export_webdataset(data, tmp_path / "unbroken", samples_per_shard=2)
+    assert [s["sha256"] for s in unbroken.shards] == [
+        s["sha256"] for s in ds.layout.load_json(out / "index.json")["shards"]]

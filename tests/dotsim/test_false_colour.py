@@ -44,8 +44,24 @@ def test_legend_strip_holds_the_bar_and_one_row_per_swatch():
 
 
 def test_with_legend_stacks_the_strip_under_the_image():
-    image = colourise(np.linspace(0, 1, 200 * 10).reshape(10, 200), 0.0, 1.0)
+    image = colourise(np.linspace(0, 1, 500 * 10).reshape(10, 500), 0.0, 1.0)
     out = with_legend(image, 0.0, 1.0, "m")
-    assert out.shape == (10 + LINE + 4, 200, 3)
+    assert out.shape == (10 + LINE + 4, 500, 3)
     assert np.array_equal(out[:10], image)
-    assert np.array_equal(out[10:], legend_strip(200, 0.0, 1.0, "m"))
+    assert np.array_equal(out[10:], legend_strip(500, 0.0, 1.0, "m"))
+
+
+def test_a_small_image_is_scaled_up_in_whole_blocks_before_its_legend_or_title():
+    """A 128 px frame (train_tiny's) under a legend: 4 x 4 blocks of each pixel, 512 px wide, the legend
+    drawn at that width; a title goes over it in a bar of its own, never over the pixels."""
+    image = colourise(np.random.default_rng(0).uniform(0, 5, (94, 128)), 0.0, 5.0)
+    blocks = np.repeat(np.repeat(image, 4, axis=0), 4, axis=1)
+    out = with_legend(image, 0.0, 5.0, "px")
+    assert out.shape == (4 * 94 + LINE + 4, 512, 3)
+    assert np.array_equal(out[:4 * 94], blocks)
+    assert np.array_equal(out[4 * 94:], legend_strip(512, 0.0, 5.0, "px"))
+    titled = false_colour.titled(image, "network |err|", 240)
+    assert titled.shape == (LINE + 2 * 94, 256, 3)
+    assert np.array_equal(titled[LINE:], np.repeat(np.repeat(image, 2, axis=0), 2, axis=1))
+    assert (titled[:LINE] != BACKGROUND).any(axis=2).any()  # the title's text, in its bar
+    assert false_colour.legible(blocks) is blocks  # wide enough already

@@ -226,3 +226,23 @@ def test_cli_make_and_stats(tmp_path, capsys):
 def test_cli_reports_bad_files_without_a_traceback(tmp_path, capsys):
     assert _cli(["pattern", "stats", str(tmp_path / "nope.png")]) == 2
     assert "nope.png: no such file" in capsys.readouterr().err
+
+
+def test_cli_rig_takes_what_every_rig_option_takes(tmp_path, capsys):
+    """`pattern make --rig` and `pattern stats --rig`: a rig file and a generator config, as for generate
+    and capture (a preset only, before)."""
+    from dotsim.rig import get_preset
+    from dotsim.rig_files import rig_file_json
+
+    rig = get_preset("kinect_v1").scaled(0.2)
+    (tmp_path / "sensor.json").write_bytes(rig_file_json(rig))
+    (tmp_path / "gen.toml").write_text('[rig]\nfile = "sensor.json"\n')
+    for spec in ("sensor.json", "gen.toml"):
+        out = tmp_path / f"{spec}.png"
+        assert _cli(["pattern", "make", "--rig", str(tmp_path / spec), "--n-dots", "50", "-o", str(out)]) == 0
+        pattern = load_pattern(out)
+        assert (pattern.width, pattern.height) == (rig.projector.width, rig.projector.height)
+        assert _cli(["pattern", "stats", str(out), "--rig", str(tmp_path / spec), "--window", "5"]) == 0
+        assert "row windows 11x11 px" in capsys.readouterr().out  # 5 camera px, projector f twice camera f
+    assert _cli(["pattern", "make", "--rig", str(tmp_path / "none.yaml"), "-o", str(tmp_path / "x.png")]) == 2
+    assert "none.yaml: rig file not found" in capsys.readouterr().err

@@ -263,7 +263,14 @@ def test_single_camera_sample_as_camera_file_with_a_preset_projector(tmp_path):
     expected_lens_rig(calibrated.rig, calibrated.lens)
     kinect = PRESETS["kinect_v1"]
     assert calibrated.rig.projector == kinect.projector and calibrated.rig.t.tolist() == kinect.t.tolist()
-    assert calibrated.rig.name == "kinect_v1"
+    # the rig says it is the user's camera with the preset's projector, and where each part came from
+    assert calibrated.rig.name == "camera (camera) + kinect_v1 (projector)"
+    camera_file = str(tmp_path / "camera.yml")
+    assert dict(calibrated.sources) == {"camera": camera_file, "projector": "preset kinect_v1",
+                                        "pose": "preset kinect_v1", "second camera": "preset kinect_v1",
+                                        "max depth": "a.toml max_depth"}
+    assert calibrated.notes == (f"{camera_file} calibrates the camera alone: the projector and its pose are "
+                                "those of preset kinect_v1 (rig 'camera (camera) + kinect_v1 (projector)')",)
     note = calibrated.rectification_note("a.toml")
     assert note.count("\n") == 0 and "lens distortion" in note and "rectified" in note
     # the generator renders the pinhole model
@@ -521,3 +528,74 @@ def test_max_depth_is_one_number(tmp_path, max_depth, message):
     path.write_text(PLAIN_YAML.format(rows=3, data=K_DATA) + f"max_depth: {max_depth}\n")
     with pytest.raises(RigFileError, match=rf"^{path}: {message}"):
         read_calibration(path)
+
+
+# ---- rounded rotations (issue 36, item 3) ----
+
+def rounded_camchain(path, decimals):
+    """A Kalibr camchain whose T_cn_cnm1 is written rounded to `decimals`, as people copy them."""
+    R = np.array(ROTATION)
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = R, -R @ TRANSLATION
+    return kalibr_camchain(path, T_cn_cnm1=np.round(transform, decimals).tolist())
+
+
+def test_a_kalibr_chain_with_a_rotation_rounded_to_5_decimals_is_re_orthonormalised_with_a_note(tmp_path):
+    path = rounded_camchain(tmp_path / "camchain.yaml", 5)
+    rounded = np.round(np.array(ROTATION), 5)
+    off = np.abs(rounded @ rounded.T - np.eye(3)).max()
+    assert 1e-6 < off < 1e-4  # refused before (a Rig takes 1e-6), within the tolerance now
+    calibrated = load_rig_file(path)
+    R = calibrated.rig.R
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
+    assert abs(np.linalg.det(R) - 1) < 1e-14 and np.abs(R - rounded).max() < 1e-5
+    (note,) = calibrated.notes
+    assert note.startswith(f"{path}: cam1: T_cn_cnm1: the rotation is orthonormal to ")
+    assert "re-orthonormalised to the nearest rotation" in note
+    # the projector still projects where cv2.projectPoints puts points with the file's own R and T
+    points = np.array([[0.1, -0.2, 1.0], [-0.4, 0.3, 2.5], [0.5, 0.4, 6.0]])
+    transform = np.round(np.hstack([np.array(ROTATION), (-np.array(ROTATION) @ TRANSLATION)[:, None]]), 5)
+    expected, _ = cv2.projectPoints(points, cv2.Rodrigues(transform[:, :3])[0], transform[:, 3], K2, None)
+    xp, yp, _ = project_to_projector(points, calibrated.rig)
+    np.testing.assert_allclose(np.stack([xp, yp], -1), expected.reshape(-1, 2), atol=0.05)
+    # through a config, the rig carries the note for generate to print
+    config = config_from_dict({"rig": {"file": str(path)}}, "gen.toml")
+    assert config.calibrated_rig.notes == (note,)
+
+
+def test_a_rotation_beyond_the_tolerance_names_the_users_file_and_key(tmp_path):
+    path = rounded_camchain(tmp_path / "camchain.yaml", 2)
+    refused = rf"{path}: cam1: T_cn_cnm1 is not a rotation"
+    with pytest.raises(RigFileError, match=rf"^{refused} \(\|R R\^T - I\| = .*allowed: a proper rotation "
+                                           r"\(det \+1\), orthonormal to 0.0001"):
+        load_rig_file(path)
+    with pytest.raises(ConfigError, match=rf"^gen.toml: \[rig\] file: {refused}"):
+        config_from_dict({"rig": {"file": str(path)}}, "gen.toml")
+    mirrored = write_storage(tmp_path / "mirror.yaml", R=np.diag([1.0, 1.0, -1.0]))  # det -1: a reflection
+    with pytest.raises(RigFileError, match=rf"^{mirrored}: R is not a rotation .*det -1"):
+        load_rig_file(mirrored)
+    rounded = write_storage(tmp_path / "rounded.yaml", R=np.round(np.array(ROTATION), 5))  # OpenCV's R
+    assert load_rig_file(rounded).notes[0].startswith(f"{rounded}: R: the rotation is orthonormal to")
+
+
+def test_a_rotation_a_rig_takes_is_kept_as_it_is(tmp_path):
+    """Files accepted before keep their bytes: no note, the very matrix."""
+    calibrated = load_rig_file(kalibr_camchain(tmp_path / "camchain.yaml"))
+    assert calibrated.notes == () and calibrated.rig.projector_rotation == ROTATION
+
+
+# ---- sources and names of a rig put together from parts (issue 36, items 3 and 4) ----
+
+def test_sources_name_each_part_and_explicit_keys(tmp_path):
+    path = kalibr_camchain(tmp_path / "camchain.yaml")
+    whole = configured_rig(RigConfig(file=str(path), baseline=0.07), "g.toml: [rig]")
+    assert dict(whole.sources) == {"camera": str(path), "projector": str(path),
+                                   "pose": f"{path}, then g.toml: [rig] baseline, projector_y ... (non-zero)",
+                                   "second camera": str(path), "max depth": "g.toml: [rig] max_depth"}
+    assert whole.rig.name == "camchain" and whole.notes == ()
+    single_camera_sample(tmp_path / "ost.yaml")
+    mixed = configured_rig(RigConfig(camera_file=str(tmp_path / "ost.yaml"), projector_file=str(path)), "g")
+    assert mixed.rig.name == "ost (camera) + camchain (projector)"
+    assert mixed.source("camera") == str(tmp_path / "ost.yaml") and mixed.source("pose") == str(path)
+    assert mixed.source("second camera") == "preset structure_core"
+    assert "the projector and its pose are those of " + str(path) in mixed.notes[0]

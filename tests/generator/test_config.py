@@ -20,8 +20,8 @@ from dotsim.configs import BUILTIN_DIR, builtin_names
 from generator.config import ConfigError, check_output_dir, config_json, load_config
 
 REPO = Path(__file__).resolve().parents[2]
-GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "tiny.toml", "bench_accuracy.toml",
-                     "table2.toml"]
+GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
+                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml"]
 TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml"]
 # (config module, its reference page)
 CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]
@@ -102,9 +102,11 @@ def test_builtin_configs_by_name_and_config_show(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name", GENERATOR_CONFIGS)
-def test_a_saved_config_loads_back_equal(name, tmp_path):
+def test_a_saved_config_loads_back_equal(name, tmp_path, monkeypatch):
     """config_json -> load_config is the identity on every shipped config, `source` included; the
     saved file's own folder plays no part (its paths are absolute)."""
+    monkeypatch.chdir(tmp_path)  # an empty cache where the built-in configs look for one, as above
+    (tmp_path / "assets_cache").mkdir()
     config = load_config(BUILTIN_DIR / name)
     saved = tmp_path / "elsewhere" / "saved.json"
     saved.parent.mkdir()

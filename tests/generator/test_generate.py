@@ -10,20 +10,24 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import OpenEXR
 import pytest
 
 from commands.cli import main as dotsim_main
-from dotsim import dataset
+from dotsim import config_schema, dataset
+from dotsim.channels import rendered_channels
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
-from dotsim.rig_files import load_rig_file
+from dotsim.rig_files import load_rig_file, rig_file_json
+from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import generate
-from generator.post_render import RAW_PASSES, make_frame
+from generator.post_render import make_frame
 from generator.render_scenes import LOG_DIR
 from generator.run_request import RunRequest
 from generator.run_steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
+from generator.scene_spec import camera_views
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -39,7 +43,7 @@ def run_cli(*args: str) -> int:
 def spec_with_rig(rig, config):
     """A sampled spec of `config` whose rig is `rig` (make_frame reads its rig, sensor and masks)."""
     spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
-    return replace(spec, rig=rig)
+    return replace(spec, rig=rig, cameras=camera_views(rig))
 
 
 def test_make_frame_against_analytic_wall():
@@ -58,7 +62,7 @@ def test_make_frame_against_analytic_wall():
            "projector_direct": projector, "flood_direct": flood_only}  # no indirect light here
     frame = make_frame(raw, spec_with_rig(rig, config), np.random.default_rng(1))
     # Every stored channel; disparity is derived from depth on read (format 2).
-    assert set(frame) == set(dataset.RENDERED_CHANNELS) - set(dataset.DERIVED_CHANNELS)
+    assert set(frame) == set(dataset.RENDERED_CHANNELS) - {"disparity"}
     disparity = dataset.ground_truth_disparity(frame["depth"], rig)
 
     assert np.isinf(frame["depth"][:3, -5:]).all()
@@ -216,6 +220,27 @@ def test_generate_writes_a_readable_dataset(rendered):
     pattern = load_pattern(dataset.pattern_path(out))
     assert pattern.image.shape == (307, 307)  # the scaled projector's resolution
     assert pattern.sha256 == scene.meta["pattern"]["sha256"]
+
+
+def test_exr_compression_zip_stores_the_same_frames_in_zip_files(rendered, tmp_path):
+    """[output] exr_compression = "zip": scene 0 again, its frame files ZIP-compressed (the OpenEXR
+    package reads their header), their values those of the default ZSTD render, bit for bit."""
+    import OpenEXR
+
+    source, _ = rendered
+    config = load_config(TINY)
+    config = replace(config, output=replace(config.output, exr_compression="zip"))
+    assert generate(config, tmp_path / "zip", "train", 1, seed=3, progress=False).done == 1
+    zipped = dataset.read_scene(dataset.scene_dir(tmp_path / "zip", 0, 2))
+    original = dataset.read_scene(dataset.scene_dir(source, 0, 2))
+    assert zipped.meta["config"]["output"]["exr_compression"] == "zip"
+    for k, (a, b) in enumerate(zip(zipped.frames, original.frames, strict=True)):
+        for path, compression in ((zipped.path, "ZIP_COMPRESSION"), (original.path, "ZSTD_COMPRESSION")):
+            header = OpenEXR.File(str(path / dataset.frame_name(k))).header()
+            assert header["compression"] == getattr(OpenEXR, compression)
+        assert a.keys() == b.keys()
+        for name in a:
+            np.testing.assert_array_equal(a[name], b[name])
 
 
 def test_resume_skips_complete_and_redoes_partial(rendered, tmp_path):
@@ -430,6 +455,29 @@ def test_generate_with_rig_file_renders_its_pinhole_model(tmp_path, capsys):
     np.testing.assert_allclose(frame["disparity"][near], 60.0 * 0.06 / frame["depth"][near], rtol=1e-5)
 
 
+def test_generate_with_a_ros_camera_info_by_flag_prints_the_rig_it_renders(tmp_path, capsys):
+    """`--camera-file` with a ROS camera_info: the file's pinhole camera with the config's preset projector
+    renders, the rig is named after both, and generate says so when it starts: the rig in one line
+    (as `dotsim rig show` prints it), the camera-only note and the lens note."""
+    from tests.capture.test_capture_rectify import LENS_K, ros_camera_info
+
+    ros = ros_camera_info(tmp_path / "ir.yaml")
+    assert run_cli("--config", "tiny", "--camera-file", str(ros), "--out", str(tmp_path / "d"), "--split",
+                   "train", "--scenes", "1") == 0
+    out, err = capsys.readouterr()
+    name = "ir_camera (camera) + structure_core (projector)"
+    assert out.splitlines()[0].startswith(f"rig {name}: camera 32 x 24 px, f 26.00 px, field of view ")
+    assert f"{ros} calibrates the camera alone: the projector and its pose are those of preset " \
+        "structure_core" in err
+    assert "the calibrated camera has lens distortion" in err
+    rig = dataset.read_scene_meta(dataset.open_dataset(tmp_path / "d").scenes[0].path)["rig"]
+    focal = (LENS_K[0, 0] + LENS_K[1, 1]) / 2 * 0.1
+    assert rig["name"] == name and (rig["camera"]["width"], rig["camera"]["fx"]) == (32, focal)
+    assert rig["projector"] == get_preset("structure_core").scaled(0.1).projector.to_dict()
+    # the same file as --rig: a camera alone, so the same rig
+    assert with_rig(load_config("tiny"), str(ros)).calibrated_rig.rig.to_dict() == rig
+
+
 def test_generate_rig_option_errors(tmp_path, capsys):
     assert with_rig(load_config("tiny"), "kinect_v1").rig.preset == "kinect_v1"
     for spec, message in (("nosuch", "--rig 'nosuch': neither a preset"),
@@ -438,6 +486,63 @@ def test_generate_rig_option_errors(tmp_path, capsys):
                        "--scenes", "1") == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+# ----------------------------------------------------------------------------- the stereo pair
+
+
+def tiny_d415(stereo: bool):
+    """The tiny config with a RealSense D415 at 0.1 scale (128 x 72 px), its pair rendered or not."""
+    data = config_schema.read_toml(TINY)
+    data["rig"] = {"preset": "realsense_d415", "scale": 0.1, "stereo": stereo, "max_depth": 10.0}
+    return config_from_dict(data, source=str(TINY), base_dir=REPO)
+
+
+def test_stereo_pair_is_written_beside_the_left_camera_which_it_leaves_as_it_was(tmp_path):
+    """[rig] stereo = true: format 2.1 scenes with the right IR, the stereo mask and the stereo
+    disparity fx B / z (derived on read); every channel of the left camera is what the same config
+    without the pair writes, byte for byte (the scene's mono frames record format 2.0)."""
+    mono, pair = tmp_path / "mono", tmp_path / "pair"
+    assert generate(tiny_d415(False), mono, "train", 1, seed=4, progress=False).done == 1
+    assert generate(tiny_d415(True), pair, "train", 1, seed=4, progress=False).done == 1
+    rig = get_preset("realsense_d415").scaled(0.1)
+    scene = dataset.read_scene(dataset.open_dataset(pair).scenes[0].path)
+    alone = dataset.read_scene(dataset.open_dataset(mono).scenes[0].path)
+    assert scene.meta["format_version"] == "2.1" and alone.meta["format_version"] == "2.0"
+    assert set(scene.meta["channels"]) == set(rendered_channels(stereo=True))
+    assert scene.meta["config"]["rig"]["stereo"] is True
+    for frame, mono_frame in zip(scene.frames, alone.frames, strict=True):
+        for name, value in mono_frame.items():
+            np.testing.assert_array_equal(frame[name], value, err_msg=name)
+        near = np.isfinite(frame["depth"]) & (frame["depth"] <= 10.0)
+        np.testing.assert_allclose(frame["stereo_disparity"][near],
+                                   rig.camera.fx * 0.055 / frame["depth"][near], rtol=1e-6)
+        assert 0.3 < frame["stereo_visibility"].mean() < 1.0
+        assert frame["ir_right"].max() > 0.5 and not np.array_equal(frame["ir_right"], frame["ir"])
+    frame_file = OpenEXR.File(str(scene.path / "frame_0.exr"), separate_channels=True)
+    assert "stereo_disparity" not in frame_file.channels()
+    assert frame_file.header()["dotsim_format_version"] == "2.1"
+
+
+@pytest.mark.parametrize("config, rig, message", [
+    ('[rig]\npreset = "kinect_v1"\nstereo = true\n', None, "rig 'kinect_v1' has no second IR camera"),
+    ('[rig]\npreset = "realsense_d435"\nstereo = true\n', "kinect_v1", "rig 'kinect_v1' has no second"),
+    ('[rig]\nstereo = true\n', "tilted.json", "has its second IR camera at [0.05, 0.0, 0.01], not on the "
+                                                "camera's x axis to its right"),
+])
+def test_a_pair_asked_of_a_rig_without_one_stops_before_writing(tmp_path, capsys, config, rig, message):
+    path = tmp_path / "c.toml"
+    path.write_text(config)
+    tilted = replace(get_preset("realsense_d435"), second_camera_translation=(0.05, 0.0, 0.01))
+    (tmp_path / "tilted.json").write_bytes(rig_file_json(tilted))
+    out = tmp_path / "out"
+    options = ["--rig", str(tmp_path / rig) if rig == "tilted.json" else rig] if rig else []
+    assert run_cli("--config", str(path), *options, "--out", str(out), "--split", "train",
+                   "--scenes", "1") == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "[rig] stereo = true" in error and message in error, error
+    assert "allowed: a rig whose second_camera_translation is [B, 0, 0] with B > 0" in error
+    assert not out.exists()
 
 
 def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):

@@ -39,7 +39,7 @@ def _vec(x, n=3):
 def check_contract(d: dict) -> None:
     """The JSON contract of docs/SCENE_SPEC.md, written out independently of scene_spec.py."""
     assert set(d) == {"scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood",
-                      "world", "lights", "poses", "objects", "sensor", "masks"}
+                      "world", "lights", "poses", "cameras", "objects", "sensor", "masks"}
     assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")
     assert isinstance(d["seed"], int)
     r = d["render"]
@@ -60,6 +60,8 @@ def check_contract(d: dict) -> None:
         assert m.shape == (4, 4) and np.allclose(m[3], [0, 0, 0, 1])
         assert np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-9)
         assert np.linalg.det(m[:3, :3]) > 0
+    rig = Rig.from_dict(d["rig"])
+    assert d["cameras"] == [{"name": "left", "intrinsics": rig.camera.to_dict(), "translation": [0, 0, 0]}]
     for obj in d["objects"]:
         assert set(obj) == {"name", "mesh", "location", "rotation_euler", "scale", "material"}
         mesh = obj["mesh"]

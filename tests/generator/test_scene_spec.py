@@ -24,8 +24,9 @@ from generator.scene_spec import (
     PrimitiveMesh,
     RenderSettings,
     SceneSpec,
-    SensorModel,
+    SensorSettings,
     Texture,
+    camera_views,
 )
 
 RESOURCES = SceneResources("/data/pattern.png", "ab" * 32, (TextureAsset("/data/t0.png"),))
@@ -49,7 +50,7 @@ def test_json_round_trip_gives_the_same_typed_spec():
 
 
 @pytest.mark.parametrize("table, record, added", [
-    ("render", RenderSettings, {"seed"}), ("sensor", SensorModel, {"pixel_scale"}),
+    ("render", RenderSettings, {"seed"}), ("sensor", SensorSettings, {"pixel_scale"}),
     ("masks", MaskParams, set())])
 def test_the_spec_carries_the_configs_own_settings(table, record, added):
     """Bounds agree by construction: the spec's Cycles, sensor and mask records are the config's
@@ -70,7 +71,7 @@ def test_the_spec_carries_the_configs_own_settings(table, record, added):
 
 def test_a_spec_built_in_code_is_checked_like_one_read_from_json():
     spec = sampled()
-    with pytest.raises(ConfigError, match=r"^SensorModel.auto_percentile = 20: out of range; allowed: a "
+    with pytest.raises(ConfigError, match=r"^SensorSettings.auto_percentile = 20: out of range; allowed: a "
                        r"number, 50 <= x <= 100$"):
         replace(spec, sensor=replace(spec.sensor, auto_percentile=20))
     with pytest.raises(ConfigError, match=r"^SceneSpec.world_strength = -1.0: out of range"):
@@ -148,6 +149,9 @@ def test_direct_light_comes_from_the_config_and_older_specs_read_as_separate():
     (_set(["split"], "val"), "split = 'val': not a valid choice; allowed: one of \"train\", \"test\""),
     (_set(["rig", "camera", "fx"], -3.0), "rig.camera.fx = -3.0: out of range; allowed: a number, 0 < x"),
     (_set(["pattern", "sha256"], _DELETE), "pattern.sha256 is missing"),
+    (_set(["cameras", 0, "name"], "middle"), "cameras[0].name = 'middle': not a valid choice"),
+    (_set(["cameras", 0, "translation"], [0.01, 0, 0]), "cameras = [{'name': 'left', 'intrinsics': "),
+    (_set(["cameras"], []), "not the rig's cameras; allowed: the rig's camera (left: its intrinsics at"),
     (_set(["pattern", "sha256"], ""), "pattern.sha256 = '': empty; allowed: a non-empty string"),
 ])
 def test_bad_fields_are_named_with_their_value(change, message):
@@ -158,6 +162,31 @@ def test_bad_fields_are_named_with_their_value(change, message):
     with pytest.raises(ValueError, match="scene spec: ") as error:
         SceneSpec.from_dict(d)
     assert message in str(error.value)
+
+
+def test_cameras_are_the_rigs_own_and_its_second_and_older_specs_read_with_its_own():
+    """The cameras a frame is rendered from are data: the rig's camera at its origin and, on a rig with
+    a second camera (Structure Core's, 0.07501 m along x), that one; a spec without the key (from
+    before it) has the rig's own alone."""
+    spec = sampled(rig={"scale": 0.1})
+    (left,) = spec.cameras
+    assert (left.name, left.intrinsics, left.translation, left.suffix) == ("left", spec.rig.camera,
+                                                                            (0.0, 0.0, 0.0), "")
+    older = spec.to_dict()
+    del older["cameras"]
+    assert SceneSpec.from_dict(older) == spec
+    pair = replace(spec, cameras=camera_views(spec.rig, second=True))
+    right = pair.cameras[1]
+    assert (right.name, right.translation, right.suffix) == ("right", (0.07501, 0.0, 0.0), "_right")
+    assert SceneSpec.from_dict(json.loads(json.dumps(pair.to_dict()))) == pair
+    pose = pair.poses[1]
+    np.testing.assert_allclose(right.pose(pose)[:3, 3], pose[:3, 3] + 0.07501 * pose[:3, 0])
+    np.testing.assert_array_equal(left.pose(pose), pose)  # the rig's own camera is the rig's pose
+    kinect = sampled(rig={"preset": "kinect_v1", "scale": 0.1}).rig
+    with pytest.raises(ConfigError, match="rig 'kinect_v1' has no second IR camera"):
+        camera_views(kinect, second=True)
+    with pytest.raises(ConfigError, match="SceneSpec.cameras = .*not the rig's cameras"):
+        replace(spec, rig=kinect)  # Structure Core's camera on a Kinect
 
 
 def test_texture_fields_are_checked_where_they_are():
@@ -221,7 +250,7 @@ CONFIG_TO_SPEC = [
     (LightingConfig, "light_power", PointLight, "power"),
     (LightingConfig, "light_radius", PointLight, "radius"),
     (LightingConfig, "projector_power", SceneSpec, "projector_power"),
-    (RigConfig, "scale", SensorModel, "pixel_scale"),
+    (RigConfig, "scale", SensorSettings, "pixel_scale"),
 ]
 PROBES = (-1.0, -1e-9, 0.0, 1e-9, 0.0199, 0.02, 0.5, 1.0, 1.000001, 10.0, 10.00001, 100.0, 100.0001, 1e6,
           1.000001e6)

@@ -3,20 +3,28 @@
 from __future__ import annotations
 
 import dataclasses
+import doctest
 
 import numpy as np
 import pytest
 
-from generator.config import SensorConfig
-from generator.sensor_model import apply_sensor_model, bloom, quantise
+from dotsim.masks import direct_visibility_mask
+from generator import sensor_model
+from generator.scene_spec import SensorSettings
+from generator.sensor_model import SensorModel, bloom, quantise, speckle_field
 
 # No blur, no bloom, 16 bits: only the part under test acts.
-PLAIN = SensorConfig(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
-                     read_noise=0.0, bit_depth=16)
+PLAIN = SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
+                       read_noise=0.0, bit_depth=16)
 
 
-def params(**changes) -> SensorConfig:
-    return dataclasses.replace(PLAIN, **changes)
+def params(**changes) -> SensorModel:
+    return SensorModel(dataclasses.replace(PLAIN, **changes))
+
+
+def test_docstring_examples():
+    result = doctest.testmod(sensor_model)
+    assert result.attempted > 0 and result.failed == 0
 
 
 def test_noise_variance_is_a_line_in_the_signal():
@@ -25,7 +33,7 @@ def test_noise_variance_is_a_line_in_the_signal():
     rng = np.random.default_rng(0)
     variances = []
     for level in levels:
-        out = apply_sensor_model(np.full((300, 300), level), params(shot_noise=shot, read_noise=read), rng)
+        out = params(shot_noise=shot, read_noise=read).apply(np.full((300, 300), level), rng)
         assert out.mean() == pytest.approx(level, abs=2e-4)
         variances.append(out.astype(np.float64).var())
     slope, intercept = np.polyfit(levels, variances, 1)
@@ -34,9 +42,32 @@ def test_noise_variance_is_a_line_in_the_signal():
     assert intercept == pytest.approx(read**2, rel=0.1)
 
 
+@pytest.mark.parametrize("bit_depth", [16, 10])
+def test_the_noise_the_mask_assumes_is_the_noise_apply_adds(bit_depth):
+    """The model is declared once: at every level the variance of apply()'s output is sigma(level)^2
+    (plus the quantisation's step^2 / 12), and the visibility mask compares dots with that sigma: a
+    dot just above margin x sigma(background) is visible, one just below is not."""
+    model = params(shot_noise=0.02, read_noise=0.004, bit_depth=bit_depth)
+    rng = np.random.default_rng(3)
+    step = 1 / (2**bit_depth - 1)
+    for level in (0.02, 0.1, 0.3, 0.6, 0.9):
+        out = model.apply(np.full((400, 400), level), rng).astype(np.float64)
+        expected = float(model.sigma(np.array(level))) ** 2 + step**2 / 12
+        # 160000 samples: the variance is good to 0.35% (1 sigma)
+        assert out.var() == pytest.approx(expected, rel=0.015), level
+    background = np.full((5, 5), 0.3)
+    threshold = 3.0 * float(model.sigma(np.array(0.3)))
+    flood = np.ones((5, 5))
+    for factor, visible in ((1.01, True), (0.99, False)):
+        dot = np.zeros((5, 5))
+        dot[2, 2] = factor * threshold
+        mask = direct_visibility_mask(dot, flood, background, 1.0, model, margin=3.0)
+        assert mask.all() == visible and mask.any() == visible
+
+
 def test_quantisation_levels():
     ramp = np.linspace(-0.2, 1.2, 1000).reshape(20, 50)
-    out = apply_sensor_model(ramp, params(bit_depth=4), np.random.default_rng(0))
+    out = params(bit_depth=4).apply(ramp, np.random.default_rng(0))
     steps = out.astype(np.float64) * 15
     np.testing.assert_allclose(steps, np.round(steps), atol=1e-5)
     assert sorted(set(np.round(steps).astype(int).ravel())) == list(range(16))
@@ -46,13 +77,13 @@ def test_quantisation_levels():
 
 def test_auto_exposure_maps_percentile_to_target():
     signal = np.random.default_rng(1).exponential(3.0, size=(200, 300))
-    out = apply_sensor_model(signal, params(exposure="auto", auto_percentile=95.0, auto_target=0.6),
-                             np.random.default_rng(0))
+    auto = params(exposure="auto", auto_percentile=95.0, auto_target=0.6)
+    out = auto.apply(signal, np.random.default_rng(0))
     assert np.percentile(out, 95.0) == pytest.approx(0.6, abs=2 / 65535)
     # Fixed exposure is a plain gain.
-    fixed = apply_sensor_model(signal, params(gain=0.05), np.random.default_rng(0))
+    fixed = params(gain=0.05).apply(signal, np.random.default_rng(0))
     np.testing.assert_allclose(fixed, np.round(np.clip(signal * 0.05, 0, 1) * 65535) / 65535, atol=1e-6)
-    black = apply_sensor_model(np.zeros((8, 8)), params(exposure="auto"), np.random.default_rng(0))
+    black = params(exposure="auto").apply(np.zeros((8, 8)), np.random.default_rng(0))
     assert not black.any()
 
 
@@ -69,8 +100,7 @@ def test_bloom_spreads_the_excess_only():
 def test_blur_sigma_scales_with_render_resolution():
     impulse = np.zeros((81, 81))
     impulse[40, 40] = 1.0
-    out = apply_sensor_model(impulse, params(blur_sigma=4.0), np.random.default_rng(0),
-                             pixel_scale=0.5).astype(np.float64)
+    out = params(blur_sigma=4.0, pixel_scale=0.5).apply(impulse, np.random.default_rng(0)).astype(np.float64)
     offsets = np.arange(81) - 40
     spread = np.sqrt((out.sum(axis=0) * offsets**2).sum() / out.sum())
     assert spread == pytest.approx(2.0, rel=0.02)
@@ -78,10 +108,36 @@ def test_blur_sigma_scales_with_render_resolution():
 
 def test_seeded_and_deterministic():
     signal = np.random.default_rng(2).uniform(0, 1, (40, 50))
-    p = SensorConfig()  # the defaults: every stage on
-    a = apply_sensor_model(signal, p, np.random.default_rng(7))
-    b = apply_sensor_model(signal, p, np.random.default_rng(7))
-    c = apply_sensor_model(signal, p, np.random.default_rng(8))
+    p = SensorModel(SensorSettings())  # the defaults: every stage on
+    a = p.apply(signal, np.random.default_rng(7))
+    b = p.apply(signal, np.random.default_rng(7))
+    c = p.apply(signal, np.random.default_rng(8))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
     assert a.dtype == np.float32 and a.min() >= 0 and a.max() <= 1
+
+
+@pytest.mark.parametrize("contrast, grain", [(1.0, 3.0), (0.3, 6.0)])
+def test_speckle_field_has_its_contrast_and_grain(contrast, grain):
+    """Mean 1, standard deviation `contrast`, never below 1 - contrast, and an intensity
+    autocorrelation (computed here by FFT) that falls to half at grain / 2 px."""
+    field = speckle_field((512, 512), contrast, grain, np.random.default_rng(4))
+    assert field.mean() == pytest.approx(1.0, abs=0.02)
+    assert field.std() == pytest.approx(contrast, rel=0.03)
+    assert field.min() >= 1 - contrast
+    spectrum = np.fft.fft2(field - field.mean())
+    autocorrelation = np.fft.ifft2(np.abs(spectrum) ** 2).real
+    profile = (autocorrelation[0, :16] + autocorrelation[:16, 0]) / (2 * autocorrelation[0, 0])
+    half = np.interp(0.5, profile[::-1], np.arange(16)[::-1])  # the profile falls monotonically here
+    assert 2 * half == pytest.approx(grain, rel=0.05)
+    # fully developed speckle is negative-exponential: P(S > 2) = exp(-2)
+    if contrast == 1.0:
+        assert np.mean(field > 2) == pytest.approx(np.exp(-2), rel=0.1)
+
+
+def test_speckle_grain_scales_with_render_resolution():
+    model = SensorModel(dataclasses.replace(PLAIN, speckle_contrast=1.0, speckle_grain=8.0, pixel_scale=0.5))
+    a = model.speckle((256, 256), np.random.default_rng(5))
+    b = speckle_field((256, 256), 1.0, 4.0, np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    assert not SensorModel(PLAIN).has_speckle and model.has_speckle

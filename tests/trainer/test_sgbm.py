@@ -5,6 +5,7 @@ reference grid, and the IR image that same texture shifted right by the disparit
 fronto-parallel plane (nearer surfaces move dots right, docs/GEOMETRY.md), resampled by OpenCV.
 """
 
+import doctest
 import math
 
 import cv2
@@ -16,7 +17,15 @@ from dotsim.configs import builtin_path
 from dotsim.rig import get_preset
 from generator.config import config_from_dict
 from generator.sample_scene import build_rig
-from trainer.sgbm import PREPROCESSINGS, max_disparity, num_disparities_for, sgbm_disparity
+from trainer import sgbm
+from trainer.sgbm import (
+    PREPROCESSINGS,
+    max_disparity,
+    num_disparities_for,
+    published_num_disparities,
+    sgbm_disparity,
+    stereo_sgbm_disparity,
+)
 
 
 def shifted_pair(height: int, width: int, disparity: float, seed: int = 0):
@@ -77,3 +86,32 @@ def test_sgbm_rejects_a_bad_range_or_preprocessing():
         sgbm_disparity(ir, reference, 40)
     with pytest.raises(ValueError, match="preprocessing"):
         sgbm_disparity(ir, reference, 16, preprocessing="census")
+
+
+def test_published_range_scales_128_disparities_with_the_width():
+    result = doctest.testmod(sgbm)
+    assert result.attempted > 0 and result.failed == 0
+    assert published_num_disparities(100) == 16  # never less than SGBM's one block of 16
+
+
+@pytest.mark.parametrize("range_from", ["data", "published"])
+def test_stereo_sgbm_recovers_a_plane_from_the_left_and_right_ir(range_from):
+    """A RealSense D435 pair at half size (640 px: fx 337.2 px, B 0.05 m) before a plane at 0.35 m:
+    the left IR is the right IR moved right by d = fx B / z (the left pixel u sees what the right one
+    sees at u - d), each with its own noise, the left a little brighter (one exposure, but not one
+    scene radiance everywhere). SGBM between them gives d on nearly every pixel both see."""
+    rig = get_preset("realsense_d435").scaled(0.5)
+    baseline = rig.second_camera_translation[0]
+    d = rig.camera.fx * baseline / 0.35  # 48.2 px
+    right, _ = shifted_pair(120, 400, 0.0, seed=3)
+    left, _ = shifted_pair(120, 400, d, seed=3)  # the same dots, moved right by d
+    rng = np.random.default_rng(4)
+    left = np.clip(1.05 * left + rng.normal(0, 0.01, left.shape), 0, 1).astype(np.float32)
+    n = num_disparities_for(rig, 0.3, baseline) if range_from == "data" else published_num_disparities(640)
+    assert n == {"data": 64, "published": 80}[range_from]
+    disparity = stereo_sgbm_disparity(left, right, n)
+    inner = disparity[8:-8, math.ceil(d) + 8 : -8]
+    assert np.isfinite(inner).mean() > 0.95
+    assert np.mean(np.abs(inner - d) <= 0.5) > 0.9, (np.nanmedian(inner), d)
+    with pytest.raises(ValueError, match=r"left \(120, 400\) and right \(120, 399\) IR must have the same"):
+        stereo_sgbm_disparity(left, right[:, 1:], n)

@@ -10,8 +10,10 @@ import torch
 
 from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
+from dotsim.false_colour import LINE, colourise
 from dotsim.lcn import lcn
 from dotsim.patterns import load_pattern
+from dotsim.prediction_file import prediction_source
 from dotsim.rig import depth_to_disparity, projector_column_to_depth, reference_image
 from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
@@ -163,7 +165,17 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
         table = list(csv.DictReader(f))
     assert len(table) == len(rows) == 3 * (6 + 4)  # all, 5 depth ranges; edge, off edge, (not) solvable
     pngs = sorted((tmp_path / "eval" / "errors").glob("*.png"))
-    assert len(pngs) == 2 and cv2.imread(str(pngs[0])).shape[1] > 3 * 122
+    assert len(pngs) == 2
+    # 122 x 90 frames: each panel scaled up twice (nearest) under a title bar, the IR untouched by text
+    strip = cv2.imread(str(pngs[0]))
+    assert strip.shape[1] == 3 * 244 + 2 * 2
+    scene, _, k = pngs[0].stem.removeprefix("scene_").partition("_frame_")
+    frame = next(f for f in list_frames(data, "test")[0]
+                 if (f.scene_index, f.frame_index) == (int(scene), int(k)))
+    ir = read_frame(frame.path)["ir"].astype(np.float32)
+    grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
+    panel = strip[LINE:LINE + 2 * 90, :244]
+    assert np.array_equal(panel, np.repeat(np.repeat(grey, 2, 0), 2, 1)[..., None].repeat(3, 2))
     # recompute the network's overall and edge o(1) and the joint table's "only the network" at 0.5 px
     # from infer's EXRs, SGBM and the GT, by hand
     frames, rig, _ = list_frames(data, "test")
@@ -241,12 +253,18 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
     import OpenEXR
 
     ch = OpenEXR.File(str(tmp_path / "out" / "captured.exr"), separate_channels=True).channels()
+    assert prediction_source(tmp_path / "out" / "captured.exr") == {  # marked as a prediction, and whose
+        "checkpoint": str((trained["run"] / "checkpoint.pt").resolve()), "input": str(png.resolve()),
+        "precision": "float32"}
     depth, disp = ch["depth"].pixels, ch["disparity"].pixels
     finite = np.isfinite(depth)
     np.testing.assert_allclose(disp[finite], rig.camera.fx * rig.baseline / depth[finite], rtol=1e-5)
     ok = finite & (depth <= rig.max_depth)
     colour = cv2.imread(str(tmp_path / "out" / "captured.png"))
-    assert colour.shape[1] == 122 and colour.shape[0] > 90  # the legend is drawn under the image
+    # a 122 px frame scaled up 4 times (nearest: 4 x 4 blocks), so its legend is readable, drawn under it
+    lo, hi = np.percentile(disp[np.isfinite(disp)], [1, 99])
+    assert colour.shape[1] == 488 and colour.shape[0] > 4 * 90
+    assert np.array_equal(colour[:4 * 90], np.repeat(np.repeat(colourise(disp, lo, hi), 4, 0), 4, 1))
     import trimesh
 
     cloud = trimesh.load(tmp_path / "out" / "captured.ply")  # PLY read back by trimesh's own parser
@@ -260,9 +278,9 @@ def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tm
 
 
 def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path):
-    """A checkpoint whose rig's max_depth is the median predicted depth beyond 0.5 m (a rig's max_depth
-    is at least that): the PLY holds exactly the pixels with a depth up to it, none beyond (the EXR
-    keeps every depth)."""
+    """A checkpoint whose rig's max_depth lies among the predicted depths (the median of those a
+    rig's max_depth may be: from 0.5 m): the PLY holds exactly the pixels with a depth up to it,
+    none beyond (the EXR keeps every depth)."""
     import OpenEXR
 
     frames, _, _ = list_frames(data, "test")
@@ -270,7 +288,7 @@ def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path
     name = f"{frames[0].path.parent.name}_{frames[0].path.stem}"
     depth = OpenEXR.File(str(tmp_path / "full" / f"{name}.exr"), separate_channels=True
                          ).channels()["depth"].pixels
-    limit = float(np.nanmedian(depth[depth > 0.5]))
+    limit = float(np.median(depth[np.isfinite(depth) & (depth >= 0.5)]))
     ckpt = torch.load(trained["run"] / "checkpoint.pt", weights_only=False)
     ckpt["rig"]["max_depth"] = limit
     torch.save(ckpt, tmp_path / "near.pt")
@@ -328,3 +346,20 @@ def test_cache_with_loader_workers_is_refused():
     d["data"].update(cache_mb=100, workers=2)
     with pytest.raises(ConfigError, match=r"\[data\] cache_mb.*workers = 0"):
         config_from_dict(d, "cache.toml")
+
+
+def test_infer_by_its_command_draws_a_bar_unless_told_not_to(data, trained, tmp_path, capsys):
+    """`dotsim infer -o DIR` (the one output spelling) with and without --no-progress: the same files,
+    the bar (tqdm, on stderr) only without it; the line saying what was written either way."""
+    from commands.cli import main
+
+    frames, _, _ = list_frames(data, "test")
+    argv = ["infer", "--checkpoint", str(trained["run"] / "checkpoint.pt"), str(frames[0].path)]
+    assert main([*argv, "-o", str(tmp_path / "bar")]) == 0
+    out, err = capsys.readouterr()
+    assert "infer: 100%" in err and "wrote disparity/depth EXR, PNG and PLY for 1 frame(s)" in out
+    assert main([*argv, "--out", str(tmp_path / "quiet"), "--no-progress"]) == 0
+    out, err = capsys.readouterr()
+    assert "infer:" not in err and "wrote disparity/depth EXR, PNG and PLY for 1 frame(s)" in out
+    assert sorted(p.name for p in (tmp_path / "bar").iterdir()) == \
+        sorted(p.name for p in (tmp_path / "quiet").iterdir())

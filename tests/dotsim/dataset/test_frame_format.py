@@ -3,15 +3,17 @@ on read bit for bit, and format 1 frames (every channel stored, ZIP) still read 
 
 import hashlib
 import json
+from dataclasses import replace
 
 import numpy as np
 import OpenEXR
 import pytest
 
 from dotsim import dataset as ds
+from dotsim.channels import STEREO_CHANNELS, rendered_channels
 from dotsim.rig import get_preset
 
-RIG = get_preset("structure_core").scaled(0.05)  # 60 x 44 camera
+RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45 camera
 H, W = RIG.camera.height, RIG.camera.width
 
 
@@ -68,7 +70,7 @@ def test_format_2_precision_of_every_channel(tmp_path, bits):
     assert np.array_equal(got["disparity"], expected_disparity(got["depth"]), equal_nan=True)
     assert np.isnan(got["disparity"][sent["depth"] > RIG.max_depth]).all()
     # Masks exactly.
-    for name in ds.MASK_CHANNELS:
+    for name in ("visibility", "edge"):
         assert np.array_equal(got[name], sent[name].astype(np.uint8)), name
     # ambient and flood: half floats, within the documented bound, and not better than half.
     for name in ("ambient", "flood"):
@@ -77,7 +79,7 @@ def test_format_2_precision_of_every_channel(tmp_path, bits):
         assert error.max() > 0, name
     exr = OpenEXR.File(str(scene / "frame_0.exr"), separate_channels=True)
     assert "disparity" not in exr.channels()
-    assert exr.header()["dotsim_format_version"] == ds.FORMAT_VERSION == "2.0"
+    assert exr.header()["dotsim_format_version"] == "2.0"  # no channel of 2.1: the bytes of 2.0
     assert json.loads(exr.header()["dotsim_rig"]) == RIG.to_dict()
 
 
@@ -89,6 +91,48 @@ def test_lone_format_2_frame_derives_disparity_from_its_header(tmp_path):
     assert np.array_equal(got["disparity"], expected_disparity(sent["depth"].astype(np.float32)),
                           equal_nan=True)
     assert set(ds.read_frame(path, channels=("disparity",))) == {"disparity"}
+
+
+def test_a_stereo_pair_frame_is_format_2_1_and_derives_its_stereo_disparity(tmp_path):
+    """ir_right and stereo_visibility stored exactly as the other IR and masks are; stereo_disparity
+    derived from the stored depth and the header's rig: fx B / z (B = the second camera's x, 0.07501 m
+    for Structure Core), bit for bit. The frame and its scene.json record 2.1; a lone frame of the
+    same rig without the pair derives no stereo channel."""
+    rng = np.random.default_rng(4)
+    sent = frame_inputs(rng)
+    sent["ir_right"] = np.rint(rng.uniform(0, 1, (H, W)) * 1023) / 1023
+    sent["stereo_visibility"] = rng.uniform(size=(H, W)) > 0.3
+    channels = rendered_channels(stereo=True)
+    scene = ds.write_scene(tmp_path, 0, meta(), [sent], channels=channels)
+    got = ds.read_frame(scene / "frame_0.exr")
+    assert set(got) == set(channels)
+    np.testing.assert_array_equal(np.rint(got["ir_right"].astype(np.float64) * 1023),
+                                  np.rint(sent["ir_right"] * 1023))
+    np.testing.assert_array_equal(got["stereo_visibility"], sent["stereo_visibility"].astype(np.uint8))
+    z = got["depth"].astype(np.float64)
+    with np.errstate(divide="ignore"):
+        expected = np.where(np.isfinite(z) & (z <= RIG.max_depth), RIG.camera.fx * 0.07501 / z, np.nan)
+    np.testing.assert_array_equal(got["stereo_disparity"], expected.astype(np.float32))
+    exr = OpenEXR.File(str(scene / "frame_0.exr"), separate_channels=True)
+    assert "stereo_disparity" not in exr.channels() and exr.header()["dotsim_format_version"] == "2.1"
+    assert ds.read_scene_meta(scene)["format_version"] == "2.1"
+    lone = tmp_path / "lone.exr"
+    ds.write_frame_file(lone, frame_inputs(rng), (H, W), rig=RIG.to_dict())
+    assert not set(ds.read_frame(lone)) & set(STEREO_CHANNELS)
+    with_pair = tmp_path / "pair.exr"
+    ds.write_frame_file(with_pair, sent, (H, W), channels, rig=RIG.to_dict())
+    np.testing.assert_array_equal(ds.read_frame(with_pair)["stereo_disparity"], got["stereo_disparity"])
+
+
+def test_stereo_channels_of_a_rig_without_a_pair_are_refused_naming_the_rig(tmp_path):
+    rng = np.random.default_rng(5)
+    sent = dict(frame_inputs(rng), ir_right=np.zeros((H, W)), stereo_visibility=np.zeros((H, W), bool))
+    mono = replace(RIG, name="mono", second_camera_translation=None)
+    with pytest.raises(ds.FormatError, match="scene 0 frame 0: channel 'stereo_disparity': stereo disparity: "
+                                             "rig 'mono' has no second IR camera"):
+        ds.write_scene(tmp_path, 0, dict(meta(), rig=mono.to_dict()), [sent],
+                       channels=rendered_channels(stereo=True))
+    assert not list(tmp_path.iterdir())  # nothing written
 
 
 def test_writer_refuses_a_disparity_that_is_not_fx_b_over_depth(tmp_path):
@@ -105,8 +149,9 @@ def test_writer_refuses_a_disparity_that_is_not_fx_b_over_depth(tmp_path):
                           expected_disparity(sent["depth"].astype(np.float32)), equal_nan=True)
     first = np.unravel_index(np.flatnonzero(np.isfinite(sent["disparity"]))[0], (H, W))
     sent["disparity"][first] *= 1 + 1e-5  # beyond float32 rounding
-    with pytest.raises(ds.FormatError, match=r"scene 1 frame 0: channel 'disparity' differs from "
-                                             r"fx \* b / depth"):
+    with pytest.raises(ds.FormatError, match=r"scene 1 frame 0: channel 'disparity' differs from what the "
+                                             r"reader derives from its 'depth' channel and the rig \(fx \* "
+                                             r"baseline / depth"):
         ds.write_scene(tmp_path, 1, meta(), [sent])
     with pytest.raises(ds.FormatError, match=r"'disparity' is derived from 'depth' and the rig"):
         ds.encode_frame(sent, (H, W))  # no rig to derive it with

@@ -13,7 +13,7 @@ import pytest
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
 from generator.blender import demo_scenes as ds
-from generator.post_render import RAW_PASSES
+from generator.blender.frame_recipe import RAW_PASSES
 
 pytest.importorskip("bpy")
 SCRIPT = Path(__file__).resolve().parents[3] / "generator" / "blender" / "run_in_blender.py"

@@ -146,6 +146,21 @@ def test_exr_reader_matches_openexr(tmp_path):
         read_exr(compressed)
 
 
+def test_exr_reader_reads_tall_and_refuses_truncated_files(tmp_path):
+    """Lines are read into the image one by one: an image whose line offsets reach past the first
+    bytes read (8200 lines) reads right, and a truncated file is refused naming it."""
+    tall = np.random.default_rng(1).normal(size=(8200, 3)).astype(np.float32)
+    path = tmp_path / "tall.exr"
+    with OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage},
+                      {"Y": tall.copy()}) as out:
+        out.write(str(path))
+    np.testing.assert_array_equal(read_exr(path)["Y"], tall)
+    cut = tmp_path / "cut.exr"
+    cut.write_bytes(path.read_bytes()[:-20])
+    with pytest.raises(ValueError, match=rf"{cut}: line at byte \d+ is truncated"):
+        read_exr(cut)
+
+
 def test_box_prefilter_matches_explicit_convolution():
     from scipy.ndimage import convolve
 
@@ -161,6 +176,24 @@ def test_box_prefilter_matches_explicit_convolution():
         box_prefilter(image, 0.0)
     assert footprint_width(2230.88, 1115.44, 1) == pytest.approx(2.0 * 0.85)  # 85% of 2 texels
     assert footprint_width(2230.88, 1115.44, 4) == pytest.approx(0.85)
+
+
+def test_box_prefilter_in_blocks_gives_the_bits_of_the_whole_image(monkeypatch):
+    """Lines are filtered BLOCK_LINES at a time (memory); each line on its own, so any block size
+    gives the same bits, and the result is still the explicit convolution."""
+    from scipy.ndimage import convolve
+
+    from generator.blender import pattern_filter
+
+    image = np.random.default_rng(3).random((300, 530)).astype(np.float32)  # > 256 lines either way
+    blocked = box_prefilter(image, 1.7)
+    monkeypatch.setattr(pattern_filter, "BLOCK_LINES", 10**6)
+    np.testing.assert_array_equal(blocked, box_prefilter(image, 1.7))
+    monkeypatch.setattr(pattern_filter, "BLOCK_LINES", 7)
+    np.testing.assert_array_equal(blocked, box_prefilter(image, 1.7))
+    kernel_1d = np.array([0.5, 1.0, 0.5]) / 2.0
+    np.testing.assert_allclose(box_prefilter(image, 2.0), convolve(image.astype(np.float64),
+                               np.outer(kernel_1d, kernel_1d), mode="constant", cval=0.0), atol=1e-12)
 
 
 def test_png16_round_trip(tmp_path):

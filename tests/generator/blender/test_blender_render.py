@@ -15,36 +15,18 @@ import pytest
 from skimage.registration import phase_cross_correlation
 
 from dotsim.oracle import expected_pattern_image
-from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
 from generator.blender import demo_scenes as ds
-from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
-from generator.post_render import RAW_PASSES, make_frame
+from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
+from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
 
 bpy = pytest.importorskip("bpy")
-from generator.blender.render import SceneRenderer  # noqa: E402  (needs bpy)
 
 # Structure Core's published principal point (604, 457) is off the image centre, so the tests also
 # check Blender's lens shift signs; 1/8 scale gives a 152 x 112 camera and a 384 x 384 pattern.
 FULL = get_preset("structure_core")
 RIG = replace(FULL, camera=Intrinsics(1216, 896, 1115.44, 1115.44, 604.0, 457.0)).scaled(0.125)
-
-
-@pytest.fixture(scope="module")
-def renderer():
-    with SceneRenderer() as instance:
-        yield instance
-
-
-@pytest.fixture(scope="module")
-def pattern(tmp_path_factory):
-    dots = generate_dot_pattern(
-        RIG.projector.width, RIG.projector.height, density=0.04, min_spacing=2.0, dot_sigma=0.7, seed=3
-    )
-    path = tmp_path_factory.mktemp("pattern") / "pattern.png"
-    dots.save_png(path)
-    return dots, str(path)
 
 
 def _spec(pattern, **kwargs) -> dict:

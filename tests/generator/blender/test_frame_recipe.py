@@ -16,13 +16,13 @@ from generator.blender.frame_recipe import (
     ALL_LIGHT_RENDER,
     DIRECT_LIGHT_RENDER,
     INDIRECT_LIGHT_RENDER,
+    RAW_PASSES,
     SAMPLING_BOOST,
     WITHOUT_DIRECT_LIGHT,
     FrameRecipe,
     Render,
     frame_recipe,
 )
-from generator.post_render import RAW_PASSES
 from generator.scene_spec import SceneSpec
 
 REPO = Path(__file__).resolve().parents[3]

@@ -1,0 +1,397 @@
+"""The simulated sensor fitted to a real one: a recording's statistics (measure) and the [sensor]
+values that make dotsim's sensor model (generator.sensor_model.SensorModel) match them (fit).
+
+measure reads a static recording (capture.static_recording) twice, scene by scene:
+1. noise and levels: the photon transfer curve (capture.photon_transfer; over time with at least
+   MIN_FRAMES frames per scene, from flat regions of single frames otherwise), bit depth,
+   saturation and black level, the 99th percentile of the projector-on frames, and the ambient
+   light over the projector's (with projector-off frames);
+2. dots (capture.dot_statistics), on the scene's projector signal (the mean on frame, less the mean
+   off frame): size, brightness spread, peak signal-to-noise ratio of one frame, dots per area by
+   depth.
+fit turns them into [sensor] values: read and shot noise, bit depth and the exposure's target from
+the noise and levels alone; blur and speckle from the dots, against a rendering of the user's
+config (--compare) when there is one: blur_sigma makes the rendered dots as wide as the recorded
+ones, and speckle_contrast is calibrated on that rendering's own dots (the rendering's mean frames
+blurred to the recorded width, with and without a speckle field of contrast 1, measured the same
+way), so the renderer's own spread of dot brightness and the measurement's are taken out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import gaussian_filter, minimum_filter
+
+from capture.dot_statistics import (
+    brightness_contrast,
+    dots_by_depth,
+    find_dots,
+    fit_dots,
+    good_fits,
+    isolated,
+    matched_brightness,
+    median_estimate,
+    neighbour_median,
+    window_radius,
+    windows,
+)
+from capture.dots import DEFAULT_DOT_WINDOW, capture_visibility
+from capture.frames import CaptureError
+from capture.photon_transfer import (
+    MIN_BIN_BLOCKS,
+    Estimate,
+    Levels,
+    NoiseBins,
+    NoiseCurve,
+    bit_depth,
+    check_static,
+    noise_curve,
+    spatial_noise_bins,
+    temporal_noise_bins,
+)
+from capture.static_recording import StaticRecording, StaticScene
+from generator.scene_spec import SensorConfig
+from generator.sensor_model import FWHM_PER_SIGMA, speckle_field
+
+# Frames of a static scene the photon transfer needs (one frame: flat regions instead).
+MIN_FRAMES = 4
+# A recording with more of its projector-on samples at the saturation level is refused.
+MAX_SATURATED_SHARE = 0.02
+# The percentile the sensor model's auto exposure maps to its target (SensorConfig.auto_percentile).
+EXPOSURE_PERCENTILE = 99.0
+DEPTH_EDGES = np.arange(0.0, 10.01, 0.5)
+# Seed of the speckle fields that calibrate the speckle contrast on a rendering; at most this many
+# steps of the search for the contrast, which stops once it is bracketed this tightly.
+CALIBRATION_SEED = 35
+CALIBRATION_STEPS = 6
+CALIBRATION_TOLERANCE = 0.02
+
+
+@dataclass
+class SceneDots:
+    """What one scene's isolated dots on flat regions measure: widths (px), brightness ratios (each
+    over what it would be without speckle, scaled to median 1) and their noise variances, single-frame
+    peak signal-to-noise ratios; and all detected dots and pixels per depth bin."""
+    sigma: np.ndarray
+    ratio: np.ndarray
+    ratio_noise: np.ndarray
+    snr: np.ndarray
+    detected: int
+    depth_dots: np.ndarray
+    depth_pixels: np.ndarray
+
+
+@dataclass
+class SensorStatistics:
+    """A recording's statistics (measure); every error is one standard error."""
+    recording: StaticRecording
+    method: str
+    noise: NoiseCurve
+    black: Estimate
+    saturation: float | None
+    saturated_share: float
+    bit_depth: int | None
+    exposure_level: float
+    ambient_ratio: Estimate | None
+    dot_sigmas: np.ndarray
+    contrast: Estimate
+    snr: np.ndarray
+    dots_detected: int
+    depth_dots: np.ndarray
+    depth_pixels: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def read_noise(self) -> Estimate:
+        """The noise at level 0 of the stored values, as the sensor model's read_noise is: its
+        noise line then matches the recording's over every level the recording stores."""
+        return self.noise.read_noise()
+
+    @property
+    def dark_noise(self) -> Estimate:
+        """The noise at the black level (EMVA 1288's dark noise; the read noise when black is 0)."""
+        return self.noise.read_noise(self.black.value)
+
+    @property
+    def shot_noise(self) -> Estimate:
+        return self.noise.shot_noise()
+
+    @property
+    def dot_sigma(self) -> Estimate:
+        """The isolated dots' median Gaussian width, px."""
+        return median_estimate(self.dot_sigmas)
+
+    @property
+    def dot_fwhm(self) -> Estimate:
+        return Estimate(FWHM_PER_SIGMA * self.dot_sigma.value, FWHM_PER_SIGMA * self.dot_sigma.error)
+
+    @property
+    def dots(self) -> int:
+        return int(self.snr.size)
+
+
+@dataclass(frozen=True)
+class SensorFit:
+    """[sensor] values with their standard errors, and a note on how each was found."""
+    values: dict
+    errors: dict
+    notes: dict
+
+
+def measure(recording: StaticRecording) -> SensorStatistics:
+    """The statistics of a recording (module docstring); CaptureError, one line, for a recording
+    that cannot give them: too few frames, a moving scene, too much of it saturated."""
+    counts = set(recording.frame_counts)
+    if counts == {1}:
+        method = "spatial"
+    elif min(counts) >= MIN_FRAMES:
+        method = "temporal"
+    else:
+        raise CaptureError(f"{recording.name}: too few frames: {min(counts)} projector-on frame(s) of a "
+                           f"static scene; allowed: 1 (statistics of flat regions of one frame) or at least "
+                           f"{MIN_FRAMES} (photon transfer over time; 16 or more recommended)")
+    bins = NoiseBins() if method == "temporal" else NoiseBins(min_count=MIN_BIN_BLOCKS)
+    levels, exposure = Levels(), []
+    depth, ratios = None, []
+    for scene in recording.scenes():
+        scene_depth = bit_depth(scene.on, recording.precision)
+        depth = scene_depth if depth is None or scene_depth is None else max(depth, scene_depth)
+        top = scene.on.max() if scene.off is None else max(scene.on.max(), scene.off.max())
+        for frames in (scene.on,) if scene.off is None else (scene.on, scene.off):
+            if method == "temporal":
+                check_static(frames, _step(scene_depth), scene.where)
+                temporal_noise_bins(frames, top, bins)
+            else:
+                spatial_noise_bins(frames[0], top, bins)
+        on_mean = scene.on.mean(axis=0)
+        levels.add(scene.on, on_mean)
+        exposure.append(np.percentile(on_mean, EXPOSURE_PERCENTILE))
+        if scene.off is not None:
+            ratios.append(_ambient_ratio(on_mean, scene.off.mean(axis=0), scene.where))
+    if levels.saturated_share > MAX_SATURATED_SHARE:
+        raise CaptureError(f"{recording.name}: saturated: {100 * levels.saturated_share:.1f}% of the "
+                           f"projector-on samples are at the saturation level {levels.highest:.4g} (allowed: "
+                           f"at most {100 * MAX_SATURATED_SHARE:g}%); lower the exposure, the gain or the "
+                           "laser power")
+    curve = noise_curve(bins, _step(depth), method)
+    black = levels.black_level()
+    dots = [_scene_dots(scene, curve, levels.saturation()) for scene in recording.scenes()]
+    sigma = np.concatenate([d.sigma for d in dots])
+    if sigma.size < 10:
+        raise CaptureError(f"{recording.name}: {sigma.size} isolated dot(s) on flat regions; allowed: 10 "
+                           "or more (record a flat wall the dots cover, in focus, not saturated)")
+    notes = []
+    if method == "spatial":
+        notes.append("one frame per scene: noise from flat regions of single frames (spatial "
+                     "statistics: they count the sensor's fixed-pattern noise too); record 16 frames of a "
+                     "still scene for the photon transfer over time")
+    if recording.kind == "images" and depth == 16 and levels.highest < 1 / 32:
+        notes.append(f"the highest value is {levels.highest * 65535:.0f} of 65535: data of fewer bits in "
+                     "16-bit files? pass --white-level (e.g. 1023 for 10 bits)")
+    return SensorStatistics(
+        recording, method, curve, black, levels.saturation(), levels.saturated_share, depth,
+        float(np.median(exposure)), _mean_estimate(ratios) if ratios else None, sigma,
+        brightness_contrast(np.concatenate([d.ratio for d in dots]),
+                            np.concatenate([d.ratio_noise for d in dots])),
+        np.concatenate([d.snr for d in dots]), sum(d.detected for d in dots),
+        np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes)
+
+
+def _step(depth: int | None) -> float:
+    return 1.0 / (2**depth - 1) if depth else 0.0
+
+
+def _mean_estimate(values: list[float]) -> Estimate:
+    values = np.asarray(values, np.float64)
+    error = float(values.std(ddof=1) / math.sqrt(values.size)) if values.size > 1 else 0.0
+    return Estimate(float(values.mean()), error)
+
+
+def _ambient_ratio(on: np.ndarray, off: np.ndarray, where: str) -> float:
+    """Mean projector-off level over the mean light the projector adds, where the projector reaches."""
+    reached = capture_visibility(on, off)
+    if not reached.any():
+        raise CaptureError(f"{where}: the projector reaches no pixel: are the projector-on frames darker "
+                           "than the projector-off ones, or the same?")
+    return float(off[reached].mean() / max(np.clip(on - off, 0, None)[reached].mean(), 1e-12))
+
+
+def _signal(scene: StaticScene, curve: NoiseCurve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the projector signal: mean on frame less the mean off frame; its noise; the mean on frame)."""
+    on_mean = scene.on.mean(axis=0)
+    variance = curve.variance(on_mean) / len(scene.on)
+    if scene.off is None:
+        return on_mean, np.sqrt(np.maximum(variance, 0.0)), on_mean
+    off_mean = scene.off.mean(axis=0)
+    variance = variance + curve.variance(off_mean) / len(scene.off)
+    return on_mean - off_mean, np.sqrt(np.maximum(variance, 0.0)), on_mean
+
+
+def _scene_dots(scene: StaticScene, curve: NoiseCurve, saturation: float | None,
+                signal: np.ndarray | None = None) -> SceneDots:
+    """The dots of one scene: on its projector signal, or on `signal` in its place (a calibration
+    image); dots touching saturation, or (where the scene says) not lit directly, left out."""
+    own, noise, on_mean = _signal(scene, curve)
+    signal = own if signal is None else signal
+    centres = find_dots(signal, noise)
+    radius = window_radius(signal, centres)
+    fits = fit_dots(signal, centres[isolated(centres, 2 * radius)], radius, noise)
+    keep = good_fits(fits)
+    if saturation is not None:
+        keep &= windows(scene.on.max(axis=0), fits.pixel, radius).max(axis=1) < saturation
+    if scene.visible is not None:
+        keep &= scene.visible[fits.pixel[:, 1], fits.pixel[:, 0]]
+    fits = fits.subset(keep)
+    if scene.depth is None:
+        depth_dots = depth_pixels = np.zeros(len(DEPTH_EDGES) - 1)
+    else:
+        depth_dots, depth_pixels = dots_by_depth(centres, scene.depth, DEPTH_EDGES)
+    if len(fits.sigma) == 0:
+        empty = np.zeros(0)
+        return SceneDots(empty, empty, empty, empty, len(centres), depth_dots, depth_pixels)
+    width = float(np.median(fits.sigma))
+    brightness, variance = matched_brightness(signal, fits, width, noise)
+    if scene.flood is not None:
+        expected = matched_brightness(scene.flood, fits, width)[0]
+    else:
+        expected = neighbour_median(fits.centres, brightness)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio, ratio_noise = brightness / expected, variance / expected**2
+    usable = np.isfinite(ratio) & (expected > 0)
+    scale = np.median(ratio[usable]) if usable.any() else 1.0
+    peak = on_mean[fits.pixel[:, 1], fits.pixel[:, 0]]
+    return SceneDots(fits.sigma, ratio[usable] / scale, ratio_noise[usable] / scale**2,
+                     fits.amplitude / curve.sigma(peak), len(centres), depth_dots, depth_pixels)
+
+
+def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
+        grain: float | None = None) -> SensorFit:
+    """[sensor] values for the recording: read_noise, shot_noise, bit_depth, auto_target (the
+    recording's 99th percentile, for exposure = "auto"), speckle_contrast and speckle_grain; with a
+    rendering of the user's config (`reference`, measured the same way) blur_sigma too, and the
+    speckle calibrated on it. grain: the speckle grain assumed, full-resolution px (default: the
+    reference's speckle_grain, else SensorConfig's default)."""
+    values, errors, notes = {}, {}, {}
+    values["read_noise"], errors["read_noise"] = _rounded(stats.read_noise)
+    values["shot_noise"], errors["shot_noise"] = _rounded(stats.shot_noise)
+    notes["read_noise"] = notes["shot_noise"] = f"photon transfer ({stats.method})"
+    if stats.bit_depth is not None:
+        values["bit_depth"] = stats.bit_depth
+    values["exposure"] = "auto"
+    values["auto_percentile"] = EXPOSURE_PERCENTILE
+    values["auto_target"] = round(min(max(stats.exposure_level, 0.01), 1.0), 3)
+    notes["auto_target"] = "the recording's 99th percentile level"
+    if grain is None:
+        grain = (reference.recording.sensor or {}).get("speckle_grain") if reference else None
+        grain = SensorConfig().speckle_grain if grain is None else grain
+    values["speckle_grain"] = grain
+    notes["speckle_grain"] = "assumed (not measured)"
+    if reference is not None and (reference.recording.sensor or {}).get("blur_sigma", 0) > 0:
+        notes["speckle_contrast"] = ("the rendering has blur_sigma > 0: speckle falls on its blurred dots, "
+                                     "and the contrast comes out high; render it with blur_sigma = 0")
+    if reference is None:
+        grain_px = grain * stats.recording.pixel_scale / FWHM_PER_SIGMA
+        kappa = grain_px**2 / (grain_px**2 + stats.dot_sigma.value**2)
+        contrast = Estimate(min(stats.contrast.value / math.sqrt(kappa), 1.0),
+                            stats.contrast.error / math.sqrt(kappa))
+        notes["speckle_contrast"] = ("from the dots' brightness spread alone; --compare with a rendering of "
+                                     "your config takes out the renderer's own spread and sets blur_sigma")
+    else:
+        blur, contrast = _calibrated(stats, reference, grain)
+        values["blur_sigma"], errors["blur_sigma"] = _rounded(blur)
+        notes["blur_sigma"] = "rendered dots as wide as the recorded ones"
+        notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
+    values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
+    SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
+    return SensorFit(values, errors, notes)
+
+
+def _rounded(estimate: Estimate) -> tuple[float, float]:
+    """The value to 3 significant digits and its error to 2."""
+    def significant(x, digits):
+        return 0.0 if x == 0 else round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
+
+    return significant(estimate.value, 3), significant(estimate.error, 2)
+
+
+def _calibrated(stats: SensorStatistics, reference: SensorStatistics,
+                grain: float) -> tuple[Estimate, Estimate]:
+    """(blur_sigma, speckle_contrast) that make the reference rendering's dots match the recording's.
+
+    Widths add in quadrature: the rendering's dots (its blur b_r, render px) widened by an extra blur
+    b_x are as wide as the recorded ones (in render px: their width times the rendering's image width
+    over the recording's), and blur_sigma = sqrt(b_r^2 + b_x^2) / the rendering's scale. The speckle:
+    the rendering's mean frames blurred by b_x, with a speckle field of contrast c and the grain on
+    the light of their dots, are measured as the recording is (the speckle falls on the rendering's
+    dots as they are: with no blur of their own, as the sensor model's falls on unblurred dots, when
+    the rendering has blur_sigma = 0); c is found where their brightness
+    spread equals the recording's (the spread grows with c: regula falsi, Illinois' way, from
+    [0, 1]), and combined with the rendering's own speckle c_r as factors multiply:
+    1 + c_new^2 = (1 + c_r^2)(1 + c^2)."""
+    rendering = reference.recording
+    sensor = SensorConfig(**{k: v for k, v in (rendering.sensor or {}).items()
+                             if k in SensorConfig.__dataclass_fields__})
+    scale = rendering.pixel_scale
+    ratio = rendering.size[0] / stats.recording.size[0]
+    b_r = sensor.blur_sigma * scale
+    s_c, s_r = stats.dot_sigma.value * ratio, reference.dot_sigma.value
+    squared = b_r**2 + s_c**2 - s_r**2
+    squared_error = math.hypot(2 * s_c * ratio * stats.dot_sigma.error, 2 * s_r * reference.dot_sigma.error)
+    blur = math.sqrt(max(squared, 0.0))
+    blur_error = squared_error / (2 * blur) if blur > 0 else math.sqrt(squared_error)
+    extra = math.sqrt(max(squared - b_r**2, 0.0))
+    target = stats.contrast
+
+    def spread(contrast: float) -> Estimate:
+        return _calibration_spread(reference, extra, grain * scale, contrast)
+
+    (c0, s0), (c1, s1) = (0.0, spread(0.0)), (1.0, spread(1.0))
+    slope = s1.value - s0.value
+    if target.value <= s0.value:
+        found, noise = c0, s0.error
+    elif target.value >= s1.value:
+        found, noise = c1, s1.error
+    else:
+        g0, g1, last = s0.value - target.value, s1.value - target.value, None
+        for _ in range(CALIBRATION_STEPS):
+            c = c1 - g1 * (c1 - c0) / (g1 - g0)
+            s = spread(c)
+            if s.value < target.value:
+                (c0, s0), g0 = (c, s), s.value - target.value
+                g1 = g1 / 2 if last == "low" else g1  # Illinois: the end that stays is halved
+                last = "low"
+            else:
+                (c1, s1), g1 = (c, s), s.value - target.value
+                g0 = g0 / 2 if last == "high" else g0
+                last = "high"
+            if c1 - c0 < CALIBRATION_TOLERANCE:
+                break
+        slope = (s1.value - s0.value) / max(c1 - c0, 1e-9)
+        found = c0 + (target.value - s0.value) / max(slope, 1e-9)
+        noise = max(s0.error, s1.error)
+    error = math.hypot(target.error, noise) / max(slope, 1e-9)
+    combined = math.sqrt((1 + sensor.speckle_contrast**2) * (1 + found**2) - 1)
+    return Estimate(blur / scale, blur_error / scale), Estimate(min(combined, 1.0), min(error, 1.0))
+
+
+def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: float,
+                        contrast: float) -> Estimate:
+    """The brightness spread of the rendering's dots blurred by blur_px, with speckle of `contrast`
+    and grain grain_px on the light above their local background (the same fields for every
+    contrast, so the spread grows smoothly with it), measured as a recording's dots are."""
+    rng = np.random.default_rng(CALIBRATION_SEED)
+    ratios, noises = [], []
+    for scene in reference.recording.scenes():
+        signal = _signal(scene, reference.noise)[0]
+        field = speckle_field(signal.shape, contrast, grain_px, rng)
+        above = signal - minimum_filter(signal, size=DEFAULT_DOT_WINDOW, mode="nearest")
+        image = signal + above * (field - 1)
+        if blur_px > 0:
+            image = gaussian_filter(image, blur_px, mode="nearest")
+        dots = _scene_dots(scene, reference.noise, reference.saturation, image)
+        ratios.append(dots.ratio)
+        noises.append(dots.ratio_noise)
+    return brightness_contrast(np.concatenate(ratios), np.concatenate(noises))

@@ -1,0 +1,168 @@
+"""`dotsim capture fit-sensor` end to end: rendered captures of known sensors (real Cycles renders of
+still scenes, many frames each with their own noise), the same frames as image files, a single
+frame, a recording through the software RealSense of the capture tests, and bad recordings.
+
+The truth is the [sensor] table the captures were rendered with; the fit must come within 10% of
+each of its read noise, shot noise, blur and speckle contrast.
+"""
+
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bench import sensor_fit as bench
+from commands.cli import main
+from dotsim import dataset
+from dotsim.rig import get_preset
+from generator.config import config_from_dict, load_config
+from generator.pipeline import generate
+from generator.scene_spec import SensorSettings
+from generator.sensor_model import SensorModel
+
+TINY = load_config(Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml")
+SCALE = 0.2  # 243 x 179: enough isolated dots in 4 scenes
+# bench.sensor_fit's sensor, with blur and grain in full-resolution px that are 1 and 2 px here
+KNOWN = {**bench.KNOWN, "blur_sigma": 5.0, "speckle_grain": 10.0}
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """bench.sensor_fit's still scenes at scale 0.2: a 'capture' with the KNOWN sensor and a rendering
+    of the default sensor to compare it with."""
+    return bench.render_pair(TINY, tmp_path_factory.mktemp("still"), SCALE, 4, KNOWN)
+
+
+def fit_sensor(capsys, *args) -> tuple[int, str, str]:
+    status = main(["capture", "fit-sensor", *map(str, args)])
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def test_fit_recovers_the_known_sensor_from_rendered_captures(rendered, tmp_path, capsys):
+    output = tmp_path / "sensor.toml"
+    status, out, _ = fit_sensor(capsys, rendered["capture"], "--compare", rendered["reference"],
+                                "--speckle-grain", KNOWN["speckle_grain"], "-o", output)
+    assert status == 0
+    table = tomllib.loads(output.read_text())["sensor"]
+    for key in ("read_noise", "shot_noise", "blur_sigma", "speckle_contrast"):
+        assert table[key] == pytest.approx(KNOWN[key], rel=0.1), key
+    assert table["bit_depth"] == 10 and table["speckle_grain"] == KNOWN["speckle_grain"]
+    # the table pastes into a config as it is
+    assert config_from_dict({"sensor": table}).sensor.read_noise == table["read_noise"]
+    assert "recording" in out and "rendering" in out and "dot FWHM, px" in out
+    drawing = cv2.imread(str(output.with_suffix(".png")))
+    orange = np.all(drawing == (40, 150, 255), axis=2).sum()
+    blue = np.all(drawing == (255, 160, 60), axis=2).sum()
+    assert drawing.shape == (640, 880, 3) and orange > 500 and blue > 500
+
+
+def write_frames(scene_frames, folder: Path, scale: float = 1.0) -> list[Path]:
+    """Frames' ir as 16-bit PNGs of 10-bit raw values, as a sensor's SDK saves them."""
+    folder.mkdir()
+    paths = []
+    for k, frame in enumerate(scene_frames):
+        raw = np.minimum(np.round(frame["ir"].astype(np.float64) * 1023 * scale), 1023).astype(np.uint16)
+        paths.append(folder / f"on_{k}.png")
+        cv2.imwrite(str(paths[-1]), raw)
+    return paths
+
+
+def test_image_files_and_bad_recordings(rendered, tmp_path, capsys):
+    scenes = [dataset.read_scene(ref.path) for ref in dataset.open_dataset(rendered["capture"]).scenes]
+    still = write_frames(scenes[0].frames, tmp_path / "still")
+    output = tmp_path / "sensor.toml"
+    status, out, _ = fit_sensor(capsys, tmp_path / "still", "--white-level", 1023, "-o", output)
+    assert status == 0 and "(images; 1 scene(s), 4 projector-on frame(s)" in out
+    table = tomllib.loads(output.read_text())["sensor"]
+    assert table["read_noise"] == pytest.approx(KNOWN["read_noise"], rel=0.1)
+    assert table["shot_noise"] == pytest.approx(KNOWN["shot_noise"], rel=0.1)
+    assert table["bit_depth"] == 10 and "blur_sigma" not in table
+    write_frames(scenes[0].frames[:2] + scenes[1].frames[:2], tmp_path / "moving")
+    write_frames(scenes[0].frames, tmp_path / "saturated", scale=10.0)
+    bad = {
+        "too few frames: 3 projector-on frame(s) of a static scene; allowed: 1 (statistics of flat "
+        "regions of one frame) or at least 4": [str(p) for p in still[:3]],
+        "moving scene: ": [str(tmp_path / "moving")],
+        "saturated: ": [str(tmp_path / "saturated")],
+    }
+    output.unlink()
+    output.with_suffix(".png").unlink()
+    for message, recording in bad.items():
+        status, _, err = fit_sensor(capsys, *recording, "--white-level", 1023, "-o", output)
+        assert status == 2 and message in err and err.count("\n") == 1, err
+        assert not output.exists() and not output.with_suffix(".png").exists()
+    missing = tmp_path / "no" / "sensor.toml"
+    status, _, err = fit_sensor(capsys, tmp_path / "still", "-o", missing)
+    assert status == 2
+    assert err == f"dotsim capture fit-sensor: error: -o {missing}: folder {missing.parent} does not exist\n"
+    # a rendering whose scenes move between frames (tiny.toml's motion) is no still recording
+    generate(TINY, tmp_path / "moving_rendering", "train", 1, seed=0, progress=False)
+    status, _, err = fit_sensor(capsys, tmp_path / "moving_rendering", "-o", output)
+    assert status == 2 and err.endswith("its frames have different poses: not a static scene; render one "
+                                        "with [motion] translation = 0 and rotation = 0 in the config\n")
+
+
+def test_one_frame_falls_back_to_flat_regions_and_says_so(tmp_path, capsys):
+    """One frame of a scene with flat patches and sparse dots, through the sensor model."""
+    y, x = np.mgrid[0:360, 0:480]
+    scene = 0.05 + 0.1 * (x // 60) + 0.0002 * y
+    rng = np.random.default_rng(5)
+    for cx, cy in rng.uniform(10, [470, 350], (300, 2)):
+        scene += 0.3 * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * 1.1**2))
+    model = SensorModel(SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
+                                       read_noise=0.005, shot_noise=0.025, bit_depth=12))
+    frame = np.round(model.apply(scene, rng).astype(np.float64) * 4095).astype(np.uint16)
+    cv2.imwrite(str(tmp_path / "one.png"), frame)
+    status, out, _ = fit_sensor(capsys, tmp_path / "one.png", "--white-level", 4095,
+                                "-o", tmp_path / "s.toml")
+    assert status == 0 and "note: one frame per scene: noise from flat regions of single frames" in out
+    table = tomllib.loads((tmp_path / "s.toml").read_text())["sensor"]
+    assert table["read_noise"] == pytest.approx(0.005, rel=0.15)
+    assert table["shot_noise"] == pytest.approx(0.025, rel=0.1)
+    assert table["bit_depth"] == 12
+    # the same scene without its dots: nothing to measure them on
+    flat = model.apply(0.05 + 0.1 * (x // 60) + 0.0002 * y, rng).astype(np.float64)
+    cv2.imwrite(str(tmp_path / "flat.png"), np.round(flat * 4095).astype(np.uint16))
+    status, _, err = fit_sensor(capsys, tmp_path / "flat.png", "--white-level", 4095,
+                                "-o", tmp_path / "f.toml")
+    assert status == 2 and "isolated dot(s) on flat regions; allowed: 10 or more" in err
+
+
+def test_a_recording_of_the_software_realsense(tmp_path, capsys):
+    """Still scenes rendered with a known sensor (fixed exposure, an extra light for the ambient),
+    their projector-off frames the same sensor on the ambient light, played by the software D400 of
+    the capture tests (8-bit IR), recorded by `capture record`'s recorder and fitted."""
+    pytest.importorskip("pyrealsense2")
+    from capture.devices.realsense import RealSenseDevice
+    from capture.record import record
+    from tests.capture.realsense_software import SoftwareStereoModule, depth_z16
+
+    sensor = {"exposure": "fixed", "gain": 1.0, "read_noise": 0.01, "shot_noise": 0.04, "blur_sigma": 5.0}
+    config = bench.still_config(TINY, SCALE, sensor, lighting={"extra_lights": [1, 1],
+                                                               "light_power": [3.0, 6.0]})
+    generate(config, tmp_path / "rendered", "train", 2, seed=2, progress=False)
+    settings = SensorSettings(**config.to_dict()["sensor"], pixel_scale=config.rig.scale)
+    model, rng = SensorModel(settings), np.random.default_rng(6)
+    to_uint8 = lambda image: np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)  # noqa: E731
+    poses = []
+    for ref in dataset.open_dataset(tmp_path / "rendered").scenes:
+        for frame in dataset.read_scene(ref.path).frames:
+            off = model.apply(frame["ambient"].astype(np.float64), rng)
+            poses.append((to_uint8(frame["ir"].astype(np.float64)), to_uint8(off), depth_z16(frame["depth"])))
+    rig = get_preset("structure_core").scaled(SCALE)
+    with SoftwareStereoModule(rig, poses) as module:
+        device = RealSenseDevice(module.device)
+        summary = record(device, device.rig(), tmp_path / "rec", scenes=2, frames_per_scene=4, progress=False,
+                         preview=False)
+        device.close()
+    assert summary["stopped"] is None and summary["frames"] == 8
+    status, out, _ = fit_sensor(capsys, tmp_path / "rec", "-o", tmp_path / "device.toml")
+    assert status == 0 and "(capture; 2 scene(s), 8 projector-on frame(s), 243 x 179 px)" in out
+    table = tomllib.loads((tmp_path / "device.toml").read_text())["sensor"]
+    assert table["bit_depth"] == 8
+    assert table["read_noise"] == pytest.approx(0.01, rel=0.15)
+    assert table["shot_noise"] == pytest.approx(0.04, rel=0.15)
+    assert "ambient / projector light" in out and "dots per 1000 px, " in out  # off frames, device depth
