@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from dotsim.masks import noise_sigma
 from generator.scene_spec import SensorSettings
 
 # Full width at half maximum of a Gaussian over its standard deviation: 2 sqrt(2 ln 2).
@@ -115,9 +116,8 @@ class SensorModel:
     def sigma(self, level: np.ndarray) -> np.ndarray:
         """The standard deviation of the noise apply() adds at `level` (before quantisation): read
         noise and shot noise, whose variance grows linearly with the level (shot noise is Poisson in
-        photo-electrons): sqrt(read_noise**2 + shot_noise**2 * level)."""
-        s = self.settings
-        return np.sqrt(s.read_noise**2 + s.shot_noise**2 * np.maximum(level, 0.0))
+        photo-electrons): dotsim.masks.noise_sigma."""
+        return noise_sigma(level, self.settings.read_noise, self.settings.shot_noise)
 
     def apply(self, signal: np.ndarray, rng: np.random.Generator, gain: float | None = None) -> np.ndarray:
         """The IR image (H, W) float32 in [0, 1] for a rendered signal (ambient + projector, radiance).

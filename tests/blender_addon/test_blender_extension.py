@@ -171,8 +171,8 @@ def test_preview_through_installed_extension_is_the_dataset_frame(session, datas
                 and not Path(p).resolve().is_relative_to(venv)]
     assert "tiny" in session["config_choices"] and "train_tiny" not in session["config_choices"]
     assert session["config_choices"][-1] == "FILE"
-    assert session["rig_choices"] == ["CONFIG", "kinect_v1", "realsense_d415", "realsense_d435",
-                                      "structure_core", "FILE"]
+    assert session["rig_choices"] == ["CONFIG", "ctd_synthetic", "kinect_v1", "realsense_d415",
+                                      "realsense_d435", "structure_core", "FILE"]
     assert session["build_scene"]["result"] == ["FINISHED"], session["build_scene"]
     assert session["preview_frame"]["result"] == ["FINISHED"], session["preview_frame"]
     assert f"frame {FRAME} of scene {SCENE_INDEX}" in session["preview_frame"]["status"]
