@@ -150,7 +150,7 @@ def test_cli_train_eval_infer_run_and_write_their_files(tmp_path, run):
 
 
 def test_config_resolution_mismatch_is_named():
-    """train_cpu's 56 lines divide 608 x 448's 224 half-resolution rows, and train_tiny's 45 the 45 of
+    """train_cpu's 112 lines divide 608 x 448's 224 half-resolution rows, and train_tiny's 45 the 45 of
     the generator's tiny config (122 x 90: `--config tiny` data trains without a warning); train_tiny on
     608 x 448 does not fit, and the message says which rows and what to choose."""
     from generator.config import load_config as load_generator_config
@@ -164,7 +164,7 @@ def test_config_resolution_mismatch_is_named():
     message = resolution_mismatch(load_config("train_tiny"), 608, 448)
     assert "lines = 45" in message and "224 half-resolution rows" in message
     assert "4.98 rows per line" in message
-    assert "lines = 56" in resolution_mismatch(load_config("train_cpu"), 122, 90)  # 56 > 45 rows
+    assert "lines = 112" in resolution_mismatch(load_config("train_cpu"), 122, 90)  # 112 > 45 rows
 
 
 def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
