@@ -10,15 +10,18 @@ and sealed, so the trainer reads it exactly as it reads generator output.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from dotsim.channels import rendered_channels
 from dotsim.dataset import pattern_path, seal_dataset, write_scene
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column, get_preset, pixel_grid, pixel_rays
+from dotsim.stereo import stereo_disparity
 
 TINY_SCALE = 0.1  # Structure Core at 122 x 90 camera px, 307 x 307 pattern: dotsim/configs/tiny.toml's
 
@@ -61,19 +64,40 @@ def synthetic_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.ra
     }
 
 
+def pair_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.random.Generator,
+               noise: float = 0.01, ir_bits: int = 12) -> dict[str, np.ndarray]:
+    """synthetic_frame of the left camera with the channels of the rig's stereo pair: the right IR is
+    the oracle's view from the second camera (the projector, B_p - B_s from it), stereo_visibility
+    where both cameras see the pattern. Exact for planes whose normal has no x component (the same
+    depth map from both cameras: the cameras differ by a shift along x)."""
+    left = synthetic_frame(depth, rig, pattern, rng, noise, ir_bits)
+    shift = np.subtract(rig.projector_translation, rig.second_camera_translation)
+    right_rig = replace(rig, projector_translation=tuple(shift))
+    right = synthetic_frame(depth, right_rig, pattern, rng, noise, ir_bits)
+    return left | {"ir_right": right["ir"], "stereo_visibility": left["visibility"] & right["visibility"],
+                   "stereo_disparity": stereo_disparity(depth, rig)}
+
+
 def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale: float = TINY_SCALE,
-                 seed: int = 0, test_scenes: int = 0, noise: float = 0.01, ir_bits: int = 12) -> Path:
-    """Write `scenes` train scenes then `test_scenes` test scenes to root and seal it; returns root."""
+                 seed: int = 0, test_scenes: int = 0, noise: float = 0.01, ir_bits: int = 12,
+                 pair: bool = False) -> Path:
+    """Write `scenes` train scenes then `test_scenes` test scenes to root and seal it; returns root.
+    pair: a RealSense D415's stereo pair (rendered_channels(stereo=True)) before planes with no x
+    tilt (pair_frame), else Structure Core before random_depth's scenes."""
     root = Path(root)
-    rig = get_preset("structure_core").scaled(scale)
+    rig = get_preset("realsense_d415" if pair else "structure_core").scaled(scale)
     dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=seed)
     root.mkdir(parents=True, exist_ok=True)
     dots.save_png(pattern_path(root))
     pattern = np.asarray(dots.image, np.float64)
     for k in range(scenes + test_scenes):
         rng = np.random.default_rng([seed, k])
-        frames = [synthetic_frame(random_depth(rig, rng), rig, pattern, rng, noise, ir_bits)
-                  for _ in range(frames_per_scene)]
+        if pair:
+            frames = [pair_frame(planar_depth(rig, rng.uniform(0.4, 2.0), 0.0, rng.uniform(-0.3, 0.3)), rig,
+                                 pattern, rng, noise, ir_bits) for _ in range(frames_per_scene)]
+        else:
+            frames = [synthetic_frame(random_depth(rig, rng), rig, pattern, rng, noise, ir_bits)
+                      for _ in range(frames_per_scene)]
         meta = {
             "split": "train" if k < scenes else "test", "seed": seed, "rig": rig.to_dict(),
             "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
@@ -83,7 +107,7 @@ def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale
             # the noise as a config's [sensor] records it (dotsim/solvable.py reads it)
             "config": {"sensor": {"read_noise": noise, "shot_noise": 0.0, "bit_depth": ir_bits}},
         }
-        write_scene(root, k, meta, frames, scenes_per_shard=3)
+        write_scene(root, k, meta, frames, scenes_per_shard=3, channels=rendered_channels(pair))
     seal_dataset(root)
     return root
 

@@ -9,6 +9,12 @@ does not blend across depth jumps (trainer.checkpoint.predict_disparity). Rows a
 as well as overall, and by pixel class (on / off the edge mask, solvable or not: dotsim/solvable.py);
 a joint table says which pixels both methods, only one or neither get wrong, and a line how many of
 each method's estimates lie outside the rig's feasible disparity range.
+
+Data of a stereo pair (frames storing `ir_right`, docs/FORMAT.md) get a row more, 'sgbm-stereo': SGBM
+between the left and right IR, GigaDepth's baseline on captured data (trainer.sgbm.stereo_sgbm_disparity,
+its range sized to the data with the pair's baseline). Its left-right disparity d_s = fx B_s / z is
+scored as the depth it gives, in the projector disparity's pixels: d_s B / B_s (B: the projector's
+baseline), so every row judges the same depth error alike.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from dotsim.rig import (
     reference_image,
 )
 from dotsim.solvable import SOLVABLE_SNR, pattern_snr, sensor_noise, solvable
+from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
 from trainer.metrics import (
@@ -42,12 +49,27 @@ from trainer.metrics import (
     ratio,
     valid_pixels,
 )
-from trainer.sgbm import PREPROCESSINGS, max_disparity, num_disparities_for, sgbm_disparity
+from trainer.sgbm import (
+    PREPROCESSINGS,
+    max_disparity,
+    num_disparities_for,
+    sgbm_disparity,
+    stereo_sgbm_disparity,
+)
 
-DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; the last bin edge is the rig's training range
+DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
 # depth follows from disparity: exports may hold no depth
 EVAL_CHANNELS = ("ir", "visibility", "disparity", "edge")
 CLASSES = ("edge", "off edge", "solvable", "not solvable")  # the pixel classes beside the depth ranges
+
+
+def depth_ranges(depth_bins, max_depth: float) -> tuple[float, ...]:
+    """The bin edges below a rig's max_depth, closed by it: no row for depths the rig never holds.
+
+    >>> depth_ranges(DEPTH_BINS, 6.0), depth_ranges(DEPTH_BINS, 20.0)
+    ((0.0, 1.0, 2.0, 4.0, 6.0), (0.0, 1.0, 2.0, 4.0, 8.0, 20.0))
+    """
+    return tuple(b for b in depth_bins if b < max_depth) + (max_depth,)
 
 
 def pixel_classes(valid: np.ndarray, depth: np.ndarray, edge: np.ndarray | None = None,
@@ -210,7 +232,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
              val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
-    """Evaluate a checkpoint and StereoSGBM (plain and LCN) on `split` of data_dir; write OUT/eval.md,
+    """Evaluate a checkpoint and StereoSGBM (plain and LCN; left-right too on a stereo pair's data) on
+    `split` of data_dir; write OUT/eval.md,
     OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a
     legend). Returns the table rows. progress: print the table, with a progress bar (progress_bar=False:
     without).
@@ -224,6 +247,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     frames, data_rig, _ = list_frames(data_dir, split)
     check_rig(rig, data_rig, f"checkpoint {checkpoint}", str(data_dir))
     reference = load_reference(data_dir, rig)
+    depth_bins = depth_ranges(depth_bins, rig.max_depth)
     if max_frames > 0:
         frames = frames[:max_frames]
     validation: list[FrameRef] = []
@@ -245,6 +269,13 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         choice = "SGBM preprocessing: plain (no validation frames given: --val-data; never chosen on test)"
     sgbm_chosen = f"sgbm-{chosen}"
     methods = ("network", *(f"sgbm-{p}" for p in PREPROCESSINGS))
+    channels = EVAL_CHANNELS
+    if "ir_right" in frames[0].scene_meta().get("channels", ()):
+        pair_baseline = stereo_baseline(rig, str(data_dir))
+        n_stereo = num_disparities_for(rig, nearest, pair_baseline)
+        to_projector = rig.baseline / pair_baseline  # d_s -> the projector disparity of that depth
+        methods += ("sgbm-stereo",)
+        channels += ("ir_right",)
     (out_dir / "errors").mkdir(parents=True, exist_ok=True)
     pattern = dataset_pattern(data_dir, rig)
     # the rig's feasible disparities for this data: from its max_depth to the nearest depth SGBM reaches
@@ -253,7 +284,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     joint: dict[tuple[str, float], np.ndarray] = {}
     infeasible = dict.fromkeys(methods, 0)
     for n, ref in enumerate(tqdm(frames, desc="eval", unit="frame", disable=not (progress and progress_bar))):
-        f = ref.read(EVAL_CHANNELS)
+        f = ref.read(channels)
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f["visibility"], f["disparity"])
         depth = disparity_to_depth(gt, rig)
@@ -269,6 +300,10 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         with np.errstate(invalid="ignore"):
             reachable = {"network": (column >= 0) & (column <= 1) & (depth >= cfg.model.min_depth)}
         reachable |= {f"sgbm-{p}": gt <= n_disp - 1 for p in PREPROCESSINGS}
+        if "sgbm-stereo" in methods:
+            right = f["ir_right"].astype(np.float32)
+            preds["sgbm-stereo"] = stereo_sgbm_disparity(ir, right, n_stereo) * to_projector
+            reachable["sgbm-stereo"] = gt / to_projector <= n_stereo - 1
         for method, pred in preds.items():
             infeasible[method] += outside_range(pred, *feasible, valid)
             for name, sel in classes.items():
@@ -321,7 +356,12 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         f"SGBM: {n_disp} disparities (reaching {nearest:.3g} m, the nearest depth of the config and the "
         f"data), block 5, P1 200, P2 800; {outside} valid pixel(s) lie outside its range. {choice}; "
         f"'sgbm-plain' and 'sgbm-lcn' are both listed.\n"
-        f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
+        + ("" if "sgbm-stereo" not in methods else
+           f"sgbm-stereo: SGBM between the left and right IR ({n_stereo} disparities, block 5, P1 200, "
+           "P2 800, no LCN; GigaDepth's captured-data baseline), its disparity scored as the depth it "
+           f"gives, in projector disparity px (x {to_projector:.3g}: the projector's baseline over the "
+           "pair's).\n")
+        + f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     line = verdict(rows, sgbm_chosen)
     atomic_write_bytes(out_dir / "eval.md", (header + table + "\n" + line + "\n").encode())
     buf = io.StringIO()
