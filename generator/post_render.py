@@ -67,6 +67,21 @@ def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.nda
     return out
 
 
+# The largest value of the float16 that stores the radiance passes (dotsim/channels.py).
+FLOAT16_MAX = float(np.finfo(np.float16).max)
+
+
+def stored_radiance(radiance: np.ndarray) -> np.ndarray:
+    """A radiance pass as its float16 channel can hold it: values beyond float16's range (a pixel or
+    two of a lamp seen directly, or of a surface against the projector) saturate at its largest
+    value, as a sensor saturates, instead of failing the scene's write.
+
+    >>> stored_radiance(np.array([1.5, 1e5], np.float32)).tolist()
+    [1.5, 65504.0]
+    """
+    return np.minimum(radiance, FLOAT16_MAX)
+
+
 def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str = "frame",
                right_rng: np.random.Generator | None = None, frame: int | None = None
                ) -> dict[str, np.ndarray]:
@@ -93,8 +108,8 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
     ) & np.isfinite(depth)
     made = {
         "ir": sensor.apply(signal, rng, gain),
-        "ambient": ambient,
-        "flood": flood,
+        "ambient": stored_radiance(ambient),
+        "flood": stored_radiance(flood),
         "depth": depth,
         "visibility": visibility,
         "edge": edge_mask(depth, masks.edge_threshold, masks.edge_dilation),

@@ -1,7 +1,8 @@
-"""The post-render on hand-made raw passes (no Blender): the laser speckle (on the projector's direct
-light only, fixed for a pose, off by default, a field of its own for each camera), and the frame of a
-stereo pair (the right IR through the same sensor model at the left frame's exposure with a noise
-stream of its own, and the stereo mask of a wall both cameras see).
+"""The post-render on hand-made raw passes (no Blender): radiance beyond float16's range saturates; the
+laser speckle (on the projector's direct light only, fixed for a pose, off by default, a field of its
+own for each camera), and the frame of a stereo pair (the right IR through the same sensor model at
+the left frame's exposure with a noise stream of its own, and the stereo mask of a wall both cameras
+see).
 
 The speckle tests use a noise-free sensor (no read or shot noise, 16 bits, fixed gain 1, no blur or
 bloom), so the stored ir is ambient + projector x speckle up to 16-bit rounding, and the speckle
@@ -16,6 +17,7 @@ import numpy as np
 import pytest
 
 from dotsim.channels import rendered_channels, stored_channels
+from dotsim.dataset.frames import encode_frame
 from dotsim.rig import get_preset
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import config_from_dict
@@ -161,3 +163,21 @@ def test_each_camera_of_a_stereo_pair_sees_a_speckle_field_of_its_own():
     right = (frame["ir_right"][lit] - passes["ambient_right"][lit]) / passes["projector_right"][lit]
     assert left.std() > 0.2 and right.std() > 0.2
     assert abs(np.corrcoef(left, right)[0, 1]) < 0.2
+
+
+def test_radiance_beyond_float16_saturates_and_the_frame_can_be_written():
+    """A rendered scene failed its write on one flood pixel of 164585 (a lamp or a surface against the
+    projector): the stored ambient and flood saturate at float16's largest value there and keep every
+    other pixel as they were."""
+    spec = spec_with()
+    passes = raw_frame(ambient=0.5, direct=0.2)
+    frame = make_frame(passes, spec, np.random.default_rng(0), frame=0)
+    passes["flood"][3, 4] = 164585.0
+    passes["ambient"][5, 6] = 1e6
+    hot = make_frame(passes, spec, np.random.default_rng(0), frame=0)
+    assert hot["flood"][3, 4] == hot["ambient"][5, 6] == 65504.0 == float(np.finfo(np.float16).max)
+    for name in ("flood", "ambient"):
+        others = np.ones(SHAPE, bool)
+        others[3, 4] = others[5, 6] = False
+        np.testing.assert_array_equal(hot[name][others], frame[name][others])
+    encode_frame(hot, SHAPE, stored_channels(rendered_channels(stereo=False)))  # no FormatError
