@@ -72,8 +72,8 @@ RUN ?= $(OUT)/runs/cpu
 train: setup
 	@echo "make train: $(MINUTES) min of $(TRAIN_CONFIG) on $(DATA) (4 scenes by default) is a SMOKE RUN: it shows the"
 	@echo "  pipeline works, not a useful network (measured with the earlier backbone: it did not beat SGBM). At 608 x 448, 119 scenes"
-	@echo "  (27 min to render) and 100 min of training (bench.trainer_accuracy) beat SGBM with LCN narrowly (o(0.5)"
-	@echo "  0.381 vs 0.394); a network clearly better needs longer runs or a GPU (docs/TRAINER.md \"The CPU recipe at 608 x 448\")."
+	@echo "  (14 min to render) and 64 min of training on one thread (bench.trainer_accuracy) beat SGBM with LCN (o(0.5)"
+	@echo "  0.319 vs 0.394); a network as good as GigaDepth's needs longer runs or a GPU (docs/TRAINER.md \"Benchmarks\")."
 	$(BIN)/dotsim train --config $(TRAIN_CONFIG) --data $(DATA) --out $(RUN) --minutes $(MINUTES) --resume
 
 # The test split of its own (make testset); SGBM's preprocessing (plain or LCN) is chosen on the

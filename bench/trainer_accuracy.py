@@ -7,11 +7,12 @@ over the solvable ones (dotsim/solvable.py), and under GigaDepth's Table 2 condi
 
     python -m bench.trainer_accuracy [--data DIR] [--test-data DIR] [--minutes 10] \
         [--config train_tiny]
-    # the two benchmarks of docs/TRAINER.md "Benchmarks": Table 2 conditions, and make dataset's data
+    # the two benchmarks of docs/TRAINER.md "Benchmarks" (there run side by side, one thread each):
+    # Table 2 conditions, and make dataset's data
     python -m bench.trainer_accuracy --generate table2 --train-scenes 240 --test-scenes 20 \
-        --workers 2 --config train_table2 --minutes 100 --threads 2 --out out/bench_table2
+        --workers 2 --config train_table2 --minutes 60 --threads 1 --out out/bench_table2
     python -m bench.trainer_accuracy --generate default --train-scenes 120 --test-scenes 20 \
-        --workers 2 --config train_cpu --minutes 100 --threads 2 --out out/bench_cpu
+        --workers 2 --config train_cpu --minutes 60 --threads 1 --out out/bench_cpu
 
 --generate CONFIG renders the data first (train split of the train assets, test split of the test
 assets with seed 1, into OUT/train and OUT/test; a rerun resumes) and reports the number of scenes and
