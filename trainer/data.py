@@ -46,6 +46,12 @@ class FrameRef:
         frame = read_indexed(self.sample, channels)
         return {c: frame[c] for c in channels}
 
+    def stored_channels(self) -> set[str]:
+        """The channels the frame stores (an export's sample may hold fewer than its scene.json lists)."""
+        if self.sample is None:
+            return set(self.scene_meta().get("channels", ()))
+        return {ext.split(".")[0] for ext, _, _ in self.sample.members}
+
     def scene_meta(self) -> dict:
         """The frame's scene.json dict."""
         if self.sample is None:

@@ -270,7 +270,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     sgbm_chosen = f"sgbm-{chosen}"
     methods = ("network", *(f"sgbm-{p}" for p in PREPROCESSINGS))
     channels = EVAL_CHANNELS
-    if "ir_right" in frames[0].scene_meta().get("channels", ()):
+    if "ir_right" in frames[0].stored_channels():
         pair_baseline = stereo_baseline(rig, str(data_dir))
         n_stereo = num_disparities_for(rig, nearest, pair_baseline)
         to_projector = rig.baseline / pair_baseline  # d_s -> the projector disparity of that depth

@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 
+from commands.export import export_webdataset
 from tests.trainer_fixtures import make_dataset, tiny_config
 from trainer.data import list_frames
 from trainer.evaluate import evaluate, row_of, sgbm_nearest_depth
@@ -38,3 +39,8 @@ def test_eval_scores_the_pairs_sgbm_in_projector_disparity(tmp_path):
         total += int(valid.sum())
     assert stereo["pixels"] == total and abs(stereo["o(0.5)"] - over / total) < 1e-9
     assert stereo["o(0.5)"] < 0.2  # unconverted, d_s would be twice the truth: every pixel an outlier
+    # shards exported without the right IR: no such row (their scene.json still lists ir_right)
+    export_webdataset(data, tmp_path / "shards", split="test", channels=["ir", "visibility", "edge", "depth"])
+    rows = evaluate(tmp_path / "run" / "checkpoint.pt", tmp_path / "shards", tmp_path / "eval_shards",
+                    images=0, progress=False)
+    assert row_of(rows, "sgbm-stereo", "all") is None and row_of(rows, "network", "all")["pixels"] == total
