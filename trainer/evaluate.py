@@ -233,10 +233,9 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
              val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM (plain and LCN; left-right too on a stereo pair's data) on
-    `split` of data_dir; write OUT/eval.md,
-    OUT/eval.csv and OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a
-    legend). Returns the table rows. progress: print the table, with a progress bar (progress_bar=False:
-    without).
+    `split` of data_dir; write OUT/eval.md, OUT/eval.csv and OUT/errors/*.png (IR | network error |
+    SGBM error, first `images` frames, with a legend). Returns the table rows. progress: print the
+    table, with a progress bar (progress_bar=False: without).
 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
