@@ -26,7 +26,7 @@ import numpy as np
 from dotsim.config_schema import read_toml
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset import read_frame
-from dotsim.solvable import pattern_snr, sensor_noise, solvable
+from dotsim.solvable import solvable_pixels
 from generator.config import config_from_dict
 from generator.pipeline import generate
 from trainer.data import dataset_pattern, list_frames
@@ -84,8 +84,8 @@ def main(argv=None) -> int:
     for ref in frames:
         f = read_frame(ref.path, channels=("ir", "visibility", "edge", "depth", "disparity"))
         lit, gt = valid_pixels(f["visibility"], f["disparity"]), f["disparity"].astype(np.float64)
-        snr = pattern_snr(f["ir"], f["depth"], rig, pattern, sensor_noise(ref.scene_meta()))
-        selections = pixel_classes(lit, f["depth"], f["edge"], solvable(snr))
+        selections = pixel_classes(lit, f["depth"], f["edge"],
+                                   solvable_pixels(f["ir"], f["depth"], rig, pattern, ref.scene_meta()))
         faint = dot_contrast(f["ir"]) < FAINT_LSB / 2**bits
         selections[f"contrast < {FAINT_LSB} LSB"] = lit & faint
         selections[f"contrast >= {FAINT_LSB} LSB"] = lit & ~faint

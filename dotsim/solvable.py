@@ -96,6 +96,14 @@ def solvable(snr: np.ndarray, threshold: float = SOLVABLE_SNR) -> np.ndarray:
         return np.asarray(snr) >= threshold
 
 
+def solvable_pixels(ir: np.ndarray, depth: np.ndarray, rig: Rig, pattern: np.ndarray,
+                    scene_meta: dict) -> np.ndarray | None:
+    """Where a frame's pixels can be solved (solvable of its pattern_snr, with the sensor its
+    scene.json dict records), or None where the scene records no sensor noise."""
+    sensor = sensor_noise(scene_meta)
+    return None if sensor is None else solvable(pattern_snr(ir, depth, rig, pattern, sensor))
+
+
 def sensor_noise(scene_meta: dict) -> dict | None:
     """read_noise, shot_noise and bit_depth of the sensor a scene was rendered with (scene.json's
     config [sensor]), or None where the scene records none (then nothing can be said).

@@ -36,7 +36,7 @@ from dotsim.rig import (
     disparity_to_depth,
     reference_image,
 )
-from dotsim.solvable import SOLVABLE_SNR, pattern_snr, sensor_noise, solvable
+from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
 from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
@@ -287,9 +287,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         ir, gt = f["ir"].astype(np.float32), f["disparity"].astype(np.float64)
         valid = valid_pixels(f["visibility"], f["disparity"])
         depth = disparity_to_depth(gt, rig)
-        sensor = sensor_noise(ref.scene_meta())
-        snr = None if sensor is None else pattern_snr(ir, depth, rig, pattern, sensor)
-        classes = pixel_classes(valid, depth, f["edge"], None if snr is None else solvable(snr), depth_bins)
+        solved = solvable_pixels(ir, depth, rig, pattern, ref.scene_meta())
+        classes = pixel_classes(valid, depth, f["edge"], solved, depth_bins)
         preds = {"network": predict_disparity(model, rig, ir, device, precision)[0]}
         for p in PREPROCESSINGS:
             preds[f"sgbm-{p}"] = sgbm_disparity(ir, reference, n_disp, preprocessing=p)

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from dotsim.false_colour import colourise
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
 from dotsim.rig import Rig, disparity_to_depth
-from dotsim.solvable import pattern_snr, sensor_noise, solvable
+from dotsim.solvable import solvable_pixels
 from trainer.checkpoint import check_rig, load_checkpoint, predict_disparity
 from trainer.config import Config, resolution_mismatch
 from trainer.data import (
@@ -191,10 +191,9 @@ class Validation:
         for ref in frames:
             f = ref.read(("ir", "visibility", "disparity"))
             classes = {"all": valid_pixels(f["visibility"], f["disparity"])}
-            sensor = sensor_noise(ref.scene_meta())
-            if sensor is not None:
-                snr = pattern_snr(f["ir"], disparity_to_depth(f["disparity"], rig), rig, pattern, sensor)
-                classes["solvable"] = classes["all"] & solvable(snr)
+            depth = disparity_to_depth(f["disparity"], rig)
+            if (solved := solvable_pixels(f["ir"], depth, rig, pattern, ref.scene_meta())) is not None:
+                classes["solvable"] = classes["all"] & solved
             self.frames.append((f["ir"], f["disparity"].astype(np.float64), classes))
 
     def __call__(self, model: GigaDepthNet, device: str) -> tuple[dict[str, float], np.ndarray]:
