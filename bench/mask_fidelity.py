@@ -14,7 +14,7 @@ out the 2 px band at depth edges (dotsim.masks.edge_mask) and 2 px at shadow bor
 - leak: share of cast-shadow pixels (facing the projector, inside its image) marked visible;
 - no dot: share of visible pixels without a dot that the sensor shows above the margin within
   5 x 5 px (noise-free dots: exposure gain x blurred projector pass, against margin x the noise
-  sigma at the ambient level, generator.sensor_model.SensorModel's exposure and noise);
+  sigma at the ambient level, dotsim.sensor.model.SensorModel's exposure and noise);
 - recall: share of directly lit pixels (cos > 0.2, nearer than 4 m) with such a dot marked visible;
 - pepper: share of directly lit pixels whose flood pass is below 5% of what the oracle's
   cos / r^2 predicts (scaled by the scene's median ratio, which absorbs power and albedo);
@@ -41,12 +41,11 @@ import numpy as np
 from bench.render_speed import bench_rig, bench_spec, correlation, scene_poses, write_inputs
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
+from dotsim.sensor.model import SensorModel
 from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
 from generator.config import config_from_dict
 from generator.post_render import make_frame
-from generator.sample_scene import sensor_settings
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import SensorModel
 
 # name: (render.direct_light, the frame recipe: None for the spec's own)
 WAYS = {"old": ("separate", WITHOUT_DIRECT_LIGHT), "separate": ("separate", None), "shared": ("shared", None)}
@@ -98,7 +97,8 @@ def sensor_dots(raw: dict, sensor: SensorModel, margin: float) -> np.ndarray:
 
 def fidelity(raw: dict, visible: np.ndarray, lit: np.ndarray, shadow: np.ndarray, oracle_flood: np.ndarray,
              config) -> dict:
-    dotted = sensor_dots(raw, SensorModel(sensor_settings(config)), config.masks.visibility_margin)
+    sensor = SensorModel(config.sensor.at_scale(config.rig.scale))
+    dotted = sensor_dots(raw, sensor, config.masks.visibility_margin)
     ratio = raw["flood"][lit] / oracle_flood[lit]
     return {
         "leak": float(visible[shadow].mean()),

@@ -11,7 +11,7 @@ import numpy as np
 from capture.photon_transfer import Estimate
 from capture.sensor_fit import DEPTH_EDGES, SensorFit, SensorStatistics
 from dotsim.config_schema import toml_text
-from generator.sensor_model import FWHM_PER_SIGMA
+from dotsim.sensor.model import FWHM_PER_SIGMA
 
 PANEL = (440, 300)  # width, height of a chart, px
 MARGIN = (60, 40, 30, 20)  # left, bottom, top, right, px

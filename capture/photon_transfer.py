@@ -5,7 +5,7 @@ the sensor's noise, whose variance grows linearly with the signal (shot noise is
 photo-electrons): variance = read_noise^2 + shot_noise^2 x level + step^2 / 12, levels as fractions
 of full scale, step the quantisation step. Binning pixels by their mean level and fitting that line
 to the bins' mean variance gives the read noise (its intercept) and the shot noise (its slope), the
-parameters of dotsim's sensor model (generator.sensor_model.SensorModel.sigma). With one frame the
+parameters of dotsim's sensor model (dotsim.sensor.model.SensorModel.sigma). With one frame the
 variance comes from flat regions instead (spatial_noise_bins): each block's scatter about a plane
 fitted to it, keeping the blocks no brighter in scatter than the noise; that also counts the sensor's
 fixed-pattern noise, which the temporal way leaves out.

@@ -1,5 +1,5 @@
 """The simulated sensor fitted to a real one: a recording's statistics (measure) and the [sensor]
-values that make dotsim's sensor model (generator.sensor_model.SensorModel) match them (fit).
+values that make dotsim's sensor model (dotsim.sensor.model.SensorModel) match them (fit).
 
 measure reads a static recording (capture.static_recording) twice, scene by scene:
 1. noise and levels: the photon transfer curve (capture.photon_transfer; over time with at least
@@ -53,8 +53,8 @@ from capture.photon_transfer import (
     temporal_noise_bins,
 )
 from capture.static_recording import StaticRecording, StaticScene
-from generator.scene_spec import SensorConfig
-from generator.sensor_model import FWHM_PER_SIGMA, speckle_field
+from dotsim.sensor.model import FWHM_PER_SIGMA, speckle_field
+from dotsim.sensor.settings import SensorConfig
 
 # Frames of a static scene the photon transfer needs (one frame: flat regions instead).
 MIN_FRAMES = 4
@@ -332,8 +332,7 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics,
     [0, 1]), and combined with the rendering's own speckle c_r as factors multiply:
     1 + c_new^2 = (1 + c_r^2)(1 + c^2)."""
     rendering = reference.recording
-    sensor = SensorConfig(**{k: v for k, v in (rendering.sensor or {}).items()
-                             if k in SensorConfig.__dataclass_fields__})
+    sensor = SensorConfig.from_recorded(rendering.sensor)
     scale = rendering.pixel_scale
     ratio = rendering.size[0] / stats.recording.size[0]
     b_r = sensor.blur_sigma * scale

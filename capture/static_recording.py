@@ -27,6 +27,7 @@ import numpy as np
 from capture.frames import CaptureError, list_images, read_image
 from dotsim import dataset
 from dotsim.dataset import INDEX_FILE, FormatError
+from dotsim.sensor.settings import recorded_sensor
 
 # Relative rounding of the stored values: the dataset's float16, EXR's float32, integers exact.
 FLOAT16_PRECISION = 2.0**-11
@@ -152,4 +153,5 @@ def _dataset_recording(root: Path) -> StaticRecording:
     config = meta.get("config", {}) if rendered else {}
     return StaticRecording(str(root), "rendered" if rendered else "capture", (width, height),
                            tuple(ref.frame_count for ref in data.scenes), FLOAT16_PRECISION,
-                           float(config.get("rig", {}).get("scale", 1.0)), config.get("sensor"), read)
+                           float(config.get("rig", {}).get("scale", 1.0)),
+                           recorded_sensor(meta) if rendered else None, read)

@@ -1,8 +1,9 @@
 """dotsim: synthetic structured-light depth data with headless Blender, and the GigaDepth network.
 
 This package is the pure core every stage shares (numpy only; torch imported lazily where
-needed): the sensor rig geometry, dot patterns, masks, LCN, the dataset format and the config
-schema engine (config_schema) that the generator and trainer configs are declared with.
+needed): the sensor rig geometry, the IR sensor model (dotsim.sensor), dot patterns, masks, LCN,
+the dataset format and the config schema engine (config_schema) that the generator and trainer
+configs are declared with.
 
 For scripts, five names at the top level, each imported on first use (so `import dotsim` loads
 neither bpy nor torch, and the stages that import dotsim's modules pay nothing for them):

@@ -72,19 +72,8 @@ def visibility_mask(ambient: np.ndarray, flood: np.ndarray, threshold: float = 0
         return signal > threshold  # NaN compares False
 
 
-def noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float) -> np.ndarray:
-    """The sensor noise's standard deviation at `level` (fraction of full scale): read noise and shot
-    noise, whose variance grows linearly with the level (shot noise is Poisson in photo-electrons).
-    generator.sensor_model.SensorModel adds noise of this size; dotsim.solvable weighs dots against it.
-
-    >>> round(float(noise_sigma(0.25, 0.003, 0.01)) ** 2 * 1e6, 2)  # 9 + 25, x 1e-6
-    34.0
-    """
-    return np.sqrt(read_noise**2 + shot_noise**2 * np.maximum(level, 0.0))
-
-
 class SensorNoise(Protocol):
-    """What the visibility mask needs of a sensor model (generator.sensor_model.SensorModel): the
+    """What the visibility mask needs of a sensor model (dotsim.sensor.model.SensorModel): the
     standard deviation of the noise it adds at a level (fraction of full scale)."""
 
     def sigma(self, level: np.ndarray) -> np.ndarray: ...
@@ -105,7 +94,7 @@ def direct_visibility_mask(projector_direct: np.ndarray, flood_direct: np.ndarra
 
     projector_direct, flood_direct, background: radiance (H, W) in one unit; background is the
     light the dots stand on (ambient and the projector's indirect light). gain: the frame's
-    exposure, level per unit radiance (generator.sensor_model.SensorModel.exposure_gain). noise:
+    exposure, level per unit radiance (dotsim.sensor.model.SensorModel.exposure_gain). noise:
     the sensor model, whose sigma(level) is the noise it adds. Non-finite pixels are not visible.
     """
     shapes = {np.shape(a) for a in (projector_direct, flood_direct, background)}

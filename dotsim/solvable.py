@@ -3,7 +3,8 @@
 A matcher (SGBM's block, the network's receptive field) can find the projector column of a pixel
 only where the window around it holds enough of the pattern above the noise. This module says where,
 from what a frame stores: the IR image, the ground-truth depth (or disparity), the dataset's pattern
-and rig, and the sensor's noise (scene.json's [sensor]).
+and rig, and the sensor's noise (scene.json's [sensor], read back by
+dotsim.sensor.settings.sensor_noise; its size: dotsim.sensor.model.sensor_sigma).
 
 The measure is a matched filter. The oracle (dotsim.oracle.expected_pattern_image: the pattern
 warped by the true geometry, with the projector's falloff and shadows) predicts where the dots fall,
@@ -23,9 +24,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from dotsim.masks import noise_sigma
 from dotsim.oracle import expected_pattern_image
 from dotsim.rig import Rig
+from dotsim.sensor.model import sensor_sigma
+from dotsim.sensor.settings import sensor_noise
 
 WINDOW = 9  # px: the matching window of the issue's definition (SGBM matches 5 x 5 blocks)
 # Noise alone gives a standard normal SNR, so 10 is never reached by chance in millions of windows;
@@ -33,18 +35,6 @@ WINDOW = 9  # px: the matching window of the issue's definition (SGBM matches 5 
 # noise of that size. Measured on 8 training frames of `make dataset`'s data (docs/TRAINER.md
 # "Which pixels can be solved"): SGBM with LCN is wrong (o(0.5)) on 84-97 % of the pixels below it.
 SOLVABLE_SNR = 10.0
-
-
-def sensor_sigma(level: np.ndarray, read_noise: float, shot_noise: float, bit_depth: int) -> np.ndarray:
-    """The noise's standard deviation at `level` (fraction of full scale): read and shot noise
-    (dotsim.masks.noise_sigma) and the quantisation's, step / sqrt(12), which alone remains when the
-    sensor's noise is off.
-
-    >>> round(float(sensor_sigma(0.25, 0.003, 0.01, 10) ** 2) * 1e6, 2)  # 9 + 25 + 0.08, x 1e-6
-    34.08
-    """
-    step = 1.0 / (2**bit_depth - 1)
-    return np.sqrt(noise_sigma(level, read_noise, shot_noise) ** 2 + step**2 / 12)
 
 
 def window_snr(ir: np.ndarray, expected: np.ndarray, read_noise: float, shot_noise: float, bit_depth: int,
@@ -102,18 +92,3 @@ def solvable_pixels(ir: np.ndarray, depth: np.ndarray, rig: Rig, pattern: np.nda
     scene.json dict records), or None where the scene records no sensor noise."""
     sensor = sensor_noise(scene_meta)
     return None if sensor is None else solvable(pattern_snr(ir, depth, rig, pattern, sensor))
-
-
-def sensor_noise(scene_meta: dict) -> dict | None:
-    """read_noise, shot_noise and bit_depth of the sensor a scene was rendered with (scene.json's
-    config [sensor]), or None where the scene records none (then nothing can be said).
-
-    >>> sensor_noise({"config": {"sensor": {"read_noise": 0.003, "shot_noise": 0.01, "bit_depth": 10}}})
-    {'read_noise': 0.003, 'shot_noise': 0.01, 'bit_depth': 10}
-    >>> sensor_noise({}) is None
-    True
-    """
-    sensor = scene_meta.get("config", {}).get("sensor")
-    if not sensor or not {"read_noise", "shot_noise", "bit_depth"} <= set(sensor):
-        return None
-    return {k: sensor[k] for k in ("read_noise", "shot_noise", "bit_depth")}

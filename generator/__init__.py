@@ -2,14 +2,15 @@
 
 Modules (one idea each; only generator/blender/ imports bpy):
   config         TOML config -> validated Config (schema, defaults, errors; docs/CONFIG.md)
-  scene_spec     the typed SceneSpec, checked on construction (docs/SCENE_SPEC.md); its [render],
-                 [sensor], [masks] records are the config's tables; numpy + stdlib + dotsim only
+  scene_spec     the typed SceneSpec, checked on construction (docs/SCENE_SPEC.md); its [render] and
+                 [masks] records are the config's tables, its [sensor] the config's at the render
+                 scale (dotsim.sensor.settings); numpy + stdlib + dotsim only
   sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
   resources      the files scenes refer to: pattern, built-in textures, asset cache
   blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth and the
                  projector's and flood's direct light)
-  sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
-  post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
+  post_render    raw passes + SceneSpec -> stored channels (IR through the sensor model of
+                 dotsim.sensor, ambient, flood, depth, masks, GT)
   render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
                  carrying the rig and the pattern

@@ -35,6 +35,7 @@ from dotsim.rig_files import (
     configured_rig,
     holds_camera_only,
 )
+from dotsim.sensor.settings import SensorConfig, SensorSettings
 from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
@@ -43,8 +44,6 @@ from generator.scene_spec import (
     PointLight,
     RenderConfig,
     SceneSpec,
-    SensorConfig,
-    SensorSettings,
     Texture,
 )
 
@@ -502,7 +501,7 @@ def config_reference_markdown() -> str:
         "put while the scene and the sensor stand still and changes when either moves. `[sensor] "
         "speckle_contrast` = c (0, the default: off, the frames of before bit for bit) multiplies the "
         "projector's direct light (not its indirect light, not the ambient light, not the flood) by "
-        "1 - c + c S before the sensor model sees it (`generator/sensor_model.py` `speckle_field`). "
+        "1 - c + c S before the sensor model sees it (`dotsim/sensor/model.py` `speckle_field`). "
         "Indirect light reaches a pixel over paths metres apart, far beyond the coherence length of "
         "the laser diodes such projectors use (millimetres), so its many speckle patterns add up "
         "incoherently and average out. S is fully "

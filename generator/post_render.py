@@ -30,12 +30,12 @@ import numpy as np
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import depth_to_projector_column
+from dotsim.sensor.model import SensorModel
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec
-from generator.sensor_model import SensorModel
 
 
 def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:

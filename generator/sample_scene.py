@@ -29,7 +29,6 @@ from generator.scene_spec import (
     RenderSettings,
     SceneObject,
     SceneSpec,
-    SensorSettings,
     Texture,
     camera_views,
 )
@@ -347,11 +346,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         poses=_poses(rng, config, base_pose),
         cameras=camera_views(rig, config.rig.stereo),
         objects=tuple(objects),
-        sensor=sensor_settings(config),
+        sensor=config.sensor.at_scale(config.rig.scale),
         masks=config.masks,
     )
 
-
-def sensor_settings(config: Config) -> SensorSettings:
-    """The config's [sensor] parameters at its render scale."""
-    return SensorSettings(**asdict(config.sensor), pixel_scale=config.rig.scale)

@@ -10,13 +10,14 @@ the same bounds as one read from a file; errors are one line naming the field an
 "scene spec: objects[3].material.albedo = -1: out of range; allowed: a number, 0 <= x <= 1". Code
 holding a SceneSpec never looks a field up by string key again.
 
-The spec's Cycles, sensor-model and mask records are the config's [render], [sensor] and [masks]
-tables (declared here, read by generator/config.py), and the config's keys that give a spec's
+The spec's Cycles and mask records are the config's [render] and [masks] tables (declared here,
+read by generator/config.py), its sensor record the config's [sensor] at the render scale
+(dotsim/sensor/settings.py), and the config's keys that give a spec's
 values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
 (config_schema.bounds_of), so the two cannot disagree on a bound.
 
-Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig, so Blender's own
-Python can import it.
+Needs only numpy, the standard library, dotsim.config_schema, dotsim.rig and dotsim.sensor.settings,
+so Blender's own Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
 axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
@@ -32,13 +33,13 @@ import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
 from dotsim.rig import Intrinsics, Rig
+from dotsim.sensor.settings import SensorSettings
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 SPLITS = ("train", "test")
 DEVICES = ("CPU", "GPU")
 # How the spot's direct light is rendered where extra lights compete with it (docs/RENDERING.md).
 DIRECT_LIGHT = ("separate", "shared")
-EXPOSURES = ("fixed", "auto")
 # A sampled scene is one static scene seen from this many nearby rig poses (frame 0 and three moves).
 FRAMES_PER_SCENE = 4
 # The IR cameras of a rig a frame can be rendered from: its own camera and its second one.
@@ -77,52 +78,6 @@ class RenderSettings(RenderConfig):
     @classmethod
     def from_dict(cls, d: Any, where: str) -> RenderSettings:
         return record_from_dict(cls, d, where, optional=("direct_light",))
-
-
-@dataclass(frozen=True)
-class SensorConfig(Checked):
-    """The IR sensor model (generator/sensor_model.py): the config's [sensor] table."""
-    exposure: str = setting("auto", "fixed: ir = gain * signal; auto: scale so the auto_percentile of the"
-                            " signal maps to auto_target (as GigaDepth's renders)", choices=EXPOSURES)
-    gain: float = setting(1.0, "signal multiplier in fixed exposure", low=0.0, high=1e6, low_open=True)
-    auto_percentile: float = setting(99.0, "percentile of the signal used by auto exposure", low=50.0,
-                                     high=100.0)
-    auto_target: float = setting(0.8, "level (fraction of full scale) the percentile maps to", low=0.0,
-                                 high=1.0, low_open=True)
-    bloom_threshold: float = setting(0.9, "level above which light blooms (fraction of full scale)",
-                                     low=0.0, high=10.0)
-    bloom_strength: float = setting(0.2, "share of the over-threshold light spread into the bloom",
-                                    low=0.0, high=10.0)
-    bloom_sigma: float = setting(4.0, "bloom spread, full-resolution px", low=0.0, high=100.0)
-    blur_sigma: float = setting(0.5, "optical blur, full-resolution px (0 = none)", low=0.0, high=20.0)
-    shot_noise: float = setting(0.01, "shot-noise standard deviation at full-scale signal; variance "
-                                "grows linearly with the signal", low=0.0, high=1.0)
-    read_noise: float = setting(0.003, "signal-independent read-noise standard deviation (full scale = 1)",
-                                low=0.0, high=1.0)
-    bit_depth: int = setting(10, "sensor bit depth: ir is quantised to 2**bit_depth levels", low=1,
-                             high=16)
-    speckle_contrast: float = setting(0.0, "laser speckle on the projector's direct light: standard "
-                                      "deviation of its factor (mean 1; 0 = off, 1 = fully developed "
-                                      "speckle); fixed "
-                                      "for a scene and pose, another for another pose (\"Laser speckle\" "
-                                      "above)", low=0.0, high=1.0)
-    speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "
-                                   "intensity autocorrelation, full-resolution px", low=0.0, high=100.0,
-                                   low_open=True)
-
-
-@dataclass(frozen=True)
-class SensorSettings(SensorConfig):
-    """One scene's sensor settings: the config's [sensor] at the render scale (the sensor model,
-    generator/sensor_model.py, applies them)."""
-    pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
-                                 "[rig] scale; bloom, blur and speckle sizes are full-resolution px)",
-                                 low=0.02, high=1.0)
-
-    @classmethod
-    def from_dict(cls, d: Any, where: str) -> SensorSettings:
-        """Specs from before the speckle keys read as without speckle."""
-        return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain"))
 
 
 @dataclass(frozen=True)

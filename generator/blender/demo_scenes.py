@@ -16,7 +16,6 @@ import numpy as np
 
 from dotsim.rig import Rig
 from generator.config import Config
-from generator.sample_scene import sensor_settings
 from generator.scene_spec import camera_views
 
 IDENTITY_POSE = np.eye(4).tolist()
@@ -57,7 +56,7 @@ def base_spec(
         "poses": poses or [IDENTITY_POSE],
         "cameras": [camera.to_dict() for camera in camera_views(Rig.from_dict(rig), stereo)],
         "objects": [],
-        "sensor": {**sensor_settings(Config()).to_dict(), "pixel_scale": pixel_scale},
+        "sensor": Config().sensor.at_scale(pixel_scale).to_dict(),
         "masks": asdict(Config().masks),
     }
 

@@ -18,7 +18,7 @@ from capture.dot_statistics import (
     window_radius,
 )
 from dotsim.patterns import poisson_disc_centres, render_dots
-from generator.sensor_model import speckle_field
+from dotsim.sensor.model import speckle_field
 
 SIZE = 320
 SUB = 4

@@ -1,5 +1,5 @@
 """capture.photon_transfer against frames of known noise: the generator's own sensor model
-(generator.sensor_model.SensorModel.apply) makes them, the photon transfer measures them back."""
+(dotsim.sensor.model.SensorModel.apply) makes them, the photon transfer measures them back."""
 
 import doctest
 
@@ -19,8 +19,8 @@ from capture.photon_transfer import (
     spatial_noise_bins,
     temporal_noise_bins,
 )
-from generator.scene_spec import SensorSettings
-from generator.sensor_model import SensorModel
+from dotsim.sensor.model import SensorModel
+from dotsim.sensor.settings import SensorSettings
 
 READ, SHOT = 0.004, 0.02
 

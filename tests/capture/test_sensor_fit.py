@@ -17,10 +17,10 @@ from bench import sensor_fit as bench
 from commands.cli import main
 from dotsim import dataset
 from dotsim.rig import get_preset
+from dotsim.sensor.model import SensorModel
+from dotsim.sensor.settings import SensorSettings
 from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
-from generator.scene_spec import SensorSettings
-from generator.sensor_model import SensorModel
 
 TINY = load_config(Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml")
 SCALE = 0.2  # 243 x 179: enough isolated dots in 4 scenes
@@ -144,8 +144,7 @@ def test_a_recording_of_the_software_realsense(tmp_path, capsys):
     config = bench.still_config(TINY, SCALE, sensor, lighting={"extra_lights": [1, 1],
                                                                "light_power": [3.0, 6.0]})
     generate(config, tmp_path / "rendered", "train", 2, seed=2, progress=False)
-    settings = SensorSettings(**config.to_dict()["sensor"], pixel_scale=config.rig.scale)
-    model, rng = SensorModel(settings), np.random.default_rng(6)
+    model, rng = SensorModel(config.sensor.at_scale(config.rig.scale)), np.random.default_rng(6)
     to_uint8 = lambda image: np.round(np.clip(image, 0, 1) * 255).astype(np.uint8)  # noqa: E731
     poses = []
     for ref in dataset.open_dataset(tmp_path / "rendered").scenes:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from dotsim.masks import direct_visibility_mask, edge_mask, exposure_scale, visibility_mask
-from generator.scene_spec import SensorSettings
-from generator.sensor_model import SensorModel
+from dotsim.sensor.model import SensorModel
+from dotsim.sensor.settings import SensorSettings
 
 
 def sensor(read_noise: float, shot_noise: float) -> SensorModel:

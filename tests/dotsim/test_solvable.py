@@ -12,7 +12,8 @@ from dotsim import solvable as module
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
-from dotsim.solvable import SOLVABLE_SNR, pattern_snr, sensor_sigma, solvable, window_snr
+from dotsim.sensor.model import sensor_sigma
+from dotsim.solvable import SOLVABLE_SNR, pattern_snr, solvable, window_snr
 
 
 def test_doctests():

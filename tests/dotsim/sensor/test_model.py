@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from dotsim.masks import direct_visibility_mask
-from generator import sensor_model
-from generator.scene_spec import SensorSettings
-from generator.sensor_model import SensorModel, bloom, quantise, speckle_field
+from dotsim.sensor import model as sensor_model
+from dotsim.sensor.model import SensorModel, bloom, quantise, speckle_field
+from dotsim.sensor.settings import SensorSettings
 
 # No blur, no bloom, 16 bits: only the part under test acts.
 PLAIN = SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,

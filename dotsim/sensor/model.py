@@ -1,4 +1,5 @@
-"""The infrared sensor model: rendered radiance (ambient + projector) -> the IR image the sensor sees.
+"""The infrared sensor model: rendered radiance (ambient + projector) -> the IR image the sensor sees,
+and the noise it adds.
 
 Pure numpy/scipy and seeded. Levels are fractions of the sensor's full scale (1.0 = saturation).
 Steps, in the order light meets a sensor: laser speckle on the projector's direct light
@@ -8,8 +9,11 @@ the bit depth.
 The ambient and flood passes get none of this (as in GigaDepth's renders).
 
 `SensorModel` is the one place that knows the model: it applies it (`apply`) and says how much
-noise it adds at a level (`sigma`), which the visibility mask (dotsim.masks.direct_visibility_mask)
-compares dots with; so the mask and the image cannot disagree on the noise.
+noise it adds at a level (`sigma`, noise_sigma), which the visibility mask
+(dotsim.masks.direct_visibility_mask) compares dots with; so the mask and the image cannot disagree
+on the noise. Where only a scene.json's record of the sensor is at hand, dotsim.solvable weighs dots
+against the same noise with the quantisation's added (sensor_sigma). Its settings:
+dotsim/sensor/settings.py.
 """
 
 from __future__ import annotations
@@ -19,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from dotsim.masks import noise_sigma
-from generator.scene_spec import SensorSettings
+from dotsim.sensor.settings import SensorSettings
 
 # Full width at half maximum of a Gaussian over its standard deviation: 2 sqrt(2 ln 2).
 FWHM_PER_SIGMA = 2.3548200450309493
@@ -74,6 +77,29 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
     return np.round(np.clip(level, 0.0, 1.0) * steps) / steps
 
 
+def noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float) -> np.ndarray:
+    """The sensor noise's standard deviation at `level` (fraction of full scale): read noise and shot
+    noise, whose variance grows linearly with the level (shot noise is Poisson in photo-electrons).
+    SensorModel adds noise of this size; dotsim.solvable weighs dots against it (sensor_sigma).
+
+    >>> round(float(noise_sigma(0.25, 0.003, 0.01)) ** 2 * 1e6, 2)  # 9 + 25, x 1e-6
+    34.0
+    """
+    return np.sqrt(read_noise**2 + shot_noise**2 * np.maximum(level, 0.0))
+
+
+def sensor_sigma(level: np.ndarray, read_noise: float, shot_noise: float, bit_depth: int) -> np.ndarray:
+    """The noise's standard deviation at `level` (fraction of full scale) in the stored, quantised
+    image: read and shot noise (noise_sigma) and the quantisation's, step / sqrt(12), which alone
+    remains when the sensor's noise is off.
+
+    >>> round(float(sensor_sigma(0.25, 0.003, 0.01, 10) ** 2) * 1e6, 2)  # 9 + 25 + 0.08, x 1e-6
+    34.08
+    """
+    step = 1.0 / (2**bit_depth - 1)
+    return np.sqrt(noise_sigma(level, read_noise, shot_noise) ** 2 + step**2 / 12)
+
+
 @dataclass(frozen=True)
 class SensorModel:
     """The IR sensor of one scene, from its settings (the config's [sensor] at the render scale).
@@ -116,7 +142,7 @@ class SensorModel:
     def sigma(self, level: np.ndarray) -> np.ndarray:
         """The standard deviation of the noise apply() adds at `level` (before quantisation): read
         noise and shot noise, whose variance grows linearly with the level (shot noise is Poisson in
-        photo-electrons): dotsim.masks.noise_sigma."""
+        photo-electrons): noise_sigma."""
         return noise_sigma(level, self.settings.read_noise, self.settings.shot_noise)
 
     def apply(self, signal: np.ndarray, rng: np.random.Generator, gain: float | None = None) -> np.ndarray:
