@@ -4,7 +4,7 @@ A matcher (SGBM's block, the network's receptive field) can find the projector c
 only where the window around it holds enough of the pattern above the noise. This module says where,
 from what a frame stores: the IR image, the ground-truth depth (or disparity), the dataset's pattern
 and rig, and the sensor's noise (scene.json's [sensor], read back by
-dotsim.sensor.settings.sensor_noise; its size: dotsim.sensor.model.sensor_sigma).
+dotsim.sensor.settings.sensor_noise; its size: dotsim.sensor.model.quantised_noise_sigma).
 
 The measure is a matched filter. The oracle (dotsim.oracle.expected_pattern_image: the pattern
 warped by the true geometry, with the projector's falloff and shadows) predicts where the dots fall,
@@ -26,7 +26,7 @@ import numpy as np
 
 from dotsim.oracle import expected_pattern_image
 from dotsim.rig import Rig
-from dotsim.sensor.model import sensor_sigma
+from dotsim.sensor.model import quantised_noise_sigma
 from dotsim.sensor.settings import sensor_noise
 
 WINDOW = 9  # px: the matching window of the issue's definition (SGBM matches 5 x 5 blocks)
@@ -46,7 +46,7 @@ def window_snr(ir: np.ndarray, expected: np.ndarray, read_noise: float, shot_noi
     >>> dots = np.zeros((3, 3)); dots[0, 0] = dots[2, 1] = 1.0       # two dots in a 3 x 3 window
     >>> ir = 0.1 + 0.02 * dots                                          # seen 0.02 above 0.1
     >>> snr = window_snr(ir, dots, 0.001, 0.0, 16, window=3)[1, 1]
-    >>> sigma = float(sensor_sigma(ir.mean(), 0.001, 0.0, 16))
+    >>> sigma = float(quantised_noise_sigma(ir.mean(), 0.001, 0.0, 16))
     >>> round(float(snr), 2), round(0.02 * np.sqrt(2 - 4 / 9) / sigma, 2)  # amplitude x energy / sigma
     (24.94, 24.94)
     """
@@ -59,7 +59,7 @@ def window_snr(ir: np.ndarray, expected: np.ndarray, read_noise: float, shot_noi
     sum_i, sum_p = total(ir), total(p)
     spread = np.maximum(total(p * p) - sum_p * sum_p / n, 0.0)
     covariance = total(ir * p) - sum_i * sum_p / n
-    sigma = sensor_sigma(np.maximum(sum_i / n, 0.0), read_noise, shot_noise, bit_depth)
+    sigma = quantised_noise_sigma(np.maximum(sum_i / n, 0.0), read_noise, shot_noise, bit_depth)
     # a flat expected image leaves only rounding in `spread`: no dots to look for
     flat = spread <= 1e-12 * np.maximum(total(p * p), 1e-300)
     with np.errstate(divide="ignore", invalid="ignore"):

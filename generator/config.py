@@ -35,7 +35,7 @@ from dotsim.rig_files import (
     configured_rig,
     holds_camera_only,
 )
-from dotsim.sensor.settings import SensorConfig, SensorSettings
+from dotsim.sensor.settings import SensorConfig, SensorSpec
 from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
@@ -70,7 +70,7 @@ class RigConfig(Checked):
                                   path=True)
     scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
                            "width and height, same field of view)",
-                           **bounds_of(SensorSettings, "pixel_scale"))
+                           **bounds_of(SensorSpec, "pixel_scale"))
     baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
                               "file's)",
                               low=-0.5, high=0.5)

@@ -33,7 +33,7 @@ import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
 from dotsim.rig import Intrinsics, Rig
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 SPLITS = ("train", "test")
@@ -321,7 +321,7 @@ class SceneSpec(Checked):
     poses: tuple[np.ndarray, ...]  # one (4, 4) world_from_camera (the rig's, its left camera's) per frame
     cameras: tuple[CameraView, ...]  # the rig's cameras each frame is rendered from
     objects: tuple[SceneObject, ...]
-    sensor: SensorSettings
+    sensor: SensorSpec
     masks: MaskParams
 
     def __post_init__(self) -> None:
@@ -386,7 +386,7 @@ class SceneSpec(Checked):
             cameras=_cameras(d.get("cameras", camera_views(rig)), rig, f"{_WHERE}: cameras"),
             objects=tuple(SceneObject.from_dict(obj, f"{_WHERE}: objects[{k}]")
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
-            sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
+            sensor=SensorSpec.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             **one_key,
         )

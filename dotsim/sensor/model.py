@@ -12,7 +12,7 @@ The ambient and flood passes get none of this (as in GigaDepth's renders).
 noise it adds at a level (`sigma`, noise_sigma), which the visibility mask
 (dotsim.masks.direct_visibility_mask) compares dots with; so the mask and the image cannot disagree
 on the noise. Where only a scene.json's record of the sensor is at hand, dotsim.solvable weighs dots
-against the same noise with the quantisation's added (sensor_sigma). Its settings:
+against the same noise with the quantisation's added (quantised_noise_sigma). Its settings:
 dotsim/sensor/settings.py.
 """
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 
 # Full width at half maximum of a Gaussian over its standard deviation: 2 sqrt(2 ln 2).
 FWHM_PER_SIGMA = 2.3548200450309493
@@ -80,7 +80,7 @@ def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
 def noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float) -> np.ndarray:
     """The sensor noise's standard deviation at `level` (fraction of full scale): read noise and shot
     noise, whose variance grows linearly with the level (shot noise is Poisson in photo-electrons).
-    SensorModel adds noise of this size; dotsim.solvable weighs dots against it (sensor_sigma).
+    SensorModel adds noise of this size; dotsim.solvable weighs dots against it (quantised_noise_sigma).
 
     >>> round(float(noise_sigma(0.25, 0.003, 0.01)) ** 2 * 1e6, 2)  # 9 + 25, x 1e-6
     34.0
@@ -88,12 +88,13 @@ def noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float) -> np.n
     return np.sqrt(read_noise**2 + shot_noise**2 * np.maximum(level, 0.0))
 
 
-def sensor_sigma(level: np.ndarray, read_noise: float, shot_noise: float, bit_depth: int) -> np.ndarray:
+def quantised_noise_sigma(level: np.ndarray, read_noise: float, shot_noise: float,
+                          bit_depth: int) -> np.ndarray:
     """The noise's standard deviation at `level` (fraction of full scale) in the stored, quantised
     image: read and shot noise (noise_sigma) and the quantisation's, step / sqrt(12), which alone
     remains when the sensor's noise is off.
 
-    >>> round(float(sensor_sigma(0.25, 0.003, 0.01, 10) ** 2) * 1e6, 2)  # 9 + 25 + 0.08, x 1e-6
+    >>> round(float(quantised_noise_sigma(0.25, 0.003, 0.01, 10) ** 2) * 1e6, 2)  # 9 + 25 + 0.08, x 1e-6
     34.08
     """
     step = 1.0 / (2**bit_depth - 1)
@@ -105,15 +106,15 @@ class SensorModel:
     """The IR sensor of one scene, from its settings (the config's [sensor] at the render scale).
 
     >>> import numpy as np
-    >>> model = SensorModel(SensorSettings(shot_noise=0.02, read_noise=0.01))
+    >>> model = SensorModel(SensorSpec(shot_noise=0.02, read_noise=0.01))
     >>> [round(float(s), 4) for s in model.sigma(np.array([0.0, 0.25, 1.0]))]
     [0.01, 0.0141, 0.0224]
     """
-    settings: SensorSettings
+    settings: SensorSpec
 
     def __post_init__(self) -> None:
-        if not isinstance(self.settings, SensorSettings):
-            raise TypeError(f"SensorModel needs SensorSettings, got {type(self.settings).__name__}")
+        if not isinstance(self.settings, SensorSpec):
+            raise TypeError(f"SensorModel needs SensorSpec, got {type(self.settings).__name__}")
 
     @property
     def blur_px(self) -> float:

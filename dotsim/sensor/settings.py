@@ -1,5 +1,5 @@
 """What a sensor is set to: the config's [sensor] table (SensorConfig), one scene's sensor at its
-render scale (SensorSettings, what a SceneSpec holds), and the [sensor] a scene.json records, read
+render scale (SensorSpec, what a SceneSpec holds), and the [sensor] a scene.json records, read
 back (recorded_sensor, sensor_noise).
 
 Needs only the standard library and dotsim.config_schema, so Blender's own Python can import it
@@ -19,8 +19,9 @@ EXPOSURES = ("fixed", "auto")
 
 @dataclass(frozen=True)
 class SensorConfig(Checked):
-    """The IR sensor as a config sets it: the config's [sensor] table (docs/CONFIG.md); sizes in
-    full-resolution pixels."""
+    """The IR sensor as a config sets it: the config's [sensor] table (docs/CONFIG.md), one for every
+    scene of a run; sizes in full-resolution sensor pixels. A scene's SceneSpec holds it at the
+    render scale (at_scale: a SensorSpec)."""
     exposure: str = setting("auto", "fixed: ir = gain * signal; auto: scale so the auto_percentile of the"
                             " signal maps to auto_target (as GigaDepth's renders)", choices=EXPOSURES)
     gain: float = setting(1.0, "signal multiplier in fixed exposure", low=0.0, high=1e6, low_open=True)
@@ -50,14 +51,14 @@ class SensorConfig(Checked):
                                    low_open=True)
 
 
-    def at_scale(self, pixel_scale: float) -> SensorSettings:
+    def at_scale(self, pixel_scale: float) -> SensorSpec:
         """This sensor in a render `pixel_scale` times the full sensor resolution (the config's [rig]
         scale).
 
         >>> SensorConfig(read_noise=0.002).at_scale(0.5).pixel_scale
         0.5
         """
-        return SensorSettings(**{f.name: getattr(self, f.name) for f in fields(SensorConfig)},
+        return SensorSpec(**{f.name: getattr(self, f.name) for f in fields(SensorConfig)},
                               pixel_scale=pixel_scale)
 
     @classmethod
@@ -73,15 +74,16 @@ class SensorConfig(Checked):
 
 
 @dataclass(frozen=True)
-class SensorSettings(SensorConfig):
-    """One scene's sensor: the config's [sensor] at the scene's render scale, as its SceneSpec records
-    it (the sensor model, dotsim/sensor/model.py, applies it)."""
+class SensorSpec(SensorConfig):
+    """One scene's sensor, as its SceneSpec records it: the config's [sensor] (SensorConfig) and the
+    render scale its pixel sizes are taken at (pixel_scale); the sensor model
+    (dotsim/sensor/model.py) applies it."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
                                  "[rig] scale; bloom, blur and speckle sizes are full-resolution px)",
                                  low=0.02, high=1.0)
 
     @classmethod
-    def from_dict(cls, d: Any, where: str) -> SensorSettings:
+    def from_dict(cls, d: Any, where: str) -> SensorSpec:
         """Specs from before the speckle keys read as without speckle."""
         return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain"))
 

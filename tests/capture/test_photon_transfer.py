@@ -20,13 +20,13 @@ from capture.photon_transfer import (
     temporal_noise_bins,
 )
 from dotsim.sensor.model import SensorModel
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 
 READ, SHOT = 0.004, 0.02
 
 
 def sensor(bits: int = 10) -> SensorModel:
-    return SensorModel(SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
+    return SensorModel(SensorSpec(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
                                       read_noise=READ, shot_noise=SHOT, bit_depth=bits))
 
 

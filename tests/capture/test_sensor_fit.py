@@ -18,7 +18,7 @@ from commands.cli import main
 from dotsim import dataset
 from dotsim.rig import get_preset
 from dotsim.sensor.model import SensorModel
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
 
@@ -112,7 +112,7 @@ def test_one_frame_falls_back_to_flat_regions_and_says_so(tmp_path, capsys):
     rng = np.random.default_rng(5)
     for cx, cy in rng.uniform(10, [470, 350], (300, 2)):
         scene += 0.3 * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * 1.1**2))
-    model = SensorModel(SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
+    model = SensorModel(SensorSpec(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
                                        read_noise=0.005, shot_noise=0.025, bit_depth=12))
     frame = np.round(model.apply(scene, rng).astype(np.float64) * 4095).astype(np.uint16)
     cv2.imwrite(str(tmp_path / "one.png"), frame)

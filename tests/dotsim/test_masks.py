@@ -5,12 +5,12 @@ import pytest
 
 from dotsim.masks import direct_visibility_mask, edge_mask, exposure_scale, visibility_mask
 from dotsim.sensor.model import SensorModel
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 
 
 def sensor(read_noise: float, shot_noise: float) -> SensorModel:
     """The generator's sensor model with this noise: what make_frame hands the mask."""
-    return SensorModel(SensorSettings(read_noise=read_noise, shot_noise=shot_noise))
+    return SensorModel(SensorSpec(read_noise=read_noise, shot_noise=shot_noise))
 
 
 def columns(mask):

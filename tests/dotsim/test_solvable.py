@@ -12,7 +12,7 @@ from dotsim import solvable as module
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
-from dotsim.sensor.model import sensor_sigma
+from dotsim.sensor.model import quantised_noise_sigma
 from dotsim.solvable import SOLVABLE_SNR, pattern_snr, solvable, window_snr
 
 
@@ -41,7 +41,7 @@ def test_known_dots_give_their_amplitude_times_their_energy_over_the_noise():
     read, shot, bits = 0.003, 0.01, 10
     snr = window_snr(ir, dots, read, shot, bits, window=9)
     def sigma_of(level):
-        return float(sensor_sigma(level, read, shot, bits))
+        return float(quantised_noise_sigma(level, read, shot, bits))
 
     for y, x in [(4, 4), (20, 25), (35, 45), (10, 30)]:
         p = dots[y - 4: y + 5, x - 4: x + 5]
@@ -52,7 +52,7 @@ def test_known_dots_give_their_amplitude_times_their_energy_over_the_noise():
     # two dots of amplitude 0.01 in one window: (0.01 * sqrt(2 - 4/81)) / sigma
     two = np.zeros((9, 9))
     two[2, 3] = two[6, 5] = 1.0
-    sigma = float(sensor_sigma(0.1 + 0.02 / 81, 0.001, 0.0, 12))
+    sigma = float(quantised_noise_sigma(0.1 + 0.02 / 81, 0.001, 0.0, 12))
     assert window_snr(0.1 + 0.01 * two, two, 0.001, 0.0, 12)[4, 4] == pytest.approx(
         0.01 * np.sqrt(2 - 4 / 81) / sigma, rel=1e-9)
 

@@ -13,6 +13,7 @@ import pytest
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError
+from dotsim.sensor.settings import SensorSpec
 from generator.config import Config, LightingConfig, RigConfig, SceneConfig, config_from_dict
 from generator.post_render import make_frame
 from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
@@ -24,7 +25,6 @@ from generator.scene_spec import (
     PrimitiveMesh,
     RenderSettings,
     SceneSpec,
-    SensorSettings,
     Texture,
     camera_views,
 )
@@ -50,7 +50,7 @@ def test_json_round_trip_gives_the_same_typed_spec():
 
 
 @pytest.mark.parametrize("table, record, added", [
-    ("render", RenderSettings, {"seed"}), ("sensor", SensorSettings, {"pixel_scale"}),
+    ("render", RenderSettings, {"seed"}), ("sensor", SensorSpec, {"pixel_scale"}),
     ("masks", MaskParams, set())])
 def test_the_spec_carries_the_configs_own_settings(table, record, added):
     """Bounds agree by construction: the spec's Cycles, sensor and mask records are the config's
@@ -71,7 +71,7 @@ def test_the_spec_carries_the_configs_own_settings(table, record, added):
 
 def test_a_spec_built_in_code_is_checked_like_one_read_from_json():
     spec = sampled()
-    with pytest.raises(ConfigError, match=r"^SensorSettings.auto_percentile = 20: out of range; allowed: a "
+    with pytest.raises(ConfigError, match=r"^SensorSpec.auto_percentile = 20: out of range; allowed: a "
                        r"number, 50 <= x <= 100$"):
         replace(spec, sensor=replace(spec.sensor, auto_percentile=20))
     with pytest.raises(ConfigError, match=r"^SceneSpec.world_strength = -1.0: out of range"):
@@ -250,7 +250,7 @@ CONFIG_TO_SPEC = [
     (LightingConfig, "light_power", PointLight, "power"),
     (LightingConfig, "light_radius", PointLight, "radius"),
     (LightingConfig, "projector_power", SceneSpec, "projector_power"),
-    (RigConfig, "scale", SensorSettings, "pixel_scale"),
+    (RigConfig, "scale", SensorSpec, "pixel_scale"),
 ]
 PROBES = (-1.0, -1e-9, 0.0, 1e-9, 0.0199, 0.02, 0.5, 1.0, 1.000001, 10.0, 10.00001, 100.0, 100.0001, 1e6,
           1.000001e6)

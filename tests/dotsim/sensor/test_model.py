@@ -11,10 +11,10 @@ import pytest
 from dotsim.masks import direct_visibility_mask
 from dotsim.sensor import model as sensor_model
 from dotsim.sensor.model import SensorModel, bloom, quantise, speckle_field
-from dotsim.sensor.settings import SensorSettings
+from dotsim.sensor.settings import SensorSpec
 
 # No blur, no bloom, 16 bits: only the part under test acts.
-PLAIN = SensorSettings(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
+PLAIN = SensorSpec(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, shot_noise=0.0,
                        read_noise=0.0, bit_depth=16)
 
 
@@ -108,7 +108,7 @@ def test_blur_sigma_scales_with_render_resolution():
 
 def test_seeded_and_deterministic():
     signal = np.random.default_rng(2).uniform(0, 1, (40, 50))
-    p = SensorModel(SensorSettings())  # the defaults: every stage on
+    p = SensorModel(SensorSpec())  # the defaults: every stage on
     a = p.apply(signal, np.random.default_rng(7))
     b = p.apply(signal, np.random.default_rng(7))
     c = p.apply(signal, np.random.default_rng(8))

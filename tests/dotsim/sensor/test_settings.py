@@ -10,7 +10,7 @@ import pytest
 
 from dotsim.config_schema import ConfigError
 from dotsim.sensor import settings
-from dotsim.sensor.settings import SensorConfig, SensorSettings, recorded_sensor, sensor_noise
+from dotsim.sensor.settings import SensorConfig, SensorSpec, recorded_sensor, sensor_noise
 
 
 def test_doctests():
@@ -21,10 +21,10 @@ def test_doctests():
 def test_at_scale_keeps_every_config_value_and_adds_the_scale():
     config = SensorConfig(exposure="fixed", gain=2.5, blur_sigma=1.5, bit_depth=12, speckle_contrast=0.3)
     scene = config.at_scale(0.25)
-    assert isinstance(scene, SensorSettings) and scene.pixel_scale == 0.25
+    assert isinstance(scene, SensorSpec) and scene.pixel_scale == 0.25
     assert {f.name: getattr(scene, f.name) for f in dataclasses.fields(SensorConfig)} == config.to_dict()
     assert scene.at_scale(0.5) == dataclasses.replace(scene, pixel_scale=0.5)
-    with pytest.raises(ConfigError, match=r"^SensorSettings.pixel_scale = 0.01: out of range"):
+    with pytest.raises(ConfigError, match=r"^SensorSpec.pixel_scale = 0.01: out of range"):
         config.at_scale(0.01)
 
 
