@@ -141,11 +141,12 @@ def prepared(config, folder: Path):
 def measure(config_path: Path, width: int, scene: int, repeats: int, compressions: bool = False) -> dict:
     """The child's work: one side's code (on sys.path) at one width; a dict of seconds per frame."""
     from dotsim import dataset
+    from generator import sample_scene
     from generator.blender.render import SceneRenderer
     from generator.config import config_from_dict
     from generator.post_render import make_frame
     from generator.render_scenes import _finish_scene
-    from generator.sample_scene import frame_sensor_rng, sample_scene_spec
+    from generator.sample_scene import sample_scene_spec
 
     data = tomllib.loads(config_path.read_text())
     data["rig"]["scale"] = width / FULL_WIDTH
@@ -184,9 +185,16 @@ def measure(config_path: Path, width: int, scene: int, repeats: int, compression
         meta = {key: meta[key] for key in ("split", "rig", "pattern", "poses")}
         profile = cProfile.Profile(time.perf_counter)
         single = {"threads": 1} if "threads" in dataset.write_scene.__code__.co_varnames else {}
+
+        def streams(i: int):
+            """Frame i's random streams; a before side older than frame_streams takes its noise alone."""
+            if hasattr(sample_scene, "frame_streams"):
+                return sample_scene.frame_streams(0, spec, i)
+            return sample_scene.frame_sensor_rng(0, scene, i)
+
         for k in range(repeats):
             profile.enable()
-            made = [make_frame(raw, spec, frame_sensor_rng(0, scene, i)) for i, raw in enumerate(raw_frames)]
+            made = [make_frame(raw, spec, streams(i)) for i, raw in enumerate(raw_frames)]
             dataset.write_scene(job.out, 1000 + k, meta, made, **single)
             profile.disable()
         out["stages"] = {label: seconds / repeats / frames

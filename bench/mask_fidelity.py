@@ -41,7 +41,7 @@ import numpy as np
 from bench.render_speed import bench_rig, bench_spec, correlation, scene_poses, write_inputs
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image, projector_lighting
-from dotsim.sensor.model import SensorModel
+from dotsim.sensor.model import SensorModel, SensorStreams
 from generator.blender.frame_recipe import WITHOUT_DIRECT_LIGHT
 from generator.config import config_from_dict
 from generator.post_render import make_frame
@@ -127,7 +127,7 @@ def run_fidelity(renderer, args, folder: Path) -> dict[str, list[dict]]:
         oracle_flood = expected_pattern_image(depth, rig, ones, supersample=1)
         old = raws["old"]
         masks = {name: make_frame(raws[name], way_spec(spec, name),
-                                  np.random.default_rng(seed))["visibility"] > 0
+                                  [SensorStreams(np.random.default_rng(seed))])["visibility"] > 0
                  for name in WAYS if name != "old"}
         masks["old"] = visibility_mask(old["ambient"], old["ambient"] + old["flood"], 0.05, depth=depth)
         reference = None

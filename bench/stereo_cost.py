@@ -20,11 +20,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from bench.render_speed import bench_spec, scene_poses, write_inputs
 from dotsim.rig import get_preset
 from generator.post_render import make_frame
+from generator.sample_scene import frame_streams
 from generator.scene_spec import SceneSpec, camera_views
 
 FULL = get_preset("realsense_d415")
@@ -47,7 +46,7 @@ def one_round(renderer, spec: SceneSpec) -> dict[str, float]:
     render_wall, render_cpu = time.perf_counter() - wall, time.process_time() - cpu
     start = time.perf_counter()
     for k, raw in enumerate(raws):
-        make_frame(raw, spec, np.random.default_rng(k), right_rng=np.random.default_rng(100 + k))
+        make_frame(raw, spec, frame_streams(0, spec, k))
     post = time.perf_counter() - start
     count = len(raws)
     return {"render_s": render_wall / count, "render_cpu_s": render_cpu / count, "post_s": post / count}

@@ -18,7 +18,7 @@ from generator.config import ConfigError, load_config, with_rig
 from generator.post_render import make_frame
 from generator.resources import resources_in_folder
 from generator.run_request import RunRequest
-from generator.sample_scene import frame_sensor_rng, sample_scene_spec
+from generator.sample_scene import frame_streams, sample_scene_spec
 from generator.scene_spec import SceneSpec
 
 
@@ -63,10 +63,8 @@ def preview_images(raw: dict[str, np.ndarray], spec: SceneSpec, base_seed: int,
     the largest finite depth in metres (1 when nothing is hit), so metres = value * depth_scale.
     """
     check_frame(frame_index, spec)
-    frame = make_frame(raw, spec, frame_sensor_rng(base_seed, spec.scene_index, frame_index),
-                       where=f"scene {spec.scene_index} frame {frame_index}",
-                       right_rng=frame_sensor_rng(base_seed, spec.scene_index, frame_index, camera=1),
-                       frame=frame_index)
+    frame = make_frame(raw, spec, frame_streams(base_seed, spec, frame_index),
+                       where=f"scene {spec.scene_index} frame {frame_index}")
     depth = frame["depth"]
     finite = np.isfinite(depth)
     depth_scale = float(depth[finite].max()) if finite.any() else 1.0

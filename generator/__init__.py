@@ -5,7 +5,8 @@ Modules (one idea each; only generator/blender/ imports bpy):
   scene_spec     the typed SceneSpec, checked on construction (docs/SCENE_SPEC.md); its [render] and
                  [masks] records are the config's tables, its [sensor] the config's at the render
                  scale (dotsim.sensor.settings); numpy + stdlib + dotsim only
-  sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split)
+  sample_scene   pure, seeded sampling of a SceneSpec from (config, scene index, base seed, split),
+                 and every random stream of its frames (frame_streams: sensor noise, laser speckle)
   resources      the files scenes refer to: pattern, built-in textures, asset cache
   blender/       SceneRenderer: SceneSpec -> raw passes (projector, flood, ambient, depth and the
                  projector's and flood's direct light)

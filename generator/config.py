@@ -513,7 +513,7 @@ def config_reference_markdown() -> str:
         "Optics* (2007), chapter 3 (first-order statistics of fully developed speckle, and of speckle "
         "plus a coherent or incoherent background) and chapter 4 (its autocorrelation, set by the imaging "
         "aperture). Each frame's speckle is seeded by the scene's seed and the frame's pose "
-        "(`generator.sample_scene.frame_speckle_rng`): frames of one pose (`[motion] translation = 0` "
+        "(`generator.sample_scene.frame_streams`): frames of one pose (`[motion] translation = 0` "
         "and `rotation = 0` make a scene a static recording of 4 frames) share it, as a real static "
         "recording does, while the sensor noise changes from frame to frame. The visibility mask sees the "
         "speckled direct light: a dot that speckle dims below the noise is not visible. `dotsim capture "

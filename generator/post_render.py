@@ -25,16 +25,17 @@ rendered ones it stores):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import depth_to_projector_column
-from dotsim.sensor.model import SensorModel
+from dotsim.sensor.model import SensorModel, SensorStreams
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
-from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec
 
 
@@ -82,24 +83,26 @@ def stored_radiance(radiance: np.ndarray) -> np.ndarray:
     return np.minimum(radiance, FLOAT16_MAX)
 
 
-def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str = "frame",
-               right_rng: np.random.Generator | None = None, frame: int | None = None
+def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], where: str = "frame"
                ) -> dict[str, np.ndarray]:
     """Stored channels of one frame of `spec` from its raw passes (see the module docstring): the
-    spec's rig, sensor model and mask parameters decide them; `rng` draws the sensor noise, and
-    `right_rng` (needed when the spec renders the stereo pair) the right camera's. frame: the frame's
-    index in spec.poses, whose pose seeds the laser speckle (needed when the sensor has speckle: the
-    projector's direct light is multiplied by it before the sensor sees it)."""
+    spec's rig, sensor model and mask parameters decide them. streams: the frame's random streams, one
+    SensorStreams per camera of spec.cameras (generator.sample_scene.frame_streams): each camera's
+    sensor noise and, when the sensor has speckle, its laser speckle (the projector's direct light is
+    multiplied by it before the sensor sees it)."""
     rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, spec, where)
     depth = _depth(raw["depth"])
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
-    if sensor.has_speckle and (frame is None or not 0 <= frame < len(spec.poses)):
-        raise ValueError(f"{where}: frame = {frame}: the sensor's speckle needs the frame's index in the "
-                         f"spec's poses, 0 to {len(spec.poses) - 1}")
-    projector, projector_direct = _speckled(raw, "", sensor, spec, frame)
+    if len(streams) != len(spec.cameras):
+        raise ValueError(f"{where}: {len(streams)} SensorStreams for the spec's {len(spec.cameras)} "
+                         f"camera(s); each camera draws from streams of its own")
+    if sensor.has_speckle and any(s.speckle is None for s in streams):
+        raise ValueError(f"{where}: the sensor has laser speckle (speckle_contrast > 0): every camera's "
+                         f"SensorStreams needs a speckle stream")
+    projector, projector_direct = _speckled(raw, "", sensor, streams[0])
     signal = ambient + projector
     gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
@@ -107,7 +110,7 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
         gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
     made = {
-        "ir": sensor.apply(signal, rng, gain),
+        "ir": sensor.apply(signal, streams[0].noise, gain),
         "ambient": stored_radiance(ambient),
         "flood": stored_radiance(flood),
         "depth": depth,
@@ -116,18 +119,15 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
         "projector_column": depth_to_projector_column(gt_depth, rig),
     }
     if len(spec.cameras) > 1:
-        if right_rng is None:
-            raise ValueError(f"{where}: the spec renders the stereo pair; the right camera needs a noise "
-                             f"stream of its own (right_rng)")
         right = spec.cameras[1]
-        right_signal = raw["ambient_right"] + _speckled(raw, right.suffix, sensor, spec, frame)[0]
-        made["ir_right"] = sensor.apply(right_signal, right_rng, gain)
+        right_signal = raw["ambient_right"] + _speckled(raw, right.suffix, sensor, streams[1])[0]
+        made["ir_right"] = sensor.apply(right_signal, streams[1].noise, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
 
 
-def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, frame: int | None):
+def _speckled(raw: dict, suffix: str, sensor: SensorModel, streams: SensorStreams):
     """(projector, projector_direct) of one camera (its raw passes' `suffix`) with the laser speckle
     on the direct light, or as rendered without speckle. Each camera has a field of its own: speckle
     is seen through the camera's own aperture, and two imagers centimetres apart see uncorrelated
@@ -135,8 +135,7 @@ def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, fram
     projector, direct = raw["projector" + suffix], raw["projector_direct" + suffix]
     if not sensor.has_speckle:
         return projector, direct
-    camera = 1 if suffix else 0
-    speckled = direct * sensor.speckle(direct.shape, frame_speckle_rng(spec.seed, spec.poses[frame], camera))
+    speckled = direct * sensor.speckle(direct.shape, streams.speckle)
     return projector + (speckled - direct), speckled
 
 

@@ -31,7 +31,7 @@ from dotsim.process_lifetime import exec_dies_with_parent
 from generator.config import Config
 from generator.post_render import frame_channels, make_frame, raw_pass_names
 from generator.resources import check_inputs
-from generator.sample_scene import SceneResources, frame_sensor_rng, sample_scene_spec
+from generator.sample_scene import SceneResources, frame_streams, sample_scene_spec
 from generator.scene_spec import AssetMesh, SceneSpec
 
 LOG_DIR = "logs"
@@ -153,9 +153,8 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
         raise ValueError(f"scene {index}: renderer returned {len(raw_frames)} frames for "
                          f"{len(spec.poses)} poses")
     threads = post_render_threads(job.config)
-    frames = map_in_threads(lambda k: make_frame(raw_frames[k], spec, frame_sensor_rng(job.seed, index, k),
-                                                 where=f"scene {index} frame {k}", frame=k,
-                                                 right_rng=frame_sensor_rng(job.seed, index, k, camera=1)),
+    frames = map_in_threads(lambda k: make_frame(raw_frames[k], spec, frame_streams(job.seed, spec, k),
+                                                 where=f"scene {index} frame {k}"),
                             range(len(raw_frames)), threads)
     dataset.write_scene(job.out, index, scene_meta(job, spec), frames, channels=frame_channels(spec),
                         scenes_per_shard=job.config.output.scenes_per_shard, threads=threads,
@@ -166,7 +165,7 @@ def _finish_scene(job: RenderJob, spec: SceneSpec, raw_frames: list[dict]) -> in
 def post_render_threads(config: Config) -> int:
     """Threads a worker post-renders and encodes a scene's frames in: as many as it renders with
     ([render] threads; 0 = every core), so a worker alone on a machine uses all of it there too.
-    Each frame has its own noise stream (frame_sensor_rng), so the bytes do not depend on it."""
+    Each frame has its own random streams (frame_streams), so the bytes do not depend on it."""
     return config.render.threads or os.cpu_count() or 1
 
 

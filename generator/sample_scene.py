@@ -3,7 +3,8 @@
 The SceneSpec (generator/scene_spec.py, docs/SCENE_SPEC.md) is everything the Blender and post-render
 stages need. Sampling is cheap (milliseconds) and depends on nothing but its arguments: the random
 stream is numpy's SeedSequence((base_seed, scene_index)), so a scene does not depend on which worker
-renders it.
+renders it. Every random stream of a scene is derived here: sampling it, and each frame's sensor noise
+and laser speckle (frame_streams, which the post-render draws from).
 
 The room is the axis-aligned box [-W/2, W/2] x [-D/2, D/2] x [0, H] of the spec's world frame
 (Blender's, z up, metres).
@@ -18,6 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dotsim.rig import Rig
+from dotsim.sensor.model import SensorStreams
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
@@ -50,7 +52,7 @@ def scene_rng(base_seed: int, scene_index: int, stream: int) -> np.random.Genera
     return np.random.default_rng(np.random.SeedSequence((base_seed, scene_index), spawn_key=(stream,)))
 
 
-def frame_sensor_rng(base_seed: int, scene_index: int, frame: int, camera: int = 0) -> np.random.Generator:
+def frame_noise_rng(base_seed: int, scene_index: int, frame: int, camera: int = 0) -> np.random.Generator:
     """The sensor-noise generator of one frame of one of the rig's cameras (0: its own, 1: its second):
     a stream of its own, so any frame can be post-rendered alone (the Blender add-on's preview) and
     give what `dotsim generate` stores, and the right IR's noise is independent of the left's."""
@@ -63,9 +65,21 @@ def frame_speckle_rng(scene_seed: int, pose: np.ndarray, camera: int = 0) -> np.
     its second): seeded by the scene's seed and the frame's pose (its 4 x 4 world_from_camera, bit
     for bit), so speckle stays put while the scene and the sensor stand still (two frames of one pose
     have the same speckle, as a static recording does) and changes with the pose; the sensor noise
-    (frame_sensor_rng) changes from frame to frame."""
+    (frame_noise_rng) changes from frame to frame."""
     words = np.ascontiguousarray(pose, np.float64).view(np.uint32).ravel().tolist()
     return np.random.default_rng(np.random.SeedSequence([scene_seed, *words] + ([camera] if camera else [])))
+
+
+def frame_streams(base_seed: int, spec: SceneSpec, frame: int) -> tuple[SensorStreams, ...]:
+    """Every random stream of frame `frame` of `spec` (sampled with `base_seed`): per camera of
+    spec.cameras (the rig's own, then its second) the sensor noise (frame_noise_rng) and the laser
+    speckle (frame_speckle_rng of the frame's pose); ValueError when the spec has no such frame."""
+    if not 0 <= frame < len(spec.poses):
+        raise ValueError(f"frame = {frame}: not a frame of scene {spec.scene_index}; allowed: 0 to "
+                         f"{len(spec.poses) - 1}")
+    return tuple(SensorStreams(frame_noise_rng(base_seed, spec.scene_index, frame, camera),
+                               frame_speckle_rng(spec.seed, spec.poses[frame], camera))
+                 for camera in range(len(spec.cameras)))
 
 
 def scene_seed(base_seed: int, scene_index: int) -> int:

@@ -102,6 +102,16 @@ def quantised_noise_sigma(level: np.ndarray, read_noise: float, shot_noise: floa
 
 
 @dataclass(frozen=True)
+class SensorStreams:
+    """The random streams the sensor model draws from for one camera's image of one frame: `noise`
+    (apply's read and shot noise; another each frame) and `speckle` (the laser speckle field; fixed
+    while the scene and the sensor stand still; needed only where the sensor has speckle). The caller
+    derives all of a frame's streams in one place (generator.sample_scene.frame_streams)."""
+    noise: np.random.Generator
+    speckle: np.random.Generator | None = None
+
+
+@dataclass(frozen=True)
 class SensorModel:
     """The IR sensor of one scene, from its settings (the config's [sensor] at the render scale).
 
@@ -127,7 +137,7 @@ class SensorModel:
 
     def speckle(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
         """The laser speckle factor (H, W) of one frame (speckle_field at the render scale); rng: a
-        stream fixed for the scene and the pose (generator.sample_scene.frame_speckle_rng)."""
+        stream fixed for the scene and the pose (SensorStreams.speckle)."""
         s = self.settings
         return speckle_field(shape, s.speckle_contrast, s.speckle_grain * s.pixel_scale, rng)
 

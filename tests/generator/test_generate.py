@@ -19,6 +19,7 @@ from dotsim.channels import rendered_channels
 from dotsim.patterns import load_pattern
 from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
+from dotsim.sensor.model import SensorStreams
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import generate
@@ -60,7 +61,7 @@ def test_make_frame_against_analytic_wall():
     config = config_from_dict({})
     raw = {"projector": projector, "flood": flood_only, "ambient": ambient, "depth": depth,
            "projector_direct": projector, "flood_direct": flood_only}  # no indirect light here
-    frame = make_frame(raw, spec_with_rig(rig, config), np.random.default_rng(1))
+    frame = make_frame(raw, spec_with_rig(rig, config), [SensorStreams(np.random.default_rng(1))])
     # Every stored channel; disparity is derived from depth on read (format 2).
     assert set(frame) == set(dataset.RENDERED_CHANNELS) - {"disparity"}
     disparity = dataset.ground_truth_disparity(frame["depth"], rig)
@@ -91,11 +92,11 @@ def test_make_frame_names_bad_raw_passes():
     rig = get_preset("structure_core").scaled(0.05)
     raw = {name: np.zeros((3, 3), np.float32) for name in RAW_PASSES}
     with pytest.raises(ValueError, match="scene 4 frame 1: raw pass 'projector' has shape"):
-        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0),
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), [SensorStreams(np.random.default_rng(0))],
                    where="scene 4 frame 1")
     del raw["depth"]
     with pytest.raises(ValueError, match=r"lack \['depth'\]"):
-        make_frame(raw, spec_with_rig(rig, config_from_dict({})), np.random.default_rng(0))
+        make_frame(raw, spec_with_rig(rig, config_from_dict({})), [SensorStreams(np.random.default_rng(0))])
 
 
 # ----------------------------------------------------------------------------- bad input: nothing written

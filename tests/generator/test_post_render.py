@@ -19,13 +19,19 @@ import pytest
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.dataset.frames import encode_frame
 from dotsim.rig import get_preset
+from dotsim.sensor.model import SensorStreams
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import config_from_dict
 from generator.post_render import frame_channels, make_frame, raw_pass_names
-from generator.sample_scene import SceneResources, sample_scene_spec
+from generator.sample_scene import SceneResources, frame_streams, sample_scene_spec
 
 RIG = get_preset("structure_core").scaled(0.1)
 SHAPE = (RIG.camera.height, RIG.camera.width)
+
+
+def noise(*seeds: int) -> list[SensorStreams]:
+    """Noise streams of these seeds, one camera each, without speckle."""
+    return [SensorStreams(np.random.default_rng(seed)) for seed in seeds]
 
 
 def spec_with(**sensor):
@@ -49,8 +55,7 @@ def test_speckle_multiplies_the_projectors_direct_light_and_stays_put_for_a_pose
     poses = spec.poses
     spec = replace(spec, poses=(poses[0], poses[0], poses[1], poses[2]))
     # ambient 0.03 and indirect projector light 0.02 unspeckled, direct light 0.1 x speckle
-    frames = [make_frame(raw_frame(0.03, 0.1, 0.02), spec, np.random.default_rng(k), frame=k)
-              for k in range(4)]
+    frames = [make_frame(raw_frame(0.03, 0.1, 0.02), spec, frame_streams(0, spec, k)) for k in range(4)]
     factors = [(frame["ir"].astype(np.float64) - 0.05) / 0.1 for frame in frames]
     for factor in factors:
         # 16-bit rounding of ir / 0.1: at most 8e-5 off a factor of mean 1 and std 0.5
@@ -60,19 +65,19 @@ def test_speckle_multiplies_the_projectors_direct_light_and_stays_put_for_a_pose
     assert np.corrcoef(factors[0].ravel(), factors[2].ravel())[0, 1] < 0.2  # another pose: another
     assert np.corrcoef(factors[2].ravel(), factors[3].ravel())[0, 1] < 0.2
     # without direct light nothing is speckled, and speckle off is the plain sum
-    dark = make_frame(raw_frame(0.3, 0.0, 0.1), spec, np.random.default_rng(0), frame=0)
+    dark = make_frame(raw_frame(0.3, 0.0, 0.1), spec, frame_streams(0, spec, 0))
     np.testing.assert_allclose(dark["ir"], 0.4, atol=1e-5)
-    plain = make_frame(raw_frame(0.2, 0.5), spec_with(), np.random.default_rng(0))
+    plain = make_frame(raw_frame(0.2, 0.5), spec_with(), noise(0))
     np.testing.assert_allclose(plain["ir"], 0.7, atol=1e-5)
 
 
-def test_speckle_needs_the_frame_index():
+def test_speckle_needs_a_speckle_stream():
     spec = spec_with(speckle_contrast=0.5)
-    with pytest.raises(ValueError, match=r"scene 0 frame 7: frame = None: the sensor's speckle needs the "
-                       r"frame's index in the spec's poses, 0 to 3"):
-        make_frame(raw_frame(0.2, 0.5), spec, np.random.default_rng(0), where="scene 0 frame 7")
-    with pytest.raises(ValueError, match="frame = 4"):
-        make_frame(raw_frame(0.2, 0.5), spec, np.random.default_rng(0), frame=4)
+    with pytest.raises(ValueError, match=r"^scene 0 frame 7: the sensor has laser speckle "
+                       r"\(speckle_contrast > 0\): every camera's SensorStreams needs a speckle stream$"):
+        make_frame(raw_frame(0.2, 0.5), spec, noise(0), where="scene 0 frame 7")
+    with pytest.raises(ValueError, match=r"^frame = 4: not a frame of scene 0; allowed: 0 to 3$"):
+        frame_streams(0, spec, 4)
 
 
 def stereo_spec(**sensor):
@@ -102,12 +107,11 @@ def test_a_stereo_frame_has_the_declared_channels_and_the_right_ir_shares_the_ex
     spec = stereo_spec(shot_noise=0.0, read_noise=0.0, bloom_strength=0.0, blur_sigma=0.0)
     assert raw_pass_names(spec) == RAW_PASSES + tuple(f"{name}_right" for name in RAW_PASSES)
     assert frame_channels(spec) == rendered_channels(stereo=True)
-    rng = np.random.default_rng
-    frame = make_frame(wall_passes(spec), spec, rng(0), right_rng=rng(1))
+    frame = make_frame(wall_passes(spec), spec, noise(0, 1))
     assert tuple(frame) == stored_channels(rendered_channels(stereo=True))
     np.testing.assert_array_equal(frame["ir_right"], frame["ir"])
     passes = wall_passes(spec, right_gain=2.0)
-    brighter = make_frame(passes, spec, rng(0), right_rng=rng(1))
+    brighter = make_frame(passes, spec, noise(0, 1))
     np.testing.assert_array_equal(brighter["ir"], frame["ir"])
     left_light = passes["ambient"] + passes["projector"]
     right_light = passes["ambient_right"] + passes["projector_right"]
@@ -119,9 +123,8 @@ def test_a_stereo_frame_has_the_declared_channels_and_the_right_ir_shares_the_ex
 
 def test_the_right_ir_has_its_own_noise_and_the_mask_is_the_lit_wall_both_see():
     spec = stereo_spec()
-    rng = np.random.default_rng
-    frame = make_frame(wall_passes(spec), spec, rng(0), right_rng=rng(1))
-    again = make_frame(wall_passes(spec), spec, rng(0), right_rng=rng(2))
+    frame = make_frame(wall_passes(spec), spec, noise(0, 1))
+    again = make_frame(wall_passes(spec), spec, noise(0, 2))
     np.testing.assert_array_equal(again["ir"], frame["ir"])  # the left stream is the left's alone
     assert not np.array_equal(again["ir_right"], frame["ir_right"])
     assert not np.array_equal(frame["ir_right"], frame["ir"])
@@ -137,14 +140,14 @@ def test_the_right_ir_has_its_own_noise_and_the_mask_is_the_lit_wall_both_see():
 def test_a_stereo_frame_needs_the_right_passes_and_noise_stream():
     spec = stereo_spec()
     passes = wall_passes(spec)
-    with pytest.raises(ValueError, match="scene 0 frame 2: the spec renders the stereo pair; the right "
-                                         r"camera needs a noise stream of its own \(right_rng\)"):
-        make_frame(passes, spec, np.random.default_rng(0), where="scene 0 frame 2")
+    with pytest.raises(ValueError, match=r"^scene 0 frame 2: 1 SensorStreams for the spec's 2 camera\(s\); "
+                                         r"each camera draws from streams of its own$"):
+        make_frame(passes, spec, noise(0), where="scene 0 frame 2")
     del passes["depth_right"]
     with pytest.raises(ValueError, match=r"raw passes lack \['depth_right'\]"):
-        make_frame(passes, spec, np.random.default_rng(0), right_rng=np.random.default_rng(1))
+        make_frame(passes, spec, noise(0, 1))
     mono = replace(spec, cameras=spec.cameras[:1])
-    assert set(make_frame(passes, mono, np.random.default_rng(0))) == set(stored_channels(
+    assert set(make_frame(passes, mono, noise(0))) == set(stored_channels(
         rendered_channels(stereo=False)))
 
 
@@ -154,9 +157,8 @@ def test_each_camera_of_a_stereo_pair_sees_a_speckle_field_of_its_own():
     spec = stereo_spec(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0, read_noise=0.0,
                        shot_noise=0.0, bit_depth=16, speckle_contrast=0.5, speckle_grain=40.0)
     passes = wall_passes(spec)
-    rng = np.random.default_rng
-    frame = make_frame(passes, spec, rng(0), right_rng=rng(1), frame=0)
-    again = make_frame(passes, spec, rng(2), right_rng=rng(3), frame=0)
+    frame = make_frame(passes, spec, frame_streams(0, spec, 0))
+    again = make_frame(passes, spec, frame_streams(1, spec, 0))  # other noise streams, the same speckle
     np.testing.assert_array_equal(frame["ir_right"], again["ir_right"])
     lit = passes["flood"] > 0
     left = (frame["ir"][lit] - passes["ambient"][lit]) / passes["projector"][lit]  # the speckle factors
@@ -171,10 +173,10 @@ def test_radiance_beyond_float16_saturates_and_the_frame_can_be_written():
     other pixel as they were."""
     spec = spec_with()
     passes = raw_frame(ambient=0.5, direct=0.2)
-    frame = make_frame(passes, spec, np.random.default_rng(0), frame=0)
+    frame = make_frame(passes, spec, frame_streams(0, spec, 0))
     passes["flood"][3, 4] = 164585.0
     passes["ambient"][5, 6] = 1e6
-    hot = make_frame(passes, spec, np.random.default_rng(0), frame=0)
+    hot = make_frame(passes, spec, frame_streams(0, spec, 0))
     assert hot["flood"][3, 4] == hot["ambient"][5, 6] == 65504.0 == float(np.finfo(np.float16).max)
     for name in ("flood", "ambient"):
         others = np.ones(SHAPE, bool)

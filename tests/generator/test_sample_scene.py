@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from generator.sample_scene import (
     TextureAsset,
     build_rig,
     camera_rotation,
+    frame_streams,
     ray_box_exit,
     sample_scene_spec,
 )
@@ -253,3 +255,32 @@ def test_a_camera_facing_the_back_wall_sees_it_head_on_behind_the_objects():
         depths = camera_points(d)[:, 2]
         assert len(depths) == 20 and depths.min() > 0 and depths.max() < back_y - y
     assert len({spec_dict(overrides, index=k)["poses"][0][1][3] for k in range(5)}) == 5  # drawn per scene
+
+
+def test_a_frames_random_streams_are_derived_in_one_place():
+    """frame_streams gives each camera of a frame its noise stream, the scene's SeedSequence((base
+    seed, scene index)) spawned at (1, frame[, camera]), and its speckle stream, seeded by the scene's
+    seed and the pose's 16 float64 read as 32 uint32 words (written out here), so frames of one pose
+    share their speckle."""
+    config = config_from_dict({"rig": {"preset": "realsense_d415", "scale": 0.05, "stereo": True}})
+    spec = sample_scene_spec(config, 5, 9, "train", RESOURCES)
+    spec = replace(spec, poses=(spec.poses[0], spec.poses[0], spec.poses[1], spec.poses[2]))
+
+    def draws(generator):
+        return generator.integers(0, 2**62, 4).tolist()
+
+    for frame in range(4):
+        streams = frame_streams(9, spec, frame)
+        assert len(streams) == 2
+        for camera, stream in enumerate(streams):
+            key = (1, frame) + ((camera,) if camera else ())
+            noise = np.random.default_rng(np.random.SeedSequence((9, 5), spawn_key=key))
+            assert draws(stream.noise) == draws(noise)
+            words = np.frombuffer(np.asarray(spec.poses[frame], "<f8").tobytes(), "<u4").tolist()
+            entropy = [spec.seed, *words] + ([camera] if camera else [])
+            speckle = np.random.default_rng(np.random.SeedSequence(entropy))
+            assert draws(stream.speckle) == draws(speckle)
+    same_pose = [draws(frame_streams(9, spec, k)[0].speckle) for k in (0, 1, 2)]
+    assert same_pose[0] == same_pose[1] != same_pose[2]
+    with pytest.raises(ValueError, match=r"^frame = -1: not a frame of scene 5; allowed: 0 to 3$"):
+        frame_streams(9, spec, -1)

@@ -13,6 +13,7 @@ import pytest
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError
+from dotsim.sensor.model import SensorStreams
 from dotsim.sensor.settings import SensorSpec
 from generator.config import Config, LightingConfig, RigConfig, SceneConfig, config_from_dict
 from generator.post_render import make_frame
@@ -209,16 +210,16 @@ def test_make_frame_uses_the_specs_sensor_and_mask_parameters():
     coarse = replace(spec, sensor=replace(spec.sensor, bit_depth=3, shot_noise=0.0, read_noise=0.0),
                      masks=replace(spec.masks, edge_dilation=0))
     wide = replace(coarse, masks=replace(coarse.masks, edge_dilation=3))
-    ir = make_frame(raw, coarse, np.random.default_rng(0))["ir"].astype(np.float64)
+    ir = make_frame(raw, coarse, [SensorStreams(np.random.default_rng(0))])["ir"].astype(np.float64)
     np.testing.assert_allclose(ir * 7, np.round(ir * 7), atol=1e-6)  # 2**3 - 1 levels
-    narrow_edges = make_frame(raw, coarse, np.random.default_rng(0))["edge"].sum(axis=1)
-    wide_edges = make_frame(raw, wide, np.random.default_rng(0))["edge"].sum(axis=1)
+    narrow_edges = make_frame(raw, coarse, [SensorStreams(np.random.default_rng(0))])["edge"].sum(axis=1)
+    wide_edges = make_frame(raw, wide, [SensorStreams(np.random.default_rng(0))])["edge"].sum(axis=1)
     assert np.all(wide_edges == narrow_edges + 6)  # dilation 3 widens the edge by 3 px each side
     # the visibility margin (noise sigmas a dot must stand out by) is the spec's too
     noisy = replace(spec, sensor=replace(spec.sensor, read_noise=0.05))
     strict = replace(noisy, masks=replace(noisy.masks, visibility_margin=100.0))  # the largest allowed
-    assert make_frame(raw, noisy, np.random.default_rng(0))["visibility"].all()
-    assert not make_frame(raw, strict, np.random.default_rng(0))["visibility"].any()
+    assert make_frame(raw, noisy, [SensorStreams(np.random.default_rng(0))])["visibility"].all()
+    assert not make_frame(raw, strict, [SensorStreams(np.random.default_rng(0))])["visibility"].any()
 
 
 def test_spec_and_the_pure_blender_modules_import_with_numpy_alone():

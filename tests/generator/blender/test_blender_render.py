@@ -16,6 +16,7 @@ from skimage.registration import phase_cross_correlation
 
 from dotsim.oracle import expected_pattern_image
 from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
+from dotsim.sensor.model import SensorStreams
 from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
 from generator.post_render import make_frame
@@ -148,7 +149,7 @@ def test_direct_light_has_no_pepper_and_the_mask_no_shadow(renderer, pattern, n_
     for name in ("projector", "flood"):  # the one render's total and its passes' sum: float rounding
         assert (raw[name] >= raw[f"{name}_direct"] * (1 - 1e-6)).all(), name
 
-    frame = make_frame(raw, spec, np.random.default_rng(0))
+    frame = make_frame(raw, spec, [SensorStreams(np.random.default_rng(0))])
     visible = frame["visibility"].astype(bool)
     assert visible[shadow_core].mean() <= 0.01
     assert visible[lit_core].mean() >= 0.97
@@ -162,7 +163,7 @@ def test_shared_direct_light_keeps_pepper_but_marks_no_shadow_visible(renderer, 
     assert np.count_nonzero(raw["flood_direct"][shadow_core]) == 0
     pepper = raw["flood_direct"][lit_core] <= 0
     assert 0.01 < pepper.mean() < 0.3, pepper.mean()
-    visible = make_frame(raw, spec, np.random.default_rng(0))["visibility"].astype(bool)
+    visible = make_frame(raw, spec, [SensorStreams(np.random.default_rng(0))])["visibility"].astype(bool)
     assert not visible[shadow_core].any()
     assert not visible[lit_core][pepper].any()
     assert visible[lit_core][~pepper].mean() >= 0.97

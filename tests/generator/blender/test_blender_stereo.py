@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from dotsim.rig import Rig, backproject, bilinear_sample, get_preset
+from dotsim.sensor.model import SensorStreams
 from dotsim.stereo import stereo_disparity
 from generator.blender import demo_scenes as ds
 from generator.post_render import make_frame
@@ -37,8 +38,8 @@ def rendered(renderer, pattern):
                                 stereo=True, pixel_scale=RIG.camera.width / FULL.camera.width)
             spec["objects"] = scene()
             spec = SceneSpec.from_dict(spec)
-            frames[scene] = make_frame(renderer.render(spec)[0], spec, np.random.default_rng(1),
-                                       right_rng=np.random.default_rng(2))
+            streams = [SensorStreams(np.random.default_rng(1)), SensorStreams(np.random.default_rng(2))]
+            frames[scene] = make_frame(renderer.render(spec)[0], spec, streams)
         return frames[scene]
 
     return frame_of
