@@ -21,7 +21,8 @@ import numpy as np
 
 from dotsim import dataset as ds
 from dotsim.masks import edge_mask, visibility_mask
-from dotsim.rig import depth_to_disparity, depth_to_projector_column, get_preset
+from dotsim.rig.geometry import depth_to_disparity, depth_to_projector_column
+from dotsim.rig.presets import get_preset
 
 
 def synthetic_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:

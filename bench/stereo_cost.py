@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.render_speed import bench_spec, scene_poses, write_inputs
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec, camera_views
 

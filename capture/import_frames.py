@@ -35,7 +35,7 @@ from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset, pattern_store
 from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from dotsim.rig_files import Lens
 from dotsim.stereo import stereo_baseline
 

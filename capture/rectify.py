@@ -14,7 +14,7 @@ import numpy as np
 
 from capture.frames import CaptureError
 from dotsim.calibration_files import FISHEYE
-from dotsim.rig import Intrinsics
+from dotsim.rig.geometry import Intrinsics
 from dotsim.rig_files import Lens
 
 

@@ -19,7 +19,7 @@ from dotsim.patterns import (
     load_pattern,
     pattern_statistics,
 )
-from dotsim.rig import DEFAULT_PRESET, PRESETS
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
 from generator.config import PatternConfig, rig_from_options
 
 

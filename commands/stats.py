@@ -29,7 +29,7 @@ from dotsim.command_options import add_output
 from dotsim.file_io import atomic_write_json
 from dotsim.images import write_image
 from dotsim.option_types import integer
-from dotsim.rig import Rig, backproject, project_to_projector
+from dotsim.rig.geometry import Rig, backproject, project_to_projector
 
 STATS_CHANNELS = ("depth", "visibility", "edge")
 DEPTH_STEP = 0.01  # m: the fine histogram the shares and medians are read from

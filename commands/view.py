@@ -38,7 +38,7 @@ from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
 from dotsim.prediction_file import prediction_path
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
 # as a depth image (the other colour-mapped channels are what the clouds show).

@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes
-from dotsim.rig import Intrinsics, backproject
+from dotsim.rig.geometry import Intrinsics, backproject
 
 
 def grey_levels(image: np.ndarray, percentile: float = 99.5) -> np.ndarray:

@@ -26,17 +26,15 @@ from dotsim.calibration_files import (
     RigFileError,
     read_calibration,
 )
-from dotsim.rig import (
+from dotsim.rig.geometry import (
     DEFAULT_MAX_DEPTH,
-    DEFAULT_PRESET,
-    PRESETS,
     Intrinsics,
     Rig,
     check_square_pixels,
-    get_preset,
     project_to_projector,
     rotation_matrix,
 )
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS, get_preset
 
 RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
 PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is

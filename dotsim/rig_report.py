@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from dotsim.rig import Intrinsics, Rig
+from dotsim.rig.geometry import Intrinsics, Rig
 from dotsim.rig_files import RIG_PARTS, CalibratedRig
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from dotsim.masks import noise_sigma
 from dotsim.oracle import expected_pattern_image
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 
 WINDOW = 9  # px: the matching window of the definition (SGBM matches 5 x 5 blocks)
 # Noise alone gives a standard normal SNR, so 10 is never reached by chance in millions of windows;

@@ -6,7 +6,7 @@ second_camera_translation = (B, 0, 0), B > 0: a rectified pair. A point at plana
 left column u is seen at right column u - d, d = fx B / z (the same row), and z is the same for
 both cameras.
 
->>> from dotsim.rig import get_preset
+>>> from dotsim.rig.presets import get_preset
 >>> rig = get_preset("realsense_d435")  # fx 674.4 px, B 50 mm
 >>> stereo_baseline(rig, "rig"), round(float(stereo_disparity([[1.0]], rig)[0, 0]), 2)  # d = fx B / z at 1 m
 (0.05, 33.72)
@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dotsim.rig import PRESETS, Rig
+from dotsim.rig.geometry import Rig
+from dotsim.rig.presets import PRESETS
 
 # How much nearer (camera px of disparity) the right camera's surface must be at a point's column
 # for the point to count as hidden from it: half a pixel, below what matching resolves, and far above

@@ -27,7 +27,8 @@ from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bou
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
-from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
+from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
 from dotsim.rig_files import (
     RIG_FILE_SUFFIXES,
     RigFileError,
@@ -56,8 +57,8 @@ SAVED_SUFFIX = ".json"  # a config saved by config_json; any other file is TOML
 
 @dataclass(frozen=True)
 class RigConfig(Checked):
-    preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
-                          "dotsim/rigs/); ignored when `file` is set", choices=tuple(PRESETS))
+    preset: str = setting("structure_core", "sensor preset from dotsim.rig.presets.PRESETS (the rig files in "
+                          "dotsim/rig/presets/); ignored when `file` is set", choices=tuple(PRESETS))
     file: str = setting("", "rig file instead of the preset (camera, projector and pose): dotsim rig JSON "
                         "(as in scene.json or from `dotsim capture info`), a cv2.stereoCalibrate result, "
                         "stereo_calib's intrinsics.yml (its extrinsics.yml beside it is read too) or a "
@@ -468,8 +469,8 @@ def config_reference_markdown() -> str:
         "| published | key | dotsim |\n"
         "|---|---|---|\n"
         "| camera 512 x 432, f 435 px, baseline 2.5 cm | [rig] preset = \"ctd_synthetic\" "
-        "(dotsim/rigs/ctd_synthetic.json) | as published; the projector is not published: 1280 x 1088 at f "
-        "870 px (2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other "
+        "(dotsim/rig/presets/ctd_synthetic.json) | as published; the projector is not published: 1280 x 1088 "
+        "at f 870 px (2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other "
         "presets); max_depth 6 m |\n"
         "| a few objects | [scene] object_count | 2-6 per scene (3-9 in the test split: the test cache's "
         "clutter_density 1.5) |\n"

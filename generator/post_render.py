@@ -29,7 +29,7 @@ import numpy as np
 
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
-from dotsim.rig import depth_to_projector_column
+from dotsim.rig.geometry import depth_to_projector_column
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH

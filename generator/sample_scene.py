@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,

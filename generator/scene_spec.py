@@ -15,7 +15,7 @@ tables (declared here, read by generator/config.py), and the config's keys that 
 values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
 (config_schema.bounds_of), so the two cannot disagree on a bound.
 
-Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig, so Blender's own
+Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig.geometry, so Blender's own
 Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
-from dotsim.rig import Intrinsics, Rig
+from dotsim.rig.geometry import Intrinsics, Rig
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
 SPLITS = ("train", "test")

@@ -21,8 +21,8 @@ THIS = PurePosixPath("tests") / Path(__file__).name
 OUTPUT_FILES = {"eval.md", "gpu_check.md"}
 # A name like docs/FORMAT.md or GEOMETRY.md, not part of a longer path or URL.
 MD_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)*[\w-]+\.md)\b")
-# A source file named by its path in the repository (tests/dotsim/test_rig.py), so that moving or renaming
-# a module or a test leaves no reference behind.
+# A source file named by its path in the repository (tests/dotsim/rig/test_geometry.py), so that moving or
+# renaming a module or a test leaves no reference behind.
 PY_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)+[\w-]+\.py)\b")
 OUTSIDE = re.compile(r"ARCHITECTURE\.md|\bplan\.md|\.\./shared|/work/|\bthe seed's\b", re.IGNORECASE)
 

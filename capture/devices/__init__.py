@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from capture.frames import CaptureError
-from dotsim.rig import DEFAULT_MAX_DEPTH, Intrinsics, Rig
+from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Intrinsics, Rig
 
 DEVICE_KINDS = ("realsense", "openni2", "opencv")
 DEVICE_SYNTAX = "realsense[:SERIAL], openni2[:URI], opencv:INDEX or opencv:PATH"

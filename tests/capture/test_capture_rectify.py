@@ -14,7 +14,7 @@ import pytest
 from capture.rectify import Rectifier
 from commands.cli import main
 from dotsim.dataset import open_dataset, read_scene
-from dotsim.rig import Intrinsics
+from dotsim.rig.geometry import Intrinsics
 from dotsim.rig_files import Lens
 
 WIDTH, HEIGHT = 320, 240

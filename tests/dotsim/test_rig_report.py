@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from dotsim import rig_report
-from dotsim.rig import PRESETS, Intrinsics, rotation_matrix
+from dotsim.rig.geometry import Intrinsics, rotation_matrix
+from dotsim.rig.presets import PRESETS
 from dotsim.rig_files import composed_rig
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from generator.config import config_from_dict
 from generator.sample_scene import (
     SceneResources,

@@ -15,7 +15,8 @@ import pytest
 from skimage.registration import phase_cross_correlation
 
 from dotsim.oracle import expected_pattern_image
-from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
+from dotsim.rig.geometry import Intrinsics, pixel_grid, pixel_rays, reference_image
+from dotsim.rig.presets import get_preset
 from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
 from generator.post_render import make_frame

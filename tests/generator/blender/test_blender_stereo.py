@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim.rig import Rig, backproject, bilinear_sample, get_preset
+from dotsim.rig.geometry import Rig, backproject, bilinear_sample
+from dotsim.rig.presets import get_preset
 from dotsim.stereo import stereo_disparity
 from generator.blender import demo_scenes as ds
 from generator.post_render import make_frame
