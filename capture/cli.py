@@ -25,9 +25,9 @@ from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
 from dotsim.option_types import integer, number
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
+from dotsim.rig.files import CalibratedRig, RigFileError, composed_rig
 from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
 from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
-from dotsim.rig_files import CalibratedRig, RigFileError, composed_rig
 from dotsim.rig_report import summary_line
 from generator.config import ConfigError, OutputConfig, rig_from_options
 

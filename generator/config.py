@@ -27,15 +27,9 @@ from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bou
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
+from dotsim.rig.files import RIG_FILE_SUFFIXES, RigFileError, composed_rig, configured_rig, holds_camera_only
 from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
 from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
-from dotsim.rig_files import (
-    RIG_FILE_SUFFIXES,
-    RigFileError,
-    composed_rig,
-    configured_rig,
-    holds_camera_only,
-)
 from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
@@ -50,7 +44,7 @@ from generator.scene_spec import (
 )
 
 if TYPE_CHECKING:
-    from dotsim.rig_files import CalibratedRig
+    from dotsim.rig.files import CalibratedRig
 
 SAVED_SUFFIX = ".json"  # a config saved by config_json; any other file is TOML
 
@@ -260,7 +254,7 @@ class Config:
 
     @cached_property
     def calibrated_rig(self) -> CalibratedRig:
-        """The [rig] settings resolved (dotsim.rig_files.configured_rig; RigFileError naming the
+        """The [rig] settings resolved (dotsim.rig.files.configured_rig; RigFileError naming the
         config's [rig]), built once per Config, when it is validated: a run reads its rig file once
         and the rig travels with the config (pickled along) into every worker and scene."""
         return configured_rig(self.rig, f"{self.source}: [rig]")

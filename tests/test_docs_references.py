@@ -274,7 +274,7 @@ def test_documented_json_and_python_examples_read():
 def test_the_rig_file_example_reads_as_written(tmp_path):
     """docs/GEOMETRY.md's OpenCV rig YAML, copied verbatim: its integer literals are read as the
     numbers they are (fx 600 and 1200, a 5 cm baseline), not refused."""
-    from dotsim.rig_files import load_rig_file
+    from dotsim.rig.files import load_rig_file
 
     text = (REPO / "docs" / "GEOMETRY.md").read_text()
     block = re.search(r"^( +)%YAML:1\.0\n(?:\1.*\n)+", text, re.MULTILINE)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from dotsim import rig_report
+from dotsim.rig.files import composed_rig
 from dotsim.rig.geometry import Intrinsics, rotation_matrix
 from dotsim.rig.presets import PRESETS
-from dotsim.rig_files import composed_rig
 
 
 def test_doctests():

@@ -17,8 +17,8 @@ from commands.cli import main as dotsim_main
 from dotsim import config_schema, dataset
 from dotsim.channels import rendered_channels
 from dotsim.patterns import load_pattern
+from dotsim.rig.files import load_rig_file, rig_file_json
 from dotsim.rig.presets import get_preset
-from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
 from generator.pipeline import generate

@@ -1,6 +1,6 @@
 """The preset rigs: the rig files beside this module (NAME.json), read once on import.
 
-Each file is a rig file (`{"rig": Rig.to_dict(), "notes": sources}`, the format dotsim.rig_files
+Each file is a rig file (`{"rig": Rig.to_dict(), "notes": sources}`, the format dotsim.rig.files
 reads; its "notes" give the sources of its values). Principal points are at the image centre because
 the simulated camera is what Blender renders (docs/GEOMETRY.md: half a pixel wrong drops
 oracle-vs-render NCC 0.99 -> 0.66). For the non-Structure-Core presets the projector is chosen like

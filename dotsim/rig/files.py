@@ -1,7 +1,7 @@
 """Rigs from files and config keys, and the checks a rig from outside must pass before anything
 renders with it.
 
-A rig file is any calibration layout dotsim.calibration_files reads (dotsim rig JSON, OpenCV's
+A rig file is any calibration layout dotsim.rig.calibration_formats reads (dotsim rig JSON, OpenCV's
 calibration samples and cv2.stereoCalibrate results, ROS camera_info, Kalibr camchains). The rig
 is always a pinhole rig (what Blender renders). A calibrated camera that is not that pinhole (lens
 distortion, or fx != fy) becomes a Lens beside the rig: the rig's camera is its square pinhole
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.calibration_files import (
+from dotsim.rig.calibration_formats import (
     CALIBRATION_SUFFIXES,
     CAMERA_MATRIX_KEYS,
     FISHEYE,
@@ -246,7 +246,7 @@ def _camera(part: CameraPart, size: tuple[int, int] | None, role: str) -> tuple[
 
 def load_rig_file(path) -> CalibratedRig:
     """The whole rig a file describes (camera, projector and pose; any layout of
-    dotsim.calibration_files), checked by check_rig. Raises RigFileError naming the file and key."""
+    dotsim.rig.calibration_formats), checked by check_rig. Raises RigFileError naming the file and key."""
     calibrated = _calibrated(_file_parts(path, ("camera", "projector"), None), str(path))
     check_rig(calibrated.rig, str(path))
     return calibrated
