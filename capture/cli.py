@@ -28,7 +28,7 @@ from dotsim.patterns import PatternError, load_pattern, pattern_statistics
 from dotsim.rig.files import CalibratedRig, RigFileError, composed_rig
 from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
 from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
-from dotsim.rig_report import summary_line
+from dotsim.rig.report import summary_line
 from generator.config import ConfigError, OutputConfig, rig_from_options
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.

@@ -9,7 +9,7 @@ from dotsim.config_schema import ConfigError
 from dotsim.configs import builtin_names
 from dotsim.rig.files import CalibratedRig
 from dotsim.rig.presets import PRESETS
-from dotsim.rig_report import report_lines, summary_line
+from dotsim.rig.report import report_lines, summary_line
 from generator.config import load_config, rig_from_options, with_rig
 
 

@@ -136,7 +136,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dotsim.rig_report import summary_line
+    from dotsim.rig.report import summary_line
     from generator import pipeline, run_steps
     from generator.config import load_config, with_rig
     from generator.run_request import RunRequest

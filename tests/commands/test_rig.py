@@ -4,7 +4,7 @@ import pytest
 
 from commands.cli import main
 from dotsim.rig.presets import get_preset
-from dotsim.rig_report import field_of_view
+from dotsim.rig.report import field_of_view
 from tests.capture.test_capture_rectify import ros_camera_info
 
 
