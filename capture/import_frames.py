@@ -37,7 +37,7 @@ from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
 from dotsim.rig.files import Lens
 from dotsim.rig.geometry import Rig
-from dotsim.stereo import stereo_baseline
+from dotsim.rig.stereo import stereo_baseline
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
 # A stereo pair's captures also store the right camera's projector-on frame.

@@ -30,7 +30,7 @@ from dotsim.file_io import WriteError, check_writable_folder, json_bytes
 from dotsim.rig.files import RIG_FILE_SUFFIXES, RigFileError, composed_rig, configured_rig, holds_camera_only
 from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
 from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
-from dotsim.stereo import stereo_baseline
+from dotsim.rig.stereo import stereo_baseline
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     MaskParams,

@@ -19,7 +19,7 @@ rendered ones it stores):
   Of a stereo pair also: ir_right = the same sensor model of the right camera's ambient + projector,
   at the left frame's exposure (the imagers of a D400 or a Structure Core share one exposure) with a
   noise stream of its own; stereo_visibility, where the left camera's point is lit by the projector
-  directly (flood_direct > 0) and seen by the right camera (dotsim.stereo.seen_by_right, from both
+  directly (flood_direct > 0) and seen by the right camera (dotsim.rig.stereo.seen_by_right, from both
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
 """
 
@@ -30,7 +30,7 @@ import numpy as np
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig.geometry import depth_to_projector_column
-from dotsim.stereo import seen_by_right
+from dotsim.rig.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.sample_scene import frame_speckle_rng

@@ -29,7 +29,7 @@ from dotsim.channels import (
 from dotsim.dataset.layout import FormatError, check_format_version
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
 from dotsim.rig.geometry import Rig, depth_to_disparity
-from dotsim.stereo import stereo_disparity
+from dotsim.rig.stereo import stereo_disparity
 
 # The lossless compressions a dataset's frames may have ([output] exr_compression -> OpenEXR's name).
 # zstd, the default, is the smallest and the fastest to read of OpenEXR's lossless codecs on rendered

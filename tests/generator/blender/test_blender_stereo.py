@@ -12,7 +12,7 @@ import pytest
 
 from dotsim.rig.geometry import Rig, backproject, bilinear_sample
 from dotsim.rig.presets import get_preset
-from dotsim.stereo import stereo_disparity
+from dotsim.rig.stereo import stereo_disparity
 from generator.blender import demo_scenes as ds
 from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
