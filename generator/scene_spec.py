@@ -12,11 +12,11 @@ holding a SceneSpec never looks a field up by string key again.
 
 The spec's Cycles, sensor-model and mask records are the config's [render], [sensor] and [masks]
 tables (declared here, read by generator/config.py), and the config's keys that give a spec's
-values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
-(config_schema.bounds_of), so the two cannot disagree on a bound.
+values (albedo, roughness, powers, ...) take their bounds from the spec's fields, as the sensor's
+pixel_scale takes [rig] scale's (config_schema.bounds_of), so the two cannot disagree on a bound.
 
-Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig.geometry, so Blender's own
-Python can import it.
+Needs only numpy, the standard library, dotsim.config_schema and dotsim.rig (its geometry and its
+[rig] table), so Blender's own Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
 axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
@@ -30,7 +30,17 @@ from typing import Any
 
 import numpy as np
 
-from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
+from dotsim.config_schema import (
+    REQUIRED,
+    Checked,
+    ConfigError,
+    bounds_of,
+    check,
+    check_field,
+    record_from_dict,
+    setting,
+)
+from dotsim.rig.config import RigConfig
 from dotsim.rig.geometry import Intrinsics, Rig
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")
@@ -117,7 +127,7 @@ class SensorSettings(SensorConfig):
     generator/sensor_model.py, applies them)."""
     pixel_scale: float = setting(1.0, "render resolution over the full sensor resolution (the config's "
                                  "[rig] scale; bloom, blur and speckle sizes are full-resolution px)",
-                                 low=0.02, high=1.0)
+                                 **bounds_of(RigConfig, "scale"))
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SensorSettings:

@@ -277,7 +277,7 @@ def composed_rig(base: str | Rig = DEFAULT_PRESET, camera_file: str = "", projec
 
 
 def configured_rig(settings, where: str) -> CalibratedRig:
-    """The rig of the generator's [rig] settings (generator.config.RigConfig; docs/CONFIG.md): the
+    """The rig of the generator's [rig] settings (dotsim.rig.config.RigConfig; docs/CONFIG.md): the
     preset or `file`; the camera of `camera_file`; the projector and its pose of `projector_file`;
     sizes a file lacks from <role>_width / <role>_height; explicit camera / projector intrinsics,
     projector offsets and rotation, max_depth; checked (check_rig, and square camera pixels, which the
