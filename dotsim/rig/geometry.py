@@ -170,6 +170,18 @@ class Rig(Checked):
                                 camera=Intrinsics.from_dict, projector=Intrinsics.from_dict)
 
 
+def is_ground_truth(depth: np.ndarray, max_depth: float) -> np.ndarray:
+    """Where a depth map (metres) is ground truth: bool, True where the depth is finite, > 0 and at
+    most max_depth (a rig's max_depth, the farthest depth trained on and scored). The one rule of the
+    stored and derived ground-truth channels, the stereo disparity, `dotsim stats` and point clouds.
+
+    >>> is_ground_truth(np.array([0.5, 20.0, 20.5, np.inf, np.nan, 0.0]), 20.0)
+    array([ True,  True, False, False, False, False])
+    """
+    depth = np.asarray(depth)
+    return np.isfinite(depth) & (depth > 0) & (depth <= max_depth)
+
+
 def _valid_depth(depth: np.ndarray) -> np.ndarray:
     """float64 copy of depth with non-finite and non-positive values set to nan."""
     depth = np.asarray(depth, dtype=np.float64)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dotsim.rig.geometry import Rig
+from dotsim.rig.geometry import Rig, is_ground_truth
 from dotsim.rig.presets import PRESETS
 
 # How much nearer (camera px of disparity) the right camera's surface must be at a point's column
@@ -58,7 +58,7 @@ def stereo_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
     """Left-right disparity d = fx B / z (float32, camera px, computed in float64) of a left depth
     map; nan where the depth is non-finite, <= 0 or beyond rig.max_depth."""
     depth = np.asarray(depth, np.float64)
-    valid = np.isfinite(depth) & (depth > 0) & (depth <= rig.max_depth)
+    valid = is_ground_truth(depth, rig.max_depth)
     with np.errstate(divide="ignore", invalid="ignore"):
         disparity = rig.camera.fx * stereo_baseline(rig, "stereo disparity") / depth
     return np.where(valid, disparity, np.nan).astype(np.float32)

@@ -1,5 +1,6 @@
 """Rig geometry against hand-written analytic formulas (docs/GEOMETRY.md)."""
 
+import doctest
 import json
 import math
 from dataclasses import replace
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dotsim.rig import geometry
 from dotsim.rig.geometry import (
     Intrinsics,
     Rig,
@@ -16,6 +18,7 @@ from dotsim.rig.geometry import (
     depth_to_disparity,
     depth_to_projector_column,
     disparity_to_depth,
+    is_ground_truth,
     project_to_projector,
     projector_column_to_depth,
     reference_image,
@@ -215,3 +218,12 @@ def test_reference_image_is_zero_outside_the_projector_and_checks_shape():
     assert reference[0, 0] == 0 and reference[SMALL.camera.height // 2, SMALL.camera.width // 2] == 1
     with pytest.raises(ValueError, match="pattern shape \\(5, 5\\) != projector"):
         reference_image(np.ones((5, 5)), SMALL)
+
+
+def test_ground_truth_is_a_finite_positive_depth_up_to_max_depth():
+    """The boundary is inclusive: max_depth itself is ground truth, the next float32 above it is not."""
+    result = doctest.testmod(geometry)
+    assert result.attempted > 0 and result.failed == 0
+    edge = np.float32(SMALL.max_depth)
+    depth = np.array([[edge, np.nextafter(edge, np.float32(np.inf)), 1e-6, -1.0, -np.inf]], np.float32)
+    assert is_ground_truth(depth, SMALL.max_depth).tolist() == [[True, False, True, False, False]]
