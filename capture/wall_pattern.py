@@ -2,7 +2,7 @@
 
 With the rig calibrated and the wall's depth known, every dot the camera sees can be traced back
 to the projector image: camera pixel -> camera ray -> wall point at the known depth -> projector
-pixel (dotsim.rig). The dots found that way, drawn as Gaussians at the projector's resolution
+pixel (dotsim.rig.geometry). The dots found that way, drawn as Gaussians at the projector's resolution
 (dotsim.patterns.pattern_from_centres), are a pattern the generator can project.
 
 Steps (extract_wall_pattern):
