@@ -101,7 +101,7 @@ def _scene_objects(cache, n: int, seed: int, use_assets: bool, textured: bool) -
 
 def bench_blender(cache_dir: Path, n_objects: int, scenes: int, root: Path) -> None:
     from dotsim.patterns import generate_dot_pattern
-    from dotsim.rig import get_preset
+    from dotsim.rig.presets import get_preset
     from generator.blender.demo_scenes import base_spec
     from generator.blender.render import SceneRenderer
     from generator.scene_spec import SceneSpec

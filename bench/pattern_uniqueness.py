@@ -17,7 +17,7 @@ import statistics
 import time
 
 from dotsim.patterns import DEFAULT_DENSITY, generate_dot_pattern, row_window_uniqueness
-from dotsim.rig import DEFAULT_PRESET, PRESETS, get_preset
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS, get_preset
 
 
 def main() -> None:

@@ -21,7 +21,8 @@ import numpy as np
 
 from dotsim import dataset as ds
 from dotsim.masks import edge_mask, visibility_mask
-from dotsim.rig import depth_to_disparity, depth_to_projector_column, get_preset
+from dotsim.rig.geometry import depth_to_disparity, depth_to_projector_column, is_ground_truth
+from dotsim.rig.presets import get_preset
 
 
 def synthetic_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -44,7 +45,7 @@ def synthetic_frame(rig, rng: np.random.Generator) -> dict[str, np.ndarray]:
     level = ambient + 2.0 * falloff * dots
     level = level + rng.standard_normal((h, w)) * np.sqrt(0.003**2 + 0.01**2 * level)
     ir = np.round(np.clip(level, 0, 1) * 1023) / 1023
-    gt = np.where(depth <= rig.max_depth, depth, np.nan)
+    gt = np.where(is_ground_truth(depth, rig.max_depth), depth, np.nan)
     return {"ir": ir, "ambient": ambient, "flood": flood, "depth": depth,
             "visibility": visibility_mask(ambient, flood, depth=depth), "edge": edge_mask(depth),
             "projector_column": depth_to_projector_column(gt, rig), "disparity": depth_to_disparity(gt, rig)}

@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import Rig, get_preset
+from dotsim.rig.geometry import Rig
+from dotsim.rig.presets import get_preset
 from generator.blender import demo_scenes as ds
 from generator.scene_spec import SceneSpec
 

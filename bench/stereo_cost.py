@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from bench.render_speed import bench_spec, scene_poses, write_inputs
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.post_render import make_frame
 from generator.sample_scene import frame_streams
 from generator.scene_spec import SceneSpec, camera_views

@@ -29,7 +29,7 @@ import time
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from trainer.config import load_config, output_rows
 from trainer.model import GigaDepthNet, build_model
 

@@ -20,7 +20,8 @@ import numpy as np
 import torch
 
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import get_preset, reference_image
+from dotsim.rig.geometry import reference_image
+from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import predict_disparity
 from trainer.config import load_config

@@ -43,7 +43,7 @@ PREVIEW_DISTRIBUTIONS = (
     "scipy",  # dotsim.patterns, generator.scene_spec, procedural textures
     "scikit-image", "lazy-loader", "packaging",  # procedural textures (resize)
     "trimesh", "manifold3d", "networkx", "pillow",  # assets_manifest (imported with its package)
-    "PyYAML",  # dotsim.calibration_files: ROS camera_info and Kalibr rig files
+    "PyYAML",  # dotsim.rig.calibration_formats: ROS camera_info and Kalibr rig files
 )
 
 

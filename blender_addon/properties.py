@@ -13,7 +13,7 @@ from .operators import SESSION, move_rig_to_frame
 
 try:  # the drop-downs list what dotsim ships; without dotsim the operators say how to install it
     from dotsim.configs import builtin_names
-    from dotsim.rig import PRESETS
+    from dotsim.rig.presets import PRESETS
 except ImportError:
     def builtin_names(kind=None) -> list[str]:
         return []

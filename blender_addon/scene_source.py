@@ -11,10 +11,13 @@ stream decides (objects, materials, lights, poses) is identical.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import numpy as np
 
-from generator.config import ConfigError, load_config, with_rig
+from dotsim.config_schema import ConfigError
+from dotsim.rig.options import with_rig_options
+from generator.config import load_config
 from generator.post_render import make_frame
 from generator.resources import resources_in_folder
 from generator.run_request import RunRequest
@@ -41,7 +44,8 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
         if not rig.strip():
             raise ConfigError("no rig file chosen; allowed: a rig file (dotsim rig JSON, OpenCV, ROS "
                               "camera_info or Kalibr calibration), or the config's rig or a preset")
-        config = with_rig(config, rig)
+        settings, _ = with_rig_options(config.rig, config.source, rig)
+        config = replace(config, rig=settings)
     request = RunRequest(config, work_dir, split, scenes=1, start=scene_index, seed=base_seed)
     return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(request))
 

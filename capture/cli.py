@@ -20,22 +20,24 @@ from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
 from dotsim.command_options import add_no_progress, add_output
-from dotsim.config_schema import bounds_of
+from dotsim.config_schema import ConfigError, bounds_of
 from dotsim.dataset import INDEX_FILE, FormatError
 from dotsim.file_io import atomic_write_bytes, check_writable_folder, make_folder
 from dotsim.option_types import integer, number
 from dotsim.patterns import PatternError, load_pattern, pattern_statistics
-from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
-from dotsim.rig_files import CalibratedRig, RigFileError, composed_rig
-from dotsim.rig_report import summary_line
-from generator.config import ConfigError, OutputConfig, rig_from_options
+from dotsim.rig.files import CalibratedRig, RigFileError, composed_rig
+from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
+from dotsim.rig.options import rig_from_options
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
+from dotsim.rig.report import summary_line
+from generator.config import OutputConfig
 
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
 
 def load_rig(spec: str | None, scale: float = 1.0, camera_file: str | None = None) -> CalibratedRig:
-    """The rig `--rig SPEC` and `--camera-file FILE` name (generator.config.rig_from_options: a preset, a
+    """The rig `--rig SPEC` and `--camera-file FILE` name (dotsim.rig.options.rig_from_options: a preset, a
     rig file, a camera-only calibration with the preset's projector, or a generator config whose [rig]
     describes it, at scale 1; default the preset structure_core), then scaled. The lens of a calibrated
     camera comes with it: frames are rectified to the rig camera. Raises CaptureError naming the file.
@@ -509,7 +511,6 @@ def _fit_sensor(args: argparse.Namespace) -> int:
     from capture.fit_report import draw_report, report_text, sensor_toml
     from capture.sensor_fit import fit, measure
     from capture.static_recording import open_recording
-    from dotsim.config_schema import ConfigError
     from dotsim.images import write_image
 
     start = time.perf_counter()

@@ -35,9 +35,9 @@ from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset, pattern_store
 from dotsim.images import GreyImage
 from dotsim.patterns import DotPattern
-from dotsim.rig import Rig
-from dotsim.rig_files import Lens
-from dotsim.stereo import stereo_baseline
+from dotsim.rig.files import Lens
+from dotsim.rig.geometry import Rig
+from dotsim.rig.stereo import stereo_baseline
 
 CAPTURE_CHANNELS = ("ir", "ambient", "visibility")
 # A stereo pair's captures also store the right camera's projector-on frame.
@@ -219,7 +219,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
     rig projector's resolution) is stored as DATASET/pattern.png and referenced by every scene.
     A rerun skips scenes already written from files with the same checksums and refuses a
     dataset written from other files. lens: the calibrated camera the frames were recorded with
-    (dotsim.rig_files.Lens), whose distortion is rectified away (capture.rectify) and recorded in
+    (dotsim.rig.files.Lens), whose distortion is rectified away (capture.rectify) and recorded in
     scene.json under capture.rectified_from. right_spec: the right IR camera's projector-on frames
     of a stereo pair (stored as ir_right; the rig must have the pair, and no lens: check_pair).
     """

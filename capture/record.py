@@ -31,8 +31,8 @@ from capture.rectify import Rectifier, rectifier
 from dotsim import dataset, pattern_store
 from dotsim.dataset.lock import writer_lock
 from dotsim.patterns import DotPattern
-from dotsim.rig import Rig
-from dotsim.rig_files import Lens
+from dotsim.rig.files import Lens
+from dotsim.rig.geometry import Rig
 
 # Frames read at most while waiting for a frame whose metadata shows the projector state asked for.
 MAX_SWITCH_FRAMES = 60

@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 
 from capture.frames import CaptureError
-from dotsim.calibration_files import FISHEYE
-from dotsim.rig import Intrinsics
-from dotsim.rig_files import Lens
+from dotsim.rig.calibration_formats import FISHEYE
+from dotsim.rig.files import Lens
+from dotsim.rig.geometry import Intrinsics
 
 
 class Rectifier:

@@ -2,7 +2,7 @@
 
 With the rig calibrated and the wall's depth known, every dot the camera sees can be traced back
 to the projector image: camera pixel -> camera ray -> wall point at the known depth -> projector
-pixel (dotsim.rig). The dots found that way, drawn as Gaussians at the projector's resolution
+pixel (dotsim.rig.geometry). The dots found that way, drawn as Gaussians at the projector's resolution
 (dotsim.patterns.pattern_from_centres), are a pattern the generator can project.
 
 Steps (extract_wall_pattern):
@@ -12,7 +12,7 @@ Steps (extract_wall_pattern):
    (capture.dots.local_dot_image), sub-pixel centres in camera pixels;
 3. geometry: each centre's wall point is its camera ray scaled to the wall's planar depth (a
    number for a wall facing the camera squarely, or a depth map, e.g. the sensor's own, for a
-   tilted one), then projected into the projector (dotsim.rig.project_to_projector);
+   tilted one), then projected into the projector (dotsim.rig.geometry.project_to_projector);
 4. dot size: the dots' Gaussian width measured in the camera image, less the pixel's own
    footprint, times the projector pixels per camera pixel there (estimate_dot_sigma);
 5. the pattern: centres inside the projector image, rendered at the projector's resolution.
@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, local_dot_image, projector_signal
 from dotsim.patterns import DotPattern, detect_dots, pattern_from_centres
-from dotsim.rig import Rig, bilinear_sample, pixel_rays, project_to_projector
+from dotsim.rig.geometry import Rig, bilinear_sample, pixel_rays, project_to_projector
 
 # detect_dots keeps local maxima above this share of the (locally normalised) image maximum.
 DEFAULT_DETECT_THRESHOLD = 0.3

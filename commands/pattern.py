@@ -19,8 +19,9 @@ from dotsim.patterns import (
     load_pattern,
     pattern_statistics,
 )
-from dotsim.rig import DEFAULT_PRESET, PRESETS
-from generator.config import PatternConfig, rig_from_options
+from dotsim.rig.options import rig_from_options
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
+from generator.config import PatternConfig
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -7,10 +7,11 @@ import argparse
 
 from dotsim.config_schema import ConfigError
 from dotsim.configs import builtin_names
-from dotsim.rig import PRESETS
-from dotsim.rig_files import CalibratedRig
-from dotsim.rig_report import report_lines, summary_line
-from generator.config import load_config, rig_from_options, with_rig
+from dotsim.rig.config import read_rig_config
+from dotsim.rig.files import CalibratedRig
+from dotsim.rig.options import rig_from_options, with_rig_options
+from dotsim.rig.presets import PRESETS
+from dotsim.rig.report import report_lines, summary_line
 
 
 def is_generator_config(target: str) -> bool:
@@ -21,16 +22,15 @@ def is_generator_config(target: str) -> bool:
 
 def resolved(target: str, camera_file: str | None = None) -> tuple[CalibratedRig, str]:
     """The rig TARGET names (with --camera-file's camera) and a line saying how it was resolved: a
-    generator config's as `dotsim generate --config TARGET` renders it (its [rig] scale included), else
-    as --rig of `dotsim capture` and `dotsim pattern` takes it (generator.config.rig_from_options).
-    ConfigError naming the file and the key."""
+    generator config's as `dotsim generate --config TARGET` renders it (its [rig] scale included; only
+    its [rig] table is read, so its asset cache need not exist), else as --rig of `dotsim capture` and
+    `dotsim pattern` takes it (dotsim.rig.options.rig_from_options). ConfigError naming the file and the
+    key."""
     if is_generator_config(target):
-        config = load_config(target)
-        if camera_file:
-            config = with_rig(config, camera_file=camera_file)
-        how = (f"as `dotsim generate --config {target}` renders it ([rig] of {config.source}, scale "
-               f"{config.rig.scale:g})")
-        return config.calibrated_rig, how
+        settings, source = read_rig_config(target)
+        settings, calibrated = with_rig_options(settings, source, camera_file=camera_file)
+        return calibrated, (f"as `dotsim generate --config {target}` renders it ([rig] of {source}, scale "
+                            f"{settings.scale:g})")
     return (rig_from_options(target, camera_file, option="rig show"),
             f"as --rig {target} gives it (capture, pattern)")
 

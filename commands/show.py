@@ -37,7 +37,7 @@ from dotsim.images import write_image
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.prediction_file import prediction_source
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 
 # The sheet's columns and how each is drawn: the channels' one declaration (dotsim.channels).
 COLUMNS = tuple(c.name for c in CHANNELS if c.display is not None)

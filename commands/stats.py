@@ -29,7 +29,7 @@ from dotsim.command_options import add_output
 from dotsim.file_io import atomic_write_json
 from dotsim.images import write_image
 from dotsim.option_types import integer
-from dotsim.rig import Rig, backproject, project_to_projector
+from dotsim.rig.geometry import Rig, backproject, is_ground_truth, project_to_projector
 
 STATS_CHANNELS = ("depth", "visibility", "edge")
 DEPTH_STEP = 0.01  # m: the fine histogram the shares and medians are read from
@@ -77,7 +77,7 @@ class CoverageStats:
     def add_frame(self, frame: dict[str, np.ndarray]) -> None:
         """Count one frame (channels depth, visibility, edge)."""
         depth = np.asarray(frame["depth"], np.float64)
-        valid = np.isfinite(depth) & (depth > 0) & (depth <= self.rig.max_depth)
+        valid = is_ground_truth(depth, self.rig.max_depth)
         visible = valid & (frame["visibility"] > 0)
         edge = frame["edge"] > 0
         self.frames += 1

@@ -36,9 +36,9 @@ from dotsim.command_options import add_output
 from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
-from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
+from dotsim.pointcloud import depth_points, grey_levels
 from dotsim.prediction_file import prediction_path
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig, is_ground_truth
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
 # as a depth image (the other colour-mapped channels are what the clouds show).
@@ -172,7 +172,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             # beyond the rig's range are left out (a few near-zero disparities would put points
             # hundreds of metres away and the viewer's camera with them)
             points, _ = depth_points(pred["depth"], rig.camera, grey, rig.max_depth)
-            keep = cloud_pixels(pred["depth"], rig.max_depth)
+            keep = is_ground_truth(pred["depth"], rig.max_depth)
             colours = _rgb(colourise(error, 0.0, ERROR_RANGE_PX)[keep][:, None])[:, 0]
             colours[~np.isfinite(error[keep])] = 128
             rec.log(f"world/pose_{k}/prediction", rr.Points3D(points, colors=colours,

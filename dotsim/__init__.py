@@ -11,7 +11,7 @@ neither bpy nor torch, and the stages that import dotsim's modules pay nothing f
 - load_config(name_or_toml): a generator config, validated (generator.config.load_config)
 - generate(config, out, split=, scenes=, ...): render scenes into a dataset, as `dotsim generate`
 - open_dataset(folder), read_frame(exr): the dataset reader (dotsim.dataset; docs/FORMAT.md)
-- Rig: the camera and projector geometry (dotsim.rig; docs/GEOMETRY.md)
+- Rig: the camera and projector geometry (dotsim.rig.geometry; docs/GEOMETRY.md)
 
 >>> import dotsim
 >>> config = dotsim.load_config("tiny")  # a built-in config by name, or a TOML file (docs/CONFIG.md)
@@ -33,7 +33,7 @@ _PUBLIC = {
     "load_config": "generator.config",
     "open_dataset": "dotsim.dataset",
     "read_frame": "dotsim.dataset",
-    "Rig": "dotsim.rig",
+    "Rig": "dotsim.rig.geometry",
 }
 
 __all__ = ["Rig", "__version__", "generate", "load_config", "open_dataset", "read_frame"]

@@ -16,8 +16,8 @@ closest key or choice ("did you mean").
 
 The same declarations serve records that are not read from TOML: a dataclass derived from
 `Checked` checks its settings on construction (the generator's tables, the SceneSpec's records,
-dotsim.rig's Rig), `record_from_dict` (`Checked.from_dict`) reads one from a JSON mapping in which
-every field is given, and `check` is the one check of a loose value. All of them raise ConfigError
+dotsim.rig.geometry's Rig), `record_from_dict` (`Checked.from_dict`) reads one from a JSON mapping in
+which every field is given, and `check` is the one check of a loose value. All of them raise ConfigError
 (a ValueError), one line naming the field and the value.
 """
 

@@ -47,7 +47,7 @@ from dotsim import dataset as ds
 from dotsim.dataset.frames import DERIVATIONS, derivable_channels
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
-from dotsim.rig import Rig, projector_column_to_depth
+from dotsim.rig.geometry import Rig, projector_column_to_depth
 from dotsim.shard_format import (
     INDEX_NAME,
     PATTERN_NAME,

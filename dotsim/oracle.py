@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dotsim.rig import (
+from dotsim.rig.geometry import (
     Rig,
     backproject,
     bilinear_sample,

@@ -12,7 +12,7 @@ import os
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes
-from dotsim.rig import Intrinsics, backproject
+from dotsim.rig.geometry import Intrinsics, backproject, is_ground_truth
 
 
 def grey_levels(image: np.ndarray, percentile: float = 99.5) -> np.ndarray:
@@ -23,18 +23,13 @@ def grey_levels(image: np.ndarray, percentile: float = 99.5) -> np.ndarray:
     return np.rint(np.clip(x / scale, 0, 1) * 255).astype(np.uint8)
 
 
-def cloud_pixels(depth: np.ndarray, max_depth: float = np.inf) -> np.ndarray:
-    """The pixels a cloud keeps: a finite depth in (0, max_depth]."""
-    return np.isfinite(depth) & (depth > 0) & (depth <= max_depth)
-
-
 def depth_points(depth: np.ndarray, intrinsics: Intrinsics, grey: np.ndarray,
                  max_depth: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
-    """Points (N, 3) float32 of every pixel of cloud_pixels(depth, max_depth), and their grey (N,)
-    uint8.
+    """Points (N, 3) float32 of every pixel whose depth is in (0, max_depth] (is_ground_truth), and
+    their grey (N,) uint8.
 
     Rows follow the image in row-major order, so point n is the n-th valid pixel."""
-    keep = cloud_pixels(depth, max_depth)
+    keep = is_ground_truth(depth, max_depth)
     points = backproject(depth, intrinsics)[keep]  # nan where not kept
     return points.astype(np.float32), np.asarray(grey)[keep].astype(np.uint8)
 

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from dotsim.oracle import expected_pattern_image
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from dotsim.sensor.model import quantised_noise_sigma
 from dotsim.sensor.settings import sensor_noise
 

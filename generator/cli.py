@@ -6,6 +6,7 @@ import argparse
 import importlib
 import signal
 import sys
+from dataclasses import replace
 from types import ModuleType
 
 from dotsim.command_options import add_no_progress, add_output
@@ -136,15 +137,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dotsim.rig_report import summary_line
+    from dotsim.rig.options import with_rig_options
+    from dotsim.rig.report import summary_line
     from generator import pipeline, run_steps
-    from generator.config import load_config, with_rig
+    from generator.config import load_config
     from generator.run_request import RunRequest
 
     executor = executor_from_args(args)
     config = load_config(args.config)
     if args.rig or args.camera_file:
-        config = with_rig(config, args.rig, args.camera_file)
+        rig, _ = with_rig_options(config.rig, config.source, args.rig, args.camera_file)
+        config = replace(config, rig=rig)
     request = RunRequest(config, args.out, args.split, args.scenes, args.start, args.seed, args.blender,
                          executor, progress=not args.no_progress, seal=not args.no_seal)
     print(summary_line(request.rig), flush=True)  # the rig that renders (`dotsim rig show` lists it)

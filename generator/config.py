@@ -4,7 +4,8 @@ The schema is the set of dataclasses below; every field carries its help text an
 allows (dotsim.config_schema), so validation, defaults, `Config.to_dict()` (recorded in every scene's
 metadata) and docs/CONFIG.md (`config_reference_markdown()`) all come from one place. A new key is
 one `setting(...)` line in its section. The [render], [sensor] and [masks] tables are the scene
-spec's own records (generator/scene_spec.py), so a sampled spec has the config's bounds.
+spec's own records (generator/scene_spec.py), so a sampled spec has the config's bounds; the [rig]
+table is the rig's own (dotsim/rig/config.py), and so is the handling of `--rig` (dotsim/rig/options.py).
 
 Conventions: distances in metres, angles in degrees, powers in watts (Blender light power),
 pixel sizes in full-resolution sensor pixels (scaled by `[rig] scale` at render time).
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,16 +28,9 @@ from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bou
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
-from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
-from dotsim.rig_files import (
-    RIG_FILE_SUFFIXES,
-    RigFileError,
-    composed_rig,
-    configured_rig,
-    holds_camera_only,
-)
-from dotsim.sensor.settings import SensorConfig, SensorSpec
-from dotsim.stereo import stereo_baseline
+from dotsim.rig.config import RigConfig
+from dotsim.rig.options import checked_rig
+from dotsim.sensor.settings import SensorConfig
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     MaskParams,
@@ -48,70 +42,9 @@ from generator.scene_spec import (
 )
 
 if TYPE_CHECKING:
-    from dotsim.rig_files import CalibratedRig
+    from dotsim.rig.files import CalibratedRig
 
 SAVED_SUFFIX = ".json"  # a config saved by config_json; any other file is TOML
-
-
-@dataclass(frozen=True)
-class RigConfig(Checked):
-    preset: str = setting("structure_core", "sensor preset from dotsim.rig.PRESETS (the rig files in "
-                          "dotsim/rigs/); ignored when `file` is set", choices=tuple(PRESETS))
-    file: str = setting("", "rig file instead of the preset (camera, projector and pose): dotsim rig JSON "
-                        "(as in scene.json or from `dotsim capture info`), a cv2.stereoCalibrate result, "
-                        "stereo_calib's intrinsics.yml (its extrinsics.yml beside it is read too) or a "
-                        "Kalibr camchain (docs/GEOMETRY.md \"Rig files\")", path=True)
-    camera_file: str = setting("", "the IR camera from a calibration file (OpenCV's calibration sample, ROS "
-                               "camera_info, Kalibr, or camera 1 of any rig file), with the projector and "
-                               "pose of the preset, `file` or `projector_file`; its lens distortion is "
-                               "rectified away in real frames (docs/GEOMETRY.md)", path=True)
-    projector_file: str = setting("", "the projector and its pose from a rig file (dotsim rig JSON, a "
-                                  "stereo calibration, Kalibr cam1) instead of the preset's or `file`'s",
-                                  path=True)
-    scale: float = setting(1.0, "render resolution factor applied to camera and projector (0.5 = half "
-                           "width and height, same field of view)",
-                           **bounds_of(SensorSpec, "pixel_scale"))
-    baseline: float = setting(0.0, "override of the projector's x offset in metres (0 = keep the preset's or "
-                              "file's)",
-                              low=-0.5, high=0.5)
-    projector_y: float = setting(0.0, "override of the projector's y offset (down) in metres (0 = keep the "
-                                 "preset's or file's)", low=-0.5, high=0.5)
-    projector_z: float = setting(0.0, "override of the projector's z offset (forward) in metres (0 = keep "
-                                 "the preset's or file's)", low=-0.5, high=0.5)
-    projector_rotation_x: float = setting(0.0, "projector rotation about the camera's x axis, degrees: R = "
-                                          "Rz Ry Rx with X_projector = R (X_camera - t) (all three 0 = keep "
-                                          "the preset's or file's rotation)", low=-30.0, high=30.0)
-    projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
-    projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
-    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
-                               **bounds_of(Rig, "max_depth"))
-    stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
-                           "stereo_visibility and stereo_disparity beside the channels of the rig's own "
-                           "camera (docs/FORMAT.md); needs a rig whose second camera sits on the camera's x "
-                           "axis to its right (presets realsense_d415, realsense_d435, structure_core)")
-    camera_width: int = setting(0, "explicit camera: image width, px (0 = the preset's or file's camera; "
-                                "set camera_width, camera_height and camera_fx to give one; width and "
-                                "height alone give the size of a file's camera that has none)", low=0,
-                                high=20000)
-    camera_height: int = setting(0, "explicit camera: image height, px", low=0, high=20000)
-    camera_fx: float = setting(0.0, "explicit camera: focal length, px (the renderer needs square pixels)",
-                               low=0.0, high=1e6)
-    camera_fy: float = setting(0.0, "explicit camera: vertical focal length, px (0 = camera_fx)", low=0.0,
-                               high=1e6)
-    camera_cx: float = setting(0.0, "explicit camera: principal point column, px, OpenCV convention "
-                               "(cx = 0 and cy = 0: the image centre, W/2 - 0.5)", low=-1e5, high=1e5)
-    camera_cy: float = setting(0.0, "explicit camera: principal point row, px", low=-1e5, high=1e5)
-    projector_width: int = setting(0, "explicit projector: pattern width, px (0 = the preset's or file's "
-                                   "projector; set projector_width, projector_height and projector_fx to "
-                                   "give one; width and height alone give the size of a file's projector "
-                                   "that has none)", low=0, high=50000)
-    projector_height: int = setting(0, "explicit projector: pattern height, px", low=0, high=50000)
-    projector_fx: float = setting(0.0, "explicit projector: focal length, px", low=0.0, high=1e6)
-    projector_fy: float = setting(0.0, "explicit projector: vertical focal length, px (0 = projector_fx)",
-                                  low=0.0, high=1e6)
-    projector_cx: float = setting(0.0, "explicit projector: principal point column, px (cx = 0 and cy = 0: "
-                                  "the image centre)", low=-1e5, high=1e5)
-    projector_cy: float = setting(0.0, "explicit projector: principal point row, px", low=-1e5, high=1e5)
 
 
 @dataclass(frozen=True)
@@ -258,10 +191,10 @@ class Config:
 
     @cached_property
     def calibrated_rig(self) -> CalibratedRig:
-        """The [rig] settings resolved (dotsim.rig_files.configured_rig; RigFileError naming the
+        """The [rig] settings resolved (dotsim.rig.options.checked_rig; ConfigError naming the
         config's [rig]), built once per Config, when it is validated: a run reads its rig file once
         and the rig travels with the config (pickled along) into every worker and scene."""
-        return configured_rig(self.rig, f"{self.source}: [rig]")
+        return checked_rig(self.rig, self.source)
 
 
 def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = None) -> Config:
@@ -287,7 +220,7 @@ def _check_cross_fields(config: Config) -> None:
             problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
-    _resolve_rig(config)
+    config.calibrated_rig  # noqa: B018 (resolved now, so a bad rig stops the load; the Config keeps it)
     wall, room = config.scene.back_wall_distance, config.scene.room_size
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
@@ -332,82 +265,6 @@ def _read_saved(path: Path) -> dict:
         raise ConfigError(f"{path}: not a saved config (a JSON object with a \"source\" string and the "
                           f"config's tables, as generator.config.config_json writes it)")
     return data
-
-
-def rig_settings(spec: str, rig: RigConfig = RigConfig(), option: str = "--rig") -> RigConfig:
-    """[rig] settings `rig` with `--rig SPEC` in their place. SPEC is, for every command that takes
-    --rig: a preset's name (its preset, no file); a rig file of a whole rig (its `file`); a rig file of
-    a camera alone, such as OpenCV's calibration sample, a ROS camera_info or a Kalibr chain of cam0 only
-    (its `camera_file`: the projector and pose stay the preset's or file's, and the rig's notes say so);
-    or a generator config (.toml: its whole [rig] table). Raises ConfigError naming `option` and the
-    file, or what it allows."""
-    if spec in PRESETS:
-        return replace(rig, preset=spec, file="")
-    suffix = Path(spec).suffix.lower()
-    if suffix == ".toml":
-        try:
-            return load_config(spec).rig
-        except ConfigError as error:
-            raise ConfigError(f"{option} {error}") from None
-    if suffix in RIG_FILE_SUFFIXES:
-        path = str(Path(spec).resolve())
-        try:
-            camera_only = holds_camera_only(path)
-        except RigFileError as error:
-            raise ConfigError(f"{option} {error}") from None
-        return replace(rig, camera_file=path) if camera_only else replace(rig, file=path, camera_file="")
-    raise ConfigError(f"{option} {spec!r}: neither a preset ({', '.join(PRESETS)}), a rig file "
-                      f"({', '.join(RIG_FILE_SUFFIXES)}) nor a generator config (.toml)")
-
-
-def _options(spec: str | None, camera_file: str | None, option: str = "--rig") -> str:
-    """How the options were given, for messages: '--rig SPEC --camera-file FILE'."""
-    given = (spec and f"{option} {spec}", camera_file and f"--camera-file {camera_file}")
-    return " ".join(text for text in given if text)
-
-
-def with_rig(config: Config, spec: str | None = None, camera_file: str | None = None) -> Config:
-    """The config with `dotsim generate --rig SPEC` (rig_settings) and `--camera-file FILE` (its [rig]
-    camera_file) in place of its own; its other [rig] keys still apply. Raises ConfigError naming the
-    options."""
-    rig = rig_settings(spec, config.rig) if spec else config.rig
-    if camera_file:
-        rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
-    config = replace(config, rig=rig)
-    _resolve_rig(config, f"{_options(spec, camera_file)}: ")
-    return config
-
-
-def rig_from_options(spec: str | None = None, camera_file: str | None = None,
-                     option: str = "--rig") -> CalibratedRig:
-    """The rig `--rig SPEC` and `--camera-file FILE` name for a command that takes a rig without a
-    generator config (capture, pattern, `rig show` of a file): rig_settings' SPEC (default the preset
-    structure_core), a preset or rig file as it is (with its own max_depth), a generator config's [rig] at
-    scale 1 (so its camera_file and projector_file combine as in `dotsim generate`); --camera-file
-    replaces its camera. Raises ConfigError naming the options (SPEC's as `option`), the file and the
-    key."""
-    settings = rig_settings(spec or DEFAULT_PRESET, option=option)
-    camera = str(Path(camera_file).resolve()) if camera_file else settings.camera_file
-    try:
-        if spec and Path(spec).suffix.lower() == ".toml":
-            return configured_rig(replace(settings, scale=1.0, camera_file=camera), f"{spec}: [rig]")
-        return composed_rig(settings.file or settings.preset, camera, settings.projector_file)
-    except RigFileError as error:
-        raise ConfigError(f"{_options(spec, camera_file, option) or option}: {error}") from None
-
-
-def _resolve_rig(config: Config, prefix: str = "") -> None:
-    """Resolve the config's rig now (Config.calibrated_rig keeps it); a bad one, or a stereo pair asked
-    of a rig without one, is a ConfigError, `prefix` before the message that names the config's [rig]."""
-    try:
-        rig = config.calibrated_rig.rig
-    except RigFileError as error:
-        raise ConfigError(f"{prefix}{error}") from None
-    if config.rig.stereo:
-        try:
-            stereo_baseline(rig, f"{config.source}: [rig] stereo = true")
-        except ValueError as error:
-            raise ConfigError(f"{prefix}{error}, or stereo = false") from None
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
@@ -467,8 +324,8 @@ def config_reference_markdown() -> str:
         "| published | key | dotsim |\n"
         "|---|---|---|\n"
         "| camera 512 x 432, f 435 px, baseline 2.5 cm | [rig] preset = \"ctd_synthetic\" "
-        "(dotsim/rigs/ctd_synthetic.json) | as published; the projector is not published: 1280 x 1088 at f "
-        "870 px (2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other "
+        "(dotsim/rig/presets/ctd_synthetic.json) | as published; the projector is not published: 1280 x 1088 "
+        "at f 870 px (2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other "
         "presets); max_depth 6 m |\n"
         "| a few objects | [scene] object_count | 2-6 per scene (3-9 in the test split: the test cache's "
         "clutter_density 1.5) |\n"

@@ -14,12 +14,13 @@ rendered ones it stores):
   sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
   frame's exposure, above the sensor's noise) and edge masks (dotsim.masks); projector_column
-  (dotsim.rig), nan where the depth is missing or beyond the rig's max_depth. disparity is not
-  made here: format 2 derives it from depth on read (dotsim.dataset.frames.ground_truth_disparity).
+  (dotsim.rig.geometry), nan where the depth is not ground truth (missing or beyond the rig's
+  max_depth: dotsim.rig.geometry.is_ground_truth). disparity is not made here: format 2 derives it
+  from depth on read (dotsim.dataset.frames.ground_truth_disparity).
   Of a stereo pair also: ir_right = the same sensor model of the right camera's ambient + projector,
   at the left frame's exposure (the imagers of a D400 or a Structure Core share one exposure) with a
   noise stream of its own; stereo_visibility, where the left camera's point is lit by the projector
-  directly (flood_direct > 0) and seen by the right camera (dotsim.stereo.seen_by_right, from both
+  directly (flood_direct > 0) and seen by the right camera (dotsim.rig.stereo.seen_by_right, from both
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
 """
 
@@ -31,9 +32,9 @@ import numpy as np
 
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
-from dotsim.rig import depth_to_projector_column
+from dotsim.rig.geometry import depth_to_projector_column, is_ground_truth
+from dotsim.rig.stereo import seen_by_right
 from dotsim.sensor.model import SensorModel, SensorStreams
-from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
@@ -95,7 +96,7 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
     depth = _depth(raw["depth"])
     ambient = raw["ambient"]
     flood = ambient + raw["flood"]
-    gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
+    gt_depth = np.where(is_ground_truth(depth, rig.max_depth), depth, np.nan)
     if len(streams) != len(spec.cameras):
         raise ValueError(f"{where}: {len(streams)} SensorStreams for the spec's {len(spec.cameras)} "
                          f"camera(s); each camera draws from streams of its own")

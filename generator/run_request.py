@@ -18,7 +18,7 @@ from pathlib import Path
 
 from dotsim.pattern_store import make_pattern
 from dotsim.patterns import DotPattern, PatternError
-from dotsim.rig_files import CalibratedRig
+from dotsim.rig.files import CalibratedRig
 from generator.config import Config, ConfigError, check_output_dir
 from generator.executor import Executor
 from generator.render_scenes import RUN_IN_BLENDER

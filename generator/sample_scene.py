@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from dotsim.sensor.model import SensorStreams
 from generator.config import Config
 from generator.scene_spec import (

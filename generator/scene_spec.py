@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
-from dotsim.rig import Intrinsics, Rig
+from dotsim.rig.geometry import Intrinsics, Rig
 from dotsim.sensor.settings import SensorSpec
 
 PRIMITIVE_SHAPES = ("plane", "box", "sphere", "cylinder", "cone", "torus")

@@ -21,8 +21,8 @@ THIS = PurePosixPath("tests") / Path(__file__).name
 OUTPUT_FILES = {"eval.md", "gpu_check.md"}
 # A name like docs/FORMAT.md or GEOMETRY.md, not part of a longer path or URL.
 MD_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)*[\w-]+\.md)\b")
-# A source file named by its path in the repository (tests/dotsim/test_rig.py), so that moving or renaming
-# a module or a test leaves no reference behind.
+# A source file named by its path in the repository (tests/dotsim/rig/test_geometry.py), so that moving or
+# renaming a module or a test leaves no reference behind.
 PY_REFERENCE = re.compile(r"(?<![\w./-])((?:[\w.-]+/)+[\w-]+\.py)\b")
 OUTSIDE = re.compile(r"ARCHITECTURE\.md|\bplan\.md|\.\./shared|/work/|\bthe seed's\b", re.IGNORECASE)
 
@@ -274,7 +274,7 @@ def test_documented_json_and_python_examples_read():
 def test_the_rig_file_example_reads_as_written(tmp_path):
     """docs/GEOMETRY.md's OpenCV rig YAML, copied verbatim: its integer literals are read as the
     numbers they are (fx 600 and 1200, a 5 cm baseline), not refused."""
-    from dotsim.rig_files import load_rig_file
+    from dotsim.rig.files import load_rig_file
 
     text = (REPO / "docs" / "GEOMETRY.md").read_text()
     block = re.search(r"^( +)%YAML:1\.0\n(?:\1.*\n)+", text, re.MULTILINE)

@@ -20,8 +20,9 @@ from dotsim.dataset import pattern_path, seal_dataset, write_scene
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import Rig, depth_to_disparity, depth_to_projector_column, get_preset, pixel_grid, pixel_rays
-from dotsim.stereo import stereo_disparity
+from dotsim.rig.geometry import Rig, depth_to_disparity, depth_to_projector_column, pixel_grid, pixel_rays
+from dotsim.rig.presets import get_preset
+from dotsim.rig.stereo import stereo_disparity
 
 TINY_SCALE = 0.1  # Structure Core at 122 x 90 camera px, 307 x 307 pattern: dotsim/configs/tiny.toml's
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dotsim.rig import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
+from dotsim.rig.geometry import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
 from trainer.config import Config, config_from_dict
 from trainer.data import DataError
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model

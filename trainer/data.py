@@ -21,7 +21,7 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from dotsim.data import IndexedSample, index_shards, pattern_file, read_indexed, resolve, stage_shards
 from dotsim.dataset import FormatError, open_dataset, read_frame, read_scene_meta
 from dotsim.patterns import PatternError, load_pattern
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from trainer.config import DataConfig
 
 TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")

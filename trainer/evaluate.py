@@ -30,14 +30,9 @@ from tqdm import tqdm
 from dotsim.false_colour import titled, with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
-from dotsim.rig import (
-    Rig,
-    depth_to_projector_column,
-    disparity_to_depth,
-    reference_image,
-)
+from dotsim.rig.geometry import Rig, depth_to_projector_column, disparity_to_depth, reference_image
+from dotsim.rig.stereo import stereo_baseline
 from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
-from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
 from trainer.metrics import (

@@ -23,7 +23,7 @@ from dotsim.file_io import make_folder
 from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.prediction_file import output_name, write_prediction
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.data import DataError
 

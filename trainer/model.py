@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from dotsim.config_schema import ConfigError
-from dotsim.rig import Rig, depth_to_projector_column
+from dotsim.rig.geometry import Rig, depth_to_projector_column
 from trainer.config import Config, ModelConfig, output_rows
 
 LOW_PRECISION = {"float16": torch.float16, "bfloat16": torch.bfloat16}

@@ -2,7 +2,7 @@
 between the left and right IR images of a stereo pair.
 
 As GigaDepth (docs/TRAINER.md "Evaluation"): the IR image is the left image, the reference image
-(dotsim.rig.reference_image) the right one, minDisparity 0, block 5, P1 = 8 * 25, P2 = 32 * 25. The
+(dotsim.rig.geometry.reference_image) the right one, minDisparity 0, block 5, P1 = 8 * 25, P2 = 32 * 25. The
 disparity range is not the published 128 scaled with the width (at 608 px that is 64, which reaches
 0.55 m only and so never finds most near pixels) but whatever the nearest depth of the data needs:
 d_max = fx b / z_near, rounded up to a multiple of 16 (num_disparities_for). Both images are padded by
@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from dotsim.lcn import lcn
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 
 PREPROCESSINGS = ("plain", "lcn")
 LCN_WINDOW = 11  # GigaDepth's window

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from dotsim.false_colour import colourise
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
-from dotsim.rig import Rig, disparity_to_depth
+from dotsim.rig.geometry import Rig, disparity_to_depth
 from dotsim.solvable import solvable_pixels
 from trainer.checkpoint import check_rig, load_checkpoint, predict_disparity
 from trainer.config import Config, resolution_mismatch

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from capture.frames import CaptureError
-from dotsim.rig import DEFAULT_MAX_DEPTH, Intrinsics, Rig
+from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Intrinsics, Rig
 
 DEVICE_KINDS = ("realsense", "openni2", "opencv")
 DEVICE_SYNTAX = "realsense[:SERIAL], openni2[:URI], opencv:INDEX or opencv:PATH"
@@ -67,7 +67,7 @@ class Device:
         return None
 
     def rig(self) -> Rig:
-        """The device's rig (dotsim.rig_files.device_rig); DeviceError when it has no calibration."""
+        """The device's rig (dotsim.rig.files.device_rig); DeviceError when it has no calibration."""
         raise DeviceError(f"{self.name}: the device reports no calibration; calibrate it "
                           f"(cv2.stereoCalibrate) and pass the rig file with --rig (docs/GEOMETRY.md)")
 
@@ -93,9 +93,9 @@ class Device:
 
 
 def device_rig_file(device: Device, max_depth: float = DEFAULT_MAX_DEPTH) -> tuple[Rig, bytes]:
-    """The device's rig with this max_depth, checked (dotsim.rig_files.check_rig), and the bytes of its
+    """The device's rig with this max_depth, checked (dotsim.rig.files.check_rig), and the bytes of its
     rig file: {"rig": ..., "device": info, settings, white level, capabilities} (`capture info`)."""
-    from dotsim.rig_files import check_rig, rig_file_json
+    from dotsim.rig.files import check_rig, rig_file_json
 
     rig = replace(device.rig(), max_depth=max_depth)
     check_rig(rig, device.name)

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from capture.devices import Device, DeviceError, DeviceFrame, DeviceGone, require_extra
-from dotsim.rig import Intrinsics, Rig
-from dotsim.rig_files import device_rig
+from dotsim.rig.files import device_rig
+from dotsim.rig.geometry import Intrinsics, Rig
 
 EMITTER_STATE = 0x1080E007
 PRIMESENSE_BASELINE = 0.075

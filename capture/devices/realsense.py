@@ -19,8 +19,8 @@ import numpy as np
 
 from capture.devices import Device, DeviceError, DeviceFrame, DeviceGone, require_extra
 from dotsim.file_io import sha256_file
-from dotsim.rig import Intrinsics, Rig
-from dotsim.rig_files import device_rig
+from dotsim.rig.files import device_rig
+from dotsim.rig.geometry import Intrinsics, Rig
 
 IR_FORMATS = {"y8": 255.0, "y16": 65535.0}  # format -> raw value of a saturated pixel
 # Options read back into every scene.json (when the device has them).

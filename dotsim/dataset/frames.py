@@ -28,8 +28,8 @@ from dotsim.channels import (
 )
 from dotsim.dataset.layout import FormatError, check_format_version
 from dotsim.file_io import atomic_write_bytes, sha256_bytes
-from dotsim.rig import Rig, depth_to_disparity
-from dotsim.stereo import stereo_disparity
+from dotsim.rig.geometry import Rig, depth_to_disparity, is_ground_truth
+from dotsim.rig.stereo import stereo_disparity
 
 # The lossless compressions a dataset's frames may have ([output] exr_compression -> OpenEXR's name).
 # zstd, the default, is the smallest and the fastest to read of OpenEXR's lossless codecs on rendered
@@ -52,11 +52,12 @@ DERIVED_TOLERANCE = 1e-6
 
 
 def ground_truth_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
-    """The stored `disparity` of a frame: fx * b / depth (float32, dotsim.rig.depth_to_disparity),
-    nan where depth is inf or beyond rig.max_depth. The generator's and the reader's one formula,
-    so a derived channel is bit for bit what format 1.x stored."""
+    """The stored `disparity` of a frame: fx * b / depth (float32,
+    dotsim.rig.geometry.depth_to_disparity), nan where depth is not ground truth (inf or beyond
+    rig.max_depth: dotsim.rig.geometry.is_ground_truth). The generator's and the reader's one
+    formula, so a derived channel is bit for bit what format 1.x stored."""
     depth = np.asarray(depth, np.float32)
-    return depth_to_disparity(np.where(depth <= rig.max_depth, depth, np.nan), rig)
+    return depth_to_disparity(np.where(is_ground_truth(depth, rig.max_depth), depth, np.nan), rig)
 
 
 # Each derived channel from a frame's stored depth and its rig: the generator's and the reader's one

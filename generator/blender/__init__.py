@@ -1,7 +1,7 @@
 """The Blender stage: SceneSpec -> raw passes (projector, flood, ambient, depth) with Cycles.
 
 The only generator package that imports bpy. What run_in_blender.py needs imports nothing else but
-numpy, the standard library and generator.scene_spec (with dotsim.rig), so it also runs in
+numpy, the standard library and generator.scene_spec (with dotsim.rig.geometry), so it also runs in
 Blender's own Python (demo_scenes, for tests and benchmarks, also uses the generator config).
 
 Modules (bpy only in render, scene_builder, projector, materials, bare_pass):

@@ -14,7 +14,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from generator.config import Config
 from generator.scene_spec import camera_views
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.rig import check_square_pixels
+from dotsim.rig.geometry import check_square_pixels
 from generator.scene_spec import PRIMITIVE_SHAPES
 
 # Right-multiplying an OpenCV pose by this flips its y and z axes into Blender's camera/light axes.

@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from dotsim.rig import Intrinsics
+from dotsim.rig.geometry import Intrinsics
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     AssetMesh,

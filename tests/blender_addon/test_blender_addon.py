@@ -219,7 +219,7 @@ def test_rig_drop_down_and_rig_file(settings, tmp_path):
     cv2.FileStorage, an OpenCV stereo calibration); an empty rig file field is an error report."""
     import cv2
 
-    from dotsim.rig import get_preset
+    from dotsim.rig.presets import get_preset
 
     path = tmp_path / "mine.yaml"
     storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pyrealsense2 as rs
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 
 DEPTH_UNITS = 0.001
 SERIAL = "SIM0001"

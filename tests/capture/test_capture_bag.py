@@ -17,7 +17,7 @@ import pytest
 
 from commands.cli import main
 from dotsim import dataset
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 
 rs = pytest.importorskip("pyrealsense2")
 from tests.capture.realsense_software import DEPTH_UNITS, SoftwareStereoModule  # noqa: E402

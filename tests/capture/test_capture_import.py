@@ -21,7 +21,7 @@ from capture.import_frames import CAPTURE_CHANNELS, PAIR_CHANNELS, import_frames
 from dotsim.dataset import open_dataset
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import make_dataset
 
 

@@ -23,7 +23,7 @@ from commands.cli import main
 from dotsim import dataset
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import detect_dots, generate_dot_pattern, load_pattern
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.config import load_config
 from generator.pipeline import generate
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from commands.cli import main
-from dotsim.rig import get_preset
-from dotsim.rig_files import rig_file_json
+from dotsim.rig.files import rig_file_json
+from dotsim.rig.presets import get_preset
 from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset
 

@@ -20,8 +20,9 @@ from capture.frames import CaptureError
 from capture.record import record
 from dotsim import dataset
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import Intrinsics, get_preset
-from dotsim.rig_files import load_rig_file, rig_file_json
+from dotsim.rig.files import load_rig_file, rig_file_json
+from dotsim.rig.geometry import Intrinsics
+from dotsim.rig.presets import get_preset
 from generator.config import load_config
 from generator.pipeline import generate
 

@@ -14,8 +14,8 @@ import pytest
 from capture.rectify import Rectifier
 from commands.cli import main
 from dotsim.dataset import open_dataset, read_scene
-from dotsim.rig import Intrinsics
-from dotsim.rig_files import Lens
+from dotsim.rig.files import Lens
+from dotsim.rig.geometry import Intrinsics
 
 WIDTH, HEIGHT = 320, 240
 LENS_K = np.array([[262.0, 0.0, 161.3], [0.0, 258.0, 118.6], [0.0, 0.0, 1.0]])
@@ -116,7 +116,7 @@ def test_capture_record_rectifies_ir_and_device_depth(tmp_path, distorted):
     pytest.importorskip("pyrealsense2")
     from capture.devices.realsense import RealSenseDevice
     from capture.record import record
-    from dotsim.rig_files import device_rig
+    from dotsim.rig.files import device_rig
     from tests.capture.realsense_software import DEPTH_UNITS, SoftwareStereoModule
 
     rig = device_rig("pinhole", PINHOLE, (0.05, 0.0, 0.0))

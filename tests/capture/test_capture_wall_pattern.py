@@ -21,7 +21,8 @@ from scipy.spatial import cKDTree
 from capture.wall_pattern import WallPatternError, extract_wall_pattern
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern, load_pattern
-from dotsim.rig import get_preset, rotation_matrix
+from dotsim.rig.geometry import rotation_matrix
+from dotsim.rig.presets import get_preset
 
 DISTANCE = 1.5  # metres
 DOT_SIGMA = 1.6  # projector px: about 0.8 camera px, a dot a 2-px camera pixel grid resolves

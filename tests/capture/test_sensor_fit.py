@@ -16,7 +16,7 @@ import pytest
 from bench import sensor_fit as bench
 from commands.cli import main
 from dotsim import dataset
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorModel
 from dotsim.sensor.settings import SensorSpec
 from generator.config import config_from_dict, load_config

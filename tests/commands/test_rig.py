@@ -3,8 +3,8 @@
 import pytest
 
 from commands.cli import main
-from dotsim.rig import get_preset
-from dotsim.rig_report import field_of_view
+from dotsim.rig.presets import get_preset
+from dotsim.rig.report import field_of_view
 from tests.capture.test_capture_rectify import ros_camera_info
 
 
@@ -19,6 +19,29 @@ def test_a_built_in_config_as_generate_renders_it(capsys):
     assert "as `dotsim generate --config tiny` renders it" in lines[1] and "scale 0.1" in lines[1]
     assert lines[3].startswith("camera ") and lines[3].endswith("[from preset structure_core]")
     assert lines[-1].startswith("max depth ") and "tiny.toml: [rig] max_depth]" in lines[-1]
+
+
+def test_a_config_needs_only_its_rig_table(tmp_path, monkeypatch, capsys):
+    """In an empty folder (no assets_cache/ for the built-in config's [assets] cache_dir), and for a
+    config whose other tables name files that do not exist: the rig is all `rig show` reads."""
+    monkeypatch.chdir(tmp_path)
+    assert list(tmp_path.iterdir()) == []
+    assert main(["rig", "show", "structure_core"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    camera = get_preset("structure_core").camera
+    h, v = field_of_view(camera)
+    assert lines[0].startswith(f"rig structure_core: camera 1216 x 896 px, f {camera.fx:.2f} px, field of "
+                               f"view {h:.1f} x {v:.1f} deg;")
+    assert "as `dotsim generate --config structure_core` renders it" in lines[1]
+    assert "scale 1)" in lines[1]
+    assert lines[-1].startswith("max depth      20 m")
+    assert lines[-1].endswith("structure_core.toml: [rig] max_depth]")
+    (tmp_path / "mine.toml").write_text('[rig]\npreset = "kinect_v1"\nmax_depth = 6.0\n\n[assets]\n'
+                                        'source = "cache"\ncache_dir = "nowhere"\n\n[pattern]\n'
+                                        'source = "file"\npath = "missing.png"\n')
+    assert main(["rig", "show", "mine.toml"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("rig kinect_v1: camera 640 x 480 px, f 580.00 px") and "max depth 6 m" in out
 
 
 def test_a_camera_file_with_a_preset_projector(tmp_path, capsys):

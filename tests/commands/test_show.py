@@ -7,7 +7,7 @@ import pytest
 from commands import cli, show
 from dotsim import dataset as ds
 from dotsim.channels import rendered_channels
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45
 H, W = RIG.camera.height, RIG.camera.width

@@ -11,7 +11,7 @@ from commands.cli import main as dotsim_main
 from commands.stats import dataset_stats
 from dotsim.dataset import seal_dataset, write_scene
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import synthetic_frame
 
 NEAR, FAR = 0.5, 3.0

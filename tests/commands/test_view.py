@@ -14,7 +14,7 @@ from dotsim import dataset as ds
 from dotsim.channels import rendered_channels
 from dotsim.patterns import generate_dot_pattern
 from dotsim.prediction_file import write_prediction
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import random_depth, synthetic_frame
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])

@@ -356,7 +356,7 @@ def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_dispari
     stereo_disparity derived on read from depth (exact export) or from the column (training export)."""
     from dotsim.channels import rendered_channels
     from dotsim.patterns import generate_dot_pattern
-    from dotsim.rig import get_preset
+    from dotsim.rig.presets import get_preset
     from tests.trainer_fixtures import TINY_SCALE, random_depth, synthetic_frame
 
     rig = get_preset("structure_core").scaled(TINY_SCALE)

@@ -10,7 +10,7 @@ import pytest
 
 import dotsim
 import dotsim.dataset
-import dotsim.rig
+import dotsim.rig.geometry
 import generator.config
 
 EXAMPLES = {test.name: test for test in doctest.DocTestFinder().find(dotsim) if test.examples}
@@ -29,7 +29,7 @@ def test_docstring_examples(name):
 def test_the_names_are_the_real_functions():
     assert dotsim.open_dataset is dotsim.dataset.open_dataset
     assert dotsim.read_frame is dotsim.dataset.read_frame
-    assert dotsim.Rig is dotsim.rig.Rig
+    assert dotsim.Rig is dotsim.rig.geometry.Rig
     assert dotsim.load_config is generator.config.load_config
     assert set(dotsim.__all__) <= set(dir(dotsim))
     with pytest.raises(AttributeError, match="no attribute 'generat'"):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from dotsim.oracle import expected_pattern_image, projector_lighting, surface_normals
-from dotsim.rig import backproject, get_preset, reference_image
+from dotsim.rig.geometry import backproject, reference_image
+from dotsim.rig.presets import get_preset
 
 RIG = get_preset("structure_core").scaled(0.25)  # camera 304 x 224, projector 768 x 768
 CAM, PROJ = RIG.camera, RIG.projector

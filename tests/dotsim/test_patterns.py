@@ -231,8 +231,8 @@ def test_cli_reports_bad_files_without_a_traceback(tmp_path, capsys):
 def test_cli_rig_takes_what_every_rig_option_takes(tmp_path, capsys):
     """`pattern make --rig` and `pattern stats --rig`: a rig file and a generator config, as for generate
     and capture (a preset only, before)."""
-    from dotsim.rig import get_preset
-    from dotsim.rig_files import rig_file_json
+    from dotsim.rig.files import rig_file_json
+    from dotsim.rig.presets import get_preset
 
     rig = get_preset("kinect_v1").scaled(0.2)
     (tmp_path / "sensor.json").write_bytes(rig_file_json(rig))

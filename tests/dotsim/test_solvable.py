@@ -11,7 +11,7 @@ import pytest
 from dotsim import solvable as module
 from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import quantised_noise_sigma
 from dotsim.solvable import SOLVABLE_SNR, pattern_snr, solvable, window_snr
 

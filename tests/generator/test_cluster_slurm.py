@@ -13,7 +13,8 @@ import pytest
 
 from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
-from generator.config import config_from_dict, load_config, with_rig
+from dotsim.rig.options import with_rig_options
+from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
 from generator.run_request import RunRequest
 from generator.run_steps import seal_run
@@ -72,7 +73,8 @@ def test_a_config_built_in_python_reaches_the_array_tasks_as_it_is(tmp_path, mad
         tiny = load_config(TINY)
         config = replace(tiny, render=replace(tiny.render, samples=tiny.render.samples + 1))
     else:
-        config = with_rig(load_config(TINY), "kinect_v1")
+        tiny = load_config(TINY)
+        config = replace(tiny, rig=with_rig_options(tiny.rig, tiny.source, "kinect_v1")[0])
     p = plan(config, tmp_path / "d", "train", 3, 0, SEED, SlurmOptions(), "tag")
     command = shlex.split(p.array_script.strip().splitlines()[-1])
     saved = tmp_path / "d" / "slurm" / "tag" / CONFIG_FILE

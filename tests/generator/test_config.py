@@ -17,6 +17,7 @@ from commands.cli import main as cli_main
 from dotsim import config_schema
 from dotsim.config_schema import FloatRange, setting
 from dotsim.configs import BUILTIN_DIR, builtin_names
+from dotsim.rig.config import RigConfig
 from generator.config import ConfigError, check_output_dir, config_json, load_config
 
 REPO = Path(__file__).resolve().parents[2]
@@ -334,7 +335,7 @@ def test_records_are_checked_on_construction_and_read_whole_from_json():
     # the generator's and trainer's tables too
     with pytest.raises(ConfigError, match=r"^RigConfig.scale = 2.0: out of range; allowed: a number, "
                                           r"0.02 <= x <= 1$"):
-        generator_config.RigConfig(scale=2.0)
+        RigConfig(scale=2.0)
     with pytest.raises(ConfigError, match=r"^DataConfig.workers = -1: out of range"):
         trainer_config.DataConfig(workers=-1)
     # From JSON every field must be given, except those named optional; errors name where.key.

@@ -17,11 +17,12 @@ from commands.cli import main as dotsim_main
 from dotsim import config_schema, dataset
 from dotsim.channels import rendered_channels
 from dotsim.patterns import load_pattern
-from dotsim.rig import get_preset
-from dotsim.rig_files import load_rig_file, rig_file_json
+from dotsim.rig.files import load_rig_file, rig_file_json
+from dotsim.rig.options import with_rig_options
+from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorStreams
 from generator.blender.frame_recipe import RAW_PASSES
-from generator.config import ConfigError, config_from_dict, load_config, with_rig
+from generator.config import ConfigError, config_from_dict, load_config
 from generator.pipeline import generate
 from generator.post_render import make_frame
 from generator.render_scenes import LOG_DIR
@@ -476,11 +477,13 @@ def test_generate_with_a_ros_camera_info_by_flag_prints_the_rig_it_renders(tmp_p
     assert rig["name"] == name and (rig["camera"]["width"], rig["camera"]["fx"]) == (32, focal)
     assert rig["projector"] == get_preset("structure_core").scaled(0.1).projector.to_dict()
     # the same file as --rig: a camera alone, so the same rig
-    assert with_rig(load_config("tiny"), str(ros)).calibrated_rig.rig.to_dict() == rig
+    tiny = load_config("tiny")
+    assert with_rig_options(tiny.rig, tiny.source, str(ros))[1].rig.to_dict() == rig
 
 
 def test_generate_rig_option_errors(tmp_path, capsys):
-    assert with_rig(load_config("tiny"), "kinect_v1").rig.preset == "kinect_v1"
+    tiny = load_config("tiny")
+    assert with_rig_options(tiny.rig, tiny.source, "kinect_v1")[0].preset == "kinect_v1"
     for spec, message in (("nosuch", "--rig 'nosuch': neither a preset"),
                           (str(tmp_path / "none.yaml"), "none.yaml: rig file not found")):
         assert run_cli("--config", "tiny", "--rig", spec, "--out", str(tmp_path / "d"), "--split", "train",

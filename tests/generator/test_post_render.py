@@ -18,7 +18,7 @@ import pytest
 
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.dataset.frames import encode_frame
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorStreams
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import config_from_dict

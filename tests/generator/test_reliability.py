@@ -297,8 +297,8 @@ def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
 def test_capture_record_stopped_by_sigterm_keeps_its_frames(tmp_path):
     import cv2
 
-    from dotsim.rig import get_preset
-    from dotsim.rig_files import rig_file_json
+    from dotsim.rig.files import rig_file_json
+    from dotsim.rig.presets import get_preset
 
     rig = get_preset("structure_core").scaled(0.1)
     video = tmp_path / "ir.avi"
@@ -687,7 +687,7 @@ def test_enospc_at_fsync_names_the_file_and_leaves_nothing(tmp_path, monkeypatch
 
 
 def _tiny_scene():
-    from dotsim.rig import get_preset
+    from dotsim.rig.presets import get_preset
 
     rig = get_preset("structure_core").scaled(0.025)
     h, w = rig.camera.height, rig.camera.width

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-import generator.config
+import dotsim.rig.options
 import generator.run_request
 from commands.cli import build_parser
 from generator.cli import executor_from_args
@@ -51,8 +51,8 @@ def test_rig_file_read_and_pattern_made_once_for_a_whole_run(tmp_path, monkeypat
     (in this process, as a worker does with the pickled job) neither reads it again nor remakes
     the pattern."""
     rig_reads, patterns = [], []
-    configured_rig, make_pattern = generator.config.configured_rig, generator.run_request.make_pattern
-    monkeypatch.setattr(generator.config, "configured_rig",
+    configured_rig, make_pattern = dotsim.rig.options.configured_rig, generator.run_request.make_pattern
+    monkeypatch.setattr(dotsim.rig.options, "configured_rig",
                         lambda *args: rig_reads.append(args) or configured_rig(*args))
     monkeypatch.setattr(generator.run_request, "make_pattern",
                         lambda *args: patterns.append(args) or make_pattern(*args))

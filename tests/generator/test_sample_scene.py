@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dotsim.rig import Rig
+from dotsim.rig.geometry import Rig
 from generator.config import config_from_dict
 from generator.sample_scene import (
     SceneResources,

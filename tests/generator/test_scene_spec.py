@@ -13,9 +13,10 @@ import pytest
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError
+from dotsim.rig.config import RigConfig
 from dotsim.sensor.model import SensorStreams
 from dotsim.sensor.settings import SensorSpec
-from generator.config import Config, LightingConfig, RigConfig, SceneConfig, config_from_dict
+from generator.config import Config, LightingConfig, SceneConfig, config_from_dict
 from generator.post_render import make_frame
 from generator.sample_scene import SceneResources, TextureAsset, sample_scene_spec
 from generator.scene_spec import (

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from dotsim.rig import Intrinsics, Rig, get_preset, rotation_matrix
+from dotsim.rig.geometry import Intrinsics, Rig, rotation_matrix
+from dotsim.rig.presets import get_preset
 from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import tiny_config

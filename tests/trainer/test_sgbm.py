@@ -14,7 +14,7 @@ import pytest
 
 from dotsim.config_schema import read_toml
 from dotsim.configs import builtin_path
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.config import config_from_dict
 from generator.sample_scene import build_rig
 from trainer import sgbm

@@ -15,7 +15,7 @@ from dotsim.false_colour import LINE, colourise
 from dotsim.lcn import lcn
 from dotsim.patterns import load_pattern
 from dotsim.prediction_file import prediction_source
-from dotsim.rig import depth_to_disparity, projector_column_to_depth, reference_image
+from dotsim.rig.geometry import depth_to_disparity, projector_column_to_depth, reference_image
 from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity

@@ -10,7 +10,7 @@ import pytest
 
 from dotsim import __version__
 from dotsim import dataset as ds
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 
 RIG = get_preset("structure_core").scaled(0.025)  # 30 x 22 camera
 H, W = RIG.camera.height, RIG.camera.width

@@ -11,7 +11,7 @@ import pytest
 
 from dotsim import dataset as ds
 from dotsim.channels import STEREO_CHANNELS, rendered_channels
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45 camera
 H, W = RIG.camera.height, RIG.camera.width

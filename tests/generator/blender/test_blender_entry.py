@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dotsim.patterns import generate_dot_pattern
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import RAW_PASSES
 

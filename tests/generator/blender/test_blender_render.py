@@ -15,7 +15,8 @@ import pytest
 from skimage.registration import phase_cross_correlation
 
 from dotsim.oracle import expected_pattern_image
-from dotsim.rig import Intrinsics, get_preset, pixel_grid, pixel_rays, reference_image
+from dotsim.rig.geometry import Intrinsics, pixel_grid, pixel_rays, reference_image
+from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorStreams
 from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
@@ -49,7 +50,7 @@ def test_wall_depth_exact_and_dots_shift_by_fb_over_z(renderer, pattern, z):
     frame = renderer.render(SceneSpec.from_dict(spec))[0]
     np.testing.assert_allclose(frame["depth"], z, rtol=1e-6)
     # Divide out the flood (same light, same falloff) to leave the pattern; compare with the pattern
-    # as seen from infinity (dotsim.rig, pure numpy), away from the borders.
+    # as seen from infinity (dotsim.rig.geometry, pure numpy), away from the borders.
     observed = frame["projector"] / frame["flood"]
     reference = reference_image(pattern[0].image, RIG, supersample=4)
     crop = (slice(12, -12), slice(16, -16))

@@ -10,9 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim.rig import Rig, backproject, bilinear_sample, get_preset
+from dotsim.rig.geometry import Rig, backproject, bilinear_sample
+from dotsim.rig.presets import get_preset
+from dotsim.rig.stereo import stereo_disparity
 from dotsim.sensor.model import SensorStreams
-from dotsim.stereo import stereo_disparity
 from generator.blender import demo_scenes as ds
 from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from dotsim.rig import get_preset
+from dotsim.rig.presets import get_preset
 from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import (
     ALL_LIGHT_RENDER,

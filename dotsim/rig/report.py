@@ -2,7 +2,7 @@
 the listing of `dotsim rig show` (intrinsics, fields of view, baseline, pose, second camera, max depth,
 and which preset, file or config key each part came from). Pure numpy.
 
->>> from dotsim.rig_files import composed_rig
+>>> from dotsim.rig.files import composed_rig
 >>> print(summary_line(composed_rig("kinect_v1")))  # doctest: +NORMALIZE_WHITESPACE
 rig kinect_v1: camera 640 x 480 px, f 580.00 px, field of view 57.8 x 45.0 deg; projector 1600 x 1200
 px, f 1160.00 px, field of view 69.2 x 54.7 deg; baseline +0.0750 m; max depth 8 m
@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from dotsim.rig import Intrinsics, Rig
-from dotsim.rig_files import RIG_PARTS, CalibratedRig
+from dotsim.rig.files import RIG_PARTS, CalibratedRig
+from dotsim.rig.geometry import Intrinsics, Rig
 
 
 def field_of_view(intrinsics: Intrinsics) -> tuple[float, float]:

@@ -101,7 +101,7 @@ class Calibration:
     translation: np.ndarray | None = None
     name: str | None = None
     max_depth: float | None = None
-    rig: object | None = None  # a dotsim rig JSON: the dotsim.rig.Rig itself
+    rig: object | None = None  # a dotsim rig JSON: the dotsim.rig.geometry.Rig itself
     notes: tuple[str, ...] = ()  # what was adjusted on reading (a rounded rotation), one line each
 
 
@@ -130,7 +130,7 @@ class _Keys:
 def read_calibration(path: str | Path) -> Calibration:
     """The parts of a calibration file (any layout of the module docstring); RigFileError naming
     the file and the key or value at fault."""
-    from dotsim.rig import Rig
+    from dotsim.rig.geometry import Rig
 
     path = Path(path)
     tree = read_tree(path)
@@ -412,10 +412,10 @@ def _opencv(tree: dict, path: Path, where: str) -> Calibration:
 
 def proper_rotation(matrix: np.ndarray, where: str) -> tuple[np.ndarray, tuple[str, ...]]:
     """A file's rotation as dotsim takes it, and what was done to it (one line, or nothing): as it is
-    when a Rig takes it (dotsim.rig.is_rotation), else the nearest rotation (the SVD's U V^T) when R R^T
-    differs from the identity by at most ROTATION_TOLERANCE (rounded values) and det R > 0. RigFileError
-    naming `where` (the file and key) otherwise."""
-    from dotsim.rig import is_rotation
+    when a Rig takes it (dotsim.rig.geometry.is_rotation), else the nearest rotation (the SVD's U V^T)
+    when R R^T differs from the identity by at most ROTATION_TOLERANCE (rounded values) and det R > 0.
+    RigFileError naming `where` (the file and key) otherwise."""
+    from dotsim.rig.geometry import is_rotation
 
     if is_rotation(matrix):
         return matrix, ()

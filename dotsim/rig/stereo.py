@@ -6,7 +6,7 @@ second_camera_translation = (B, 0, 0), B > 0: a rectified pair. A point at plana
 left column u is seen at right column u - d, d = fx B / z (the same row), and z is the same for
 both cameras.
 
->>> from dotsim.rig import get_preset
+>>> from dotsim.rig.presets import get_preset
 >>> rig = get_preset("realsense_d435")  # fx 674.4 px, B 50 mm
 >>> stereo_baseline(rig, "rig"), round(float(stereo_disparity([[1.0]], rig)[0, 0]), 2)  # d = fx B / z at 1 m
 (0.05, 33.72)
@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dotsim.rig import PRESETS, Rig
+from dotsim.rig.geometry import Rig, is_ground_truth
+from dotsim.rig.presets import PRESETS
 
 # How much nearer (camera px of disparity) the right camera's surface must be at a point's column
 # for the point to count as hidden from it: half a pixel, below what matching resolves, and far above
@@ -57,7 +58,7 @@ def stereo_disparity(depth: np.ndarray, rig: Rig) -> np.ndarray:
     """Left-right disparity d = fx B / z (float32, camera px, computed in float64) of a left depth
     map; nan where the depth is non-finite, <= 0 or beyond rig.max_depth."""
     depth = np.asarray(depth, np.float64)
-    valid = np.isfinite(depth) & (depth > 0) & (depth <= rig.max_depth)
+    valid = is_ground_truth(depth, rig.max_depth)
     with np.errstate(divide="ignore", invalid="ignore"):
         disparity = rig.camera.fx * stereo_baseline(rig, "stereo disparity") / depth
     return np.where(valid, disparity, np.nan).astype(np.float32)

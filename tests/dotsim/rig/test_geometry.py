@@ -1,5 +1,6 @@
 """Rig geometry against hand-written analytic formulas (docs/GEOMETRY.md)."""
 
+import doctest
 import json
 import math
 from dataclasses import replace
@@ -8,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dotsim.rig import (
-    PRESETS,
+from dotsim.rig import geometry
+from dotsim.rig.geometry import (
     Intrinsics,
     Rig,
     backproject,
@@ -17,66 +18,17 @@ from dotsim.rig import (
     depth_to_disparity,
     depth_to_projector_column,
     disparity_to_depth,
-    get_preset,
+    is_ground_truth,
     project_to_projector,
     projector_column_to_depth,
     reference_image,
     rotation_matrix,
 )
+from dotsim.rig.presets import PRESETS, get_preset
 
 SMALL = get_preset("structure_core").scaled(0.1)
 ROTATED = replace(SMALL, projector_rotation=rotation_matrix(0.01, -0.02, 0.015),
                   projector_translation=(0.0634, 0.002, -0.001))
-
-
-def test_structure_core_preset_values():
-    rig = get_preset()
-    assert rig.name == "structure_core"
-    assert (rig.camera.width, rig.camera.height) == (1216, 896)
-    assert rig.camera.fx == rig.camera.fy == 1115.44
-    assert (rig.camera.cx, rig.camera.cy) == (607.5, 447.5)  # Blender's image centre
-    assert (rig.projector.width, rig.projector.height, rig.projector.fx) == (3072, 3072, 2230.88)
-    assert rig.baseline == 0.0634 and rig.second_camera_translation == (0.07501, 0.0, 0.0)
-    assert rig.max_depth == 20.0 and rig.is_rectified
-
-
-@pytest.mark.parametrize("name", sorted(PRESETS))
-def test_every_preset_is_centred_and_the_projector_covers_the_camera(name):
-    """Projectors drawn by the presets' rule have a field wider than the camera's; the D435's is its
-    real one, the datasheet's wide projector (86 deg against the camera's 87)."""
-    rig = PRESETS[name]
-    for intr in (rig.camera, rig.projector):
-        assert (intr.cx, intr.cy) == (intr.width / 2 - 0.5, intr.height / 2 - 0.5)
-    camera_half_fov = math.atan(rig.camera.width / 2 / rig.camera.fx)
-    projector_half_fov = math.atan(rig.projector.width / 2 / rig.projector.fx)
-    assert projector_half_fov > camera_half_fov or name == "realsense_d435"
-    assert rig.baseline > 0
-
-
-def _degrees(size: int, focal: float) -> float:
-    return math.degrees(2 * math.atan(size / 2 / focal))
-
-
-@pytest.mark.parametrize("name, hfov, baseline", [("realsense_d415", 65.0, 0.055),
-                                                  ("realsense_d435", 87.0, 0.05)])
-def test_realsense_presets_follow_the_datasheet(name, hfov, baseline):
-    """D400 datasheet: depth field of view 65 / 87 deg across 1280 px, imagers 55 / 50 mm apart; the
-    projector between them (its midpoint: the datasheet gives no offset), all on the x axis."""
-    rig = get_preset(name)
-    assert _degrees(rig.camera.width, rig.camera.fx) == pytest.approx(hfov, abs=0.01)
-    assert rig.second_camera_translation == (baseline, 0.0, 0.0)
-    assert rig.projector_translation == (baseline / 2, 0.0, 0.0) and rig.is_rectified
-
-
-def test_d435_projector_is_the_datasheets_wide_projector():
-    projector = get_preset("realsense_d435").projector
-    assert _degrees(projector.width, projector.fx) == pytest.approx(86.0, abs=0.05)
-    assert _degrees(projector.height, projector.fy) == pytest.approx(57.0, abs=0.05)
-
-
-def test_unknown_preset_names_the_choices():
-    with pytest.raises(ValueError, match="unknown rig preset 'nope'.*structure_core"):
-        get_preset("nope")
 
 
 def test_rig_dict_round_trip_through_json_is_exact():
@@ -266,3 +218,12 @@ def test_reference_image_is_zero_outside_the_projector_and_checks_shape():
     assert reference[0, 0] == 0 and reference[SMALL.camera.height // 2, SMALL.camera.width // 2] == 1
     with pytest.raises(ValueError, match="pattern shape \\(5, 5\\) != projector"):
         reference_image(np.ones((5, 5)), SMALL)
+
+
+def test_ground_truth_is_a_finite_positive_depth_up_to_max_depth():
+    """The boundary is inclusive: max_depth itself is ground truth, the next float32 above it is not."""
+    result = doctest.testmod(geometry)
+    assert result.attempted > 0 and result.failed == 0
+    edge = np.float32(SMALL.max_depth)
+    depth = np.array([[edge, np.nextafter(edge, np.float32(np.inf)), 1e-6, -1.0, -np.inf]], np.float32)
+    assert is_ground_truth(depth, SMALL.max_depth).tolist() == [[True, False, True, False, False]]

@@ -8,9 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim import stereo
-from dotsim.rig import get_preset, pixel_grid, pixel_rays
-from dotsim.stereo import seen_by_right, stereo_baseline, stereo_disparity, stereo_problem
+from dotsim.rig import stereo
+from dotsim.rig.geometry import pixel_grid, pixel_rays
+from dotsim.rig.presets import get_preset
+from dotsim.rig.stereo import seen_by_right, stereo_baseline, stereo_disparity, stereo_problem
 
 RIG = get_preset("realsense_d435").scaled(0.1)  # 128 x 72 px, fx 67.44, B 0.05 m
 

@@ -15,10 +15,8 @@ Conventions (docs/GEOMETRY.md has the derivations):
 from __future__ import annotations
 
 import functools
-import json
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -172,29 +170,16 @@ class Rig(Checked):
                                 camera=Intrinsics.from_dict, projector=Intrinsics.from_dict)
 
 
-# Presets are rig files (dotsim/rigs/NAME.json, the format dotsim.rig_files reads; each file's
-# "notes" give the sources of its values). Principal points are at the image centre because the
-# simulated camera is what Blender renders (docs/GEOMETRY.md: half a pixel wrong drops
-# oracle-vs-render NCC 0.99 -> 0.66). For the non-Structure-Core presets the projector is chosen
-# like Structure Core's: 2 projector px per camera px and a field about 25% wider than the
-# camera's, so near surfaces at the image edges still receive dots.
-PRESET_DIR = Path(__file__).parent / "rigs"
+def is_ground_truth(depth: np.ndarray, max_depth: float) -> np.ndarray:
+    """Where a depth map (metres) is ground truth: bool, True where the depth is finite, > 0 and at
+    most max_depth (a rig's max_depth, the farthest depth trained on and scored). The one rule of the
+    stored and derived ground-truth channels, the stereo disparity, `dotsim stats` and point clouds.
 
-
-def _load_presets() -> dict[str, Rig]:
-    return {path.stem: Rig.from_dict(json.loads(path.read_text())["rig"])
-            for path in sorted(PRESET_DIR.glob("*.json"))}
-
-
-PRESETS: dict[str, Rig] = _load_presets()
-DEFAULT_PRESET = "structure_core"
-
-
-def get_preset(name: str = DEFAULT_PRESET) -> Rig:
-    """The preset rig called `name`; ValueError listing the presets otherwise."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown rig preset {name!r}; choose one of {sorted(PRESETS)}")
-    return PRESETS[name]
+    >>> is_ground_truth(np.array([0.5, 20.0, 20.5, np.inf, np.nan, 0.0]), 20.0)
+    array([ True,  True, False, False, False, False])
+    """
+    depth = np.asarray(depth)
+    return np.isfinite(depth) & (depth > 0) & (depth <= max_depth)
 
 
 def _valid_depth(depth: np.ndarray) -> np.ndarray:

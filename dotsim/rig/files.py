@@ -1,7 +1,7 @@
 """Rigs from files and config keys, and the checks a rig from outside must pass before anything
 renders with it.
 
-A rig file is any calibration layout dotsim.calibration_files reads (dotsim rig JSON, OpenCV's
+A rig file is any calibration layout dotsim.rig.calibration_formats reads (dotsim rig JSON, OpenCV's
 calibration samples and cv2.stereoCalibrate results, ROS camera_info, Kalibr camchains). The rig
 is always a pinhole rig (what Blender renders). A calibrated camera that is not that pinhole (lens
 distortion, or fx != fy) becomes a Lens beside the rig: the rig's camera is its square pinhole
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dotsim.calibration_files import (
+from dotsim.rig.calibration_formats import (
     CALIBRATION_SUFFIXES,
     CAMERA_MATRIX_KEYS,
     FISHEYE,
@@ -26,17 +26,15 @@ from dotsim.calibration_files import (
     RigFileError,
     read_calibration,
 )
-from dotsim.rig import (
+from dotsim.rig.geometry import (
     DEFAULT_MAX_DEPTH,
-    DEFAULT_PRESET,
-    PRESETS,
     Intrinsics,
     Rig,
     check_square_pixels,
-    get_preset,
     project_to_projector,
     rotation_matrix,
 )
+from dotsim.rig.presets import DEFAULT_PRESET, PRESETS, get_preset
 
 RIG_FILE_SUFFIXES = CALIBRATION_SUFFIXES
 PINHOLE = "pinhole"  # a dotsim rig's own camera: taken as it is
@@ -248,7 +246,7 @@ def _camera(part: CameraPart, size: tuple[int, int] | None, role: str) -> tuple[
 
 def load_rig_file(path) -> CalibratedRig:
     """The whole rig a file describes (camera, projector and pose; any layout of
-    dotsim.calibration_files), checked by check_rig. Raises RigFileError naming the file and key."""
+    dotsim.rig.calibration_formats), checked by check_rig. Raises RigFileError naming the file and key."""
     calibrated = _calibrated(_file_parts(path, ("camera", "projector"), None), str(path))
     check_rig(calibrated.rig, str(path))
     return calibrated
@@ -279,7 +277,7 @@ def composed_rig(base: str | Rig = DEFAULT_PRESET, camera_file: str = "", projec
 
 
 def configured_rig(settings, where: str) -> CalibratedRig:
-    """The rig of the generator's [rig] settings (generator.config.RigConfig; docs/CONFIG.md): the
+    """The rig of the generator's [rig] settings (dotsim.rig.config.RigConfig; docs/CONFIG.md): the
     preset or `file`; the camera of `camera_file`; the projector and its pose of `projector_file`;
     sizes a file lacks from <role>_width / <role>_height; explicit camera / projector intrinsics,
     projector offsets and rotation, max_depth; checked (check_rig, and square camera pixels, which the

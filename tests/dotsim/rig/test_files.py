@@ -9,10 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from dotsim.calibration_files import read_calibration
-from dotsim.rig import PRESET_DIR, PRESETS, Intrinsics, Rig, project_to_projector, rotation_matrix
-from dotsim.rig_files import RigFileError, check_rig, configured_rig, load_rig_file, rig_file_json
-from generator.config import ConfigError, RigConfig, config_from_dict, load_config
+from dotsim.rig.calibration_formats import read_calibration
+from dotsim.rig.config import RigConfig
+from dotsim.rig.files import RigFileError, check_rig, configured_rig, load_rig_file, rig_file_json
+from dotsim.rig.geometry import Intrinsics, Rig, project_to_projector, rotation_matrix
+from dotsim.rig.presets import PRESET_DIR, PRESETS
+from generator.config import ConfigError, config_from_dict, load_config
 from generator.sample_scene import build_rig
 
 # A calibrated-looking rig: off-centre principal points, projector slightly rotated and offset.
