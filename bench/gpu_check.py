@@ -57,7 +57,7 @@ from dotsim.rig import get_preset
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
+from trainer.samples import FrameDataset, list_frames
 from trainer.evaluate import evaluate, overall
 from trainer.metrics import ratio
 from trainer.model import autocast, build_model

@@ -46,7 +46,7 @@ from generator.config import load_config as load_generator_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
+from trainer.samples import FrameDataset, list_frames
 from trainer.evaluate import chosen_sgbm, evaluate, overall, row_of
 from trainer.metrics import THRESHOLDS, ratio
 from trainer.train import train

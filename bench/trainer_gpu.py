@@ -33,7 +33,7 @@ from dotsim.patterns import generate_dot_pattern
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS, load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames, make_loader
+from trainer.samples import FrameDataset, list_frames, make_loader
 from trainer.model import LOW_PRECISION, autocast, build_model
 from trainer.train import batch_loss, make_optimizer, train
 

@@ -30,7 +30,7 @@ import torch
 from bench.trainer_accuracy import sized_config
 from bench.trainer_cpu_recipe import count, synthetic_batch
 from trainer.config import config_from_dict, load_config, output_rows
-from trainer.data import list_frames
+from trainer.samples import list_frames
 from trainer.metrics import THRESHOLDS
 from trainer.model import build_model
 from trainer.train import train

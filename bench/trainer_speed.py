@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        from trainer.data import FrameDataset, list_frames, make_loader
+        from trainer.samples import FrameDataset, list_frames, make_loader
 
         data = make_dataset(Path(tmp) / "ds", scenes=4, frames_per_scene=2)
         cfg = load_config("dotsim/configs/train_tiny.toml")

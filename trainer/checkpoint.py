@@ -14,7 +14,7 @@ import torch
 
 from dotsim.rig import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
 from trainer.config import Config, config_from_dict
-from trainer.data import DataError
+from trainer.samples import DataError
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model
 
 PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)

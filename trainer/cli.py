@@ -11,7 +11,7 @@ from dotsim.dataset import FormatError
 from dotsim.file_io import check_writable_folder
 from dotsim.option_types import integer, number
 from trainer.config import ConfigError, load_config
-from trainer.data import DataError
+from trainer.samples import DataError
 
 # The trainer's expected errors: one line and exit status 1 (commands.cli.main prints them).
 EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointError: 1}

@@ -39,7 +39,7 @@ from dotsim.rig import (
 from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
 from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
-from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
+from trainer.samples import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
 from trainer.metrics import (
     THRESHOLDS,
     joint_outliers,

@@ -27,7 +27,7 @@ from dotsim.rig import Rig, disparity_to_depth
 from dotsim.solvable import solvable_pixels
 from trainer.checkpoint import check_rig, load_checkpoint, predict_disparity
 from trainer.config import Config, resolution_mismatch
-from trainer.data import (
+from trainer.samples import (
     DataError,
     FrameDataset,
     FrameRef,

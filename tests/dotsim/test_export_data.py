@@ -24,7 +24,7 @@ from dotsim import file_io
 from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
 from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, tiny_config
-from trainer.data import DataError, list_frames
+from trainer.samples import DataError, list_frames
 from trainer.evaluate import evaluate
 from trainer.train import train
 

@@ -16,7 +16,7 @@ from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import tiny_config
 from trainer.config import Config
-from trainer.data import FrameDataset, list_frames
+from trainer.samples import FrameDataset, list_frames
 from trainer.model import FEASIBLE_MARGIN, build_model
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py

@@ -11,7 +11,7 @@ from dotsim.dataset import read_frame
 from tests.trainer_fixtures import make_dataset
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
+from trainer.samples import FrameDataset, list_frames
 from trainer.evaluate import evaluate
 from trainer.model import build_model
 from trainer.train import batch_loss, train

@@ -16,7 +16,7 @@ from commands.cli import main
 from tests.trainer_fixtures import make_dataset
 from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict, load_config
-from trainer.data import EpochSampler
+from trainer.samples import EpochSampler
 from trainer.distributed import Ranks, leave_process_group, run_on_ranks
 from trainer.model import GlobalBatchNorm2d
 from trainer.train import train

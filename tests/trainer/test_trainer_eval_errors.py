@@ -14,7 +14,7 @@ from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.checkpoint import load_checkpoint, upsample_half
 from trainer.config import config_from_dict, load_config
-from trainer.data import DataError
+from trainer.samples import DataError
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.sgbm import num_disparities_for, sgbm_disparity

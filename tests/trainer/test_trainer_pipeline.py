@@ -20,7 +20,7 @@ from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
-from trainer.data import DataError, FrameDataset, FrameRef, list_frames
+from trainer.samples import DataError, FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.model import build_model

@@ -12,7 +12,7 @@ from tests.trainer.test_trainer_model import _naive_linear
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
-from trainer.data import FrameDataset, list_frames
+from trainer.samples import FrameDataset, list_frames
 from trainer.model import IndexedLinear, autocast, build_model, plan_groups
 from trainer.train import batch_loss, train
 
