@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from dotsim.false_colour import titled, with_legend
 from dotsim.file_io import atomic_write_bytes
+from dotsim.frame_source import FrameRef, FrameSource
 from dotsim.images import write_image
 from dotsim.rig import (
     Rig,
@@ -39,7 +40,6 @@ from dotsim.rig import (
 from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
 from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
-from trainer.samples import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
 from trainer.metrics import (
     THRESHOLDS,
     joint_outliers,
@@ -49,6 +49,7 @@ from trainer.metrics import (
     ratio,
     valid_pixels,
 )
+from trainer.samples import DataError
 from trainer.sgbm import (
     PREPROCESSINGS,
     max_disparity,
@@ -109,9 +110,9 @@ def error_image(err: np.ndarray, valid: np.ndarray, max_px: float = 5.0) -> np.n
 PANEL_WIDTH = 240
 
 
-def load_reference(data, rig: Rig) -> np.ndarray:
+def load_reference(data: FrameSource) -> np.ndarray:
     """The data's pattern (DATASET/pattern.png, or an export's) as seen from infinity on the camera grid."""
-    return reference_image(dataset_pattern(data, rig), rig, supersample=4)
+    return reference_image(data.pattern, data.rig, supersample=4)
 
 
 def configured_nearest_depth(ref: FrameRef) -> float | None:
@@ -228,55 +229,51 @@ def joint_table(joint: dict[tuple[str, float], np.ndarray], sgbm_method: str) ->
     return "\n".join(lines) + "\n"
 
 
-def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
-             device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
-             progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
-             val_split: str = "train", val_frames: int = 8, progress_bar: bool = True) -> list[dict]:
+def evaluate(checkpoint: str | Path, data: FrameSource, out_dir: str | Path, device: str = "cpu",
+             depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8, progress: bool = True,
+             precision: str = "float32", validation: FrameSource | None = None, val_frames: int = 8,
+             progress_bar: bool = True) -> list[dict]:
     """Evaluate a checkpoint and StereoSGBM (plain and LCN; left-right too on a stereo pair's data) on
-    `split` of data_dir; write OUT/eval.md, OUT/eval.csv and OUT/errors/*.png (IR | network error |
-    SGBM error, first `images` frames, with a legend). Returns the table rows. progress: print the
-    table, with a progress bar (progress_bar=False: without).
+    the frames of `data` (dotsim.frame_source.open_source); write OUT/eval.md, OUT/eval.csv and
+    OUT/errors/*.png (IR | network error | SGBM error, first `images` frames, with a legend). Returns the
+    table rows. progress: print the table, with a progress bar (progress_bar=False: without).
 
     SGBM's disparity range reaches the nearest depth the data holds (sgbm_nearest_depth over the
     evaluated and validation frames). Its preprocessing (plain or LCN) is chosen by o(0.5) on
-    `val_frames` frames spread over `val_split` of val_data, never on the evaluated frames; without
-    val_data it is plain (GigaDepth's)."""
-    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    `val_frames` frames spread over `validation`, never on the evaluated frames; without it it is
+    plain (GigaDepth's)."""
+    out_dir = Path(out_dir)
     model, cfg, rig = load_model(checkpoint, device)
-    frames, data_rig, _ = list_frames(data_dir, split)
-    check_rig(rig, data_rig, f"checkpoint {checkpoint}", str(data_dir))
-    reference = load_reference(data_dir, rig)
+    check_rig(rig, data.rig, f"checkpoint {checkpoint}", data.name)
+    reference = load_reference(data)
     depth_bins = depth_ranges(depth_bins, rig.max_depth)
-    if max_frames > 0:
-        frames = frames[:max_frames]
-    validation: list[FrameRef] = []
-    if val_data is not None:
-        all_val, val_rig, _ = list_frames(val_data, val_split)
-        check_rig(rig, val_rig, f"checkpoint {checkpoint}", str(val_data))
-        validation = spread(all_val, val_frames)
-        check_held_out(validation, frames, f"{val_data}: validation frames (split {val_split!r})",
-                       f"the evaluated frames of {data_dir} (split {split!r})")
-    nearest = sgbm_nearest_depth(frames + validation, rig)
+    data = data.first(max_frames)
+    frames = data.frames
+    held_out: list[FrameRef] = []
+    if validation is not None:
+        check_rig(rig, validation.rig, f"checkpoint {checkpoint}", validation.name)
+        held_out = validation.held_out(val_frames, data, "evaluated")
+    nearest = sgbm_nearest_depth(frames + held_out, rig)
     n_disp = num_disparities_for(rig, nearest)
-    if validation:
-        chosen, val_rates = choose_preprocessing(validation, load_reference(val_data, rig), n_disp)
-        choice = (f"SGBM preprocessing chosen on {len(validation)} validation frame(s) of {val_data} (split "
-                  f"{val_split!r}) by o(0.5): " + ", ".join(f"{k} {v:.4f}" for k, v in val_rates.items())
-                  + f" -> {chosen}")
+    if held_out:
+        chosen, val_rates = choose_preprocessing(held_out, load_reference(validation), n_disp)
+        choice = (f"SGBM preprocessing chosen on {len(held_out)} validation frame(s) of {validation.name} "
+                  f"(split {validation.split!r}) by o(0.5): "
+                  + ", ".join(f"{k} {v:.4f}" for k, v in val_rates.items()) + f" -> {chosen}")
     else:
         chosen = "plain"
         choice = "SGBM preprocessing: plain (no validation frames given: --val-data; never chosen on test)"
     sgbm_chosen = f"sgbm-{chosen}"
     methods = ("network", *(f"sgbm-{p}" for p in PREPROCESSINGS))
     channels = EVAL_CHANNELS
-    if "ir_right" in frames[0].stored_channels():
-        pair_baseline = stereo_baseline(rig, str(data_dir))
+    if data.stereo:
+        pair_baseline = stereo_baseline(rig, data.name)
         n_stereo = num_disparities_for(rig, nearest, pair_baseline)
         to_projector = rig.baseline / pair_baseline  # d_s -> the projector disparity of that depth
         methods += ("sgbm-stereo",)
         channels += ("ir_right",)
     (out_dir / "errors").mkdir(parents=True, exist_ok=True)
-    pattern = dataset_pattern(data_dir, rig)
+    pattern = data.pattern
     # the rig's feasible disparities for this data: from its max_depth to the nearest depth SGBM reaches
     feasible = (max_disparity(rig, rig.max_depth), max_disparity(rig, nearest))
     counts: dict[tuple[str, str], np.ndarray] = {}
@@ -346,8 +343,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
               + ", ".join(f"{m} {outlier_rate(v, total):.4f}" for m, v in infeasible.items()) + ".\n")
     outside = overall(rows, sgbm_chosen)["outside"]
     header = (
-        f"Evaluation of {checkpoint} ({precision} inference) on {len(frames)} frame(s) of {data_dir} "
-        f"(split {split!r}).\n\n"
+        f"Evaluation of {checkpoint} ({precision} inference) on {len(frames)} frame(s) of {data.name} "
+        f"(split {data.split!r}).\n\n"
         "o(t): the share of valid pixels (pattern visible, finite GT) whose disparity is off by more than "
         "t camera pixels at full resolution; lower is better. A pixel a method gives no estimate for, or "
         "whose GT lies outside the method's range ('outside range'), counts as an outlier.\n"

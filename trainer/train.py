@@ -23,23 +23,15 @@ from tqdm import tqdm
 
 from dotsim.false_colour import colourise
 from dotsim.file_io import DiskFullError, atomic_writer, disk_full_error, is_disk_full, make_folder
+from dotsim.frame_source import FrameRef, FrameSource
 from dotsim.rig import Rig, disparity_to_depth
 from dotsim.solvable import solvable_pixels
 from trainer.checkpoint import check_rig, load_checkpoint, predict_disparity
 from trainer.config import Config, resolution_mismatch
-from trainer.samples import (
-    DataError,
-    FrameDataset,
-    FrameRef,
-    check_held_out,
-    dataset_pattern,
-    list_frames,
-    make_loader,
-    spread,
-)
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
 from trainer.model import GigaDepthNet, autocast, build_model
+from trainer.samples import DataError, FrameDataset, make_loader
 
 CHECKPOINT = "checkpoint.pt"
 
@@ -234,28 +226,28 @@ def _log_images(writer, step: int, model: GigaDepthNet, batch: dict) -> None:
     writer.add_image("error_leaves_0_to_5", err[None], step)
 
 
-def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool = False,
-          device: str = "cpu", split: str = "train", progress: bool = True, max_seconds: float = 0.0,
-          val_data: str | Path | None = None, val_split: str = "all", val_frames: int = 4,
-          progress_bar: bool = True) -> dict:
-    """Train on `split` of data_dir into out_dir; returns {"step", "losses" (per step), "seconds",
-    "validation" (the last validation's rates, {} without val_data)}.
+def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = False,
+          device: str = "cpu", progress: bool = True, max_seconds: float = 0.0,
+          validation: FrameSource | None = None, val_frames: int = 4, progress_bar: bool = True) -> dict:
+    """Train on the frames of `data` (dotsim.frame_source.open_source) into out_dir; returns {"step",
+    "losses" (per step), "seconds", "validation" (the last validation's rates, {} without validation
+    frames)}.
 
     Launched as several processes (torchrun, or trainer.distributed.run_on_ranks), each is one DDP rank
     of the same run: each takes its share of every global batch, and rank 0 alone writes and prints.
     max_seconds > 0 stops (with a checkpoint) after the first step that ends past that wall time.
-    val_data: `val_frames` frames spread over its `val_split` (held out from the training frames) are
+    validation: `val_frames` frames spread over that source (held out from the training frames) are
     scored every [train].val_every steps and at the end (Validation), into TensorBoard.
     progress: print warnings and the summary, with a progress bar (progress_bar=False: without)."""
     from torch.utils.tensorboard import SummaryWriter
 
     out_dir = Path(out_dir)
     ckpt_path = out_dir / CHECKPOINT
-    frames, rig, _ = list_frames(data_dir, split)
+    frames, rig = data.frames, data.rig
     t = cfg.train
     steps_per_epoch = len(frames) // t.batch_size
     if steps_per_epoch == 0:
-        raise DataError(f"{data_dir}: {len(frames)} frame(s) in split {split!r}, fewer than batch_size "
+        raise DataError(f"{data.name}: {len(frames)} frame(s) in split {data.split!r}, fewer than batch_size "
                         f"{t.batch_size}")
     total_steps = t.epochs * steps_per_epoch
     if t.max_steps > 0:
@@ -271,14 +263,11 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     mismatch = resolution_mismatch(cfg, rig.camera.width, rig.camera.height)
     if mismatch and progress and ranks.main:
         print(f"warning: {mismatch}", flush=True)
-    validation = None
-    if val_data is not None and ranks.main:
-        held_out, val_rig, _ = list_frames(val_data, val_split)
-        check_rig(rig, val_rig, "training data", str(val_data))
-        held_out = spread(held_out, val_frames)
-        check_held_out(held_out, frames, f"{val_data}: validation frames (split {val_split!r})",
-                       f"the training frames of {data_dir} (split {split!r})")
-        validation = Validation(held_out, rig, dataset_pattern(val_data, rig))
+    validate = None
+    if validation is not None and ranks.main:
+        check_rig(rig, validation.rig, "training data", validation.name)
+        held_out = validation.held_out(val_frames, data, "training")
+        validate = Validation(held_out, rig, validation.pattern)
     seed_everything(cfg.seed)
     model = build_model(cfg, rig).to(device)
     opt, sched = make_optimizer(model, cfg, steps_per_epoch, total_steps)
@@ -294,7 +283,7 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
         if _without_length(old_cfg) != _without_length(cfg):
             raise DataError(f"{ckpt_path}: was trained with another config; resume needs the same one "
                             "(only [train].epochs and max_steps may change)")
-        check_rig(old_rig, rig, "checkpoint", str(data_dir))
+        check_rig(old_rig, rig, "checkpoint", data.name)
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         sched.load_state_dict(ckpt["scheduler"])
@@ -356,8 +345,8 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
                     writer.add_scalar("lr", sched.get_last_lr()[0], step)
                 if step % t.image_every == 0 or step == total_steps:
                     _log_images(writer, step, model, batch)
-                if validation is not None and (step % t.val_every == 0 or step == total_steps or out_of_time):
-                    rates, image = validation(model, device)
+                if validate is not None and (step % t.val_every == 0 or step == total_steps or out_of_time):
+                    rates, image = validate(model, device)
                     for name, rate in rates.items():
                         writer.add_scalar(f"validation/{name}", rate, step)
                     writer.add_image("validation/ir_and_error_0_to_5_px", image, step, dataformats="HWC")

@@ -12,8 +12,8 @@ import shutil
 import pytest
 
 from commands.cli import main
-from commands.export import export_webdataset
 from dotsim import dataset as ds
+from dotsim.shards.writer import export_webdataset
 from tests.output_folders import assert_one_line_error
 from tests.trainer_fixtures import make_dataset
 
