@@ -30,8 +30,9 @@ from dotsim.frame_source import open_source
 from dotsim.solvable import solvable_pixels
 from generator.config import config_from_dict
 from generator.pipeline import generate
-from trainer.evaluate import load_reference, pixel_classes, sgbm_nearest_depth
+from trainer.evaluate import load_reference, sgbm_nearest_depth
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
+from trainer.scoring import pixel_classes
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 CLEAN = {"lighting": {"world_strength": [0.0, 0.0], "extra_lights": [0, 0]},

@@ -8,7 +8,7 @@ split); what a step of it costs is counted, not timed (timings on a shared machi
 
 Each run appends one line to OUT/results.jsonl: the variant's name and settings (`--set SECTION.KEY=VALUE`,
 VALUE in TOML, any number of them), the steps, the mean loss of its last tenth, the validation o(t) of
-the network over the valid and the solvable pixels (trainer.train.Validation, `--val-frames` frames spread
+the network over the valid and the solvable pixels (trainer.scoring.Validation, `--val-frames` frames spread
 over --val-data), GFLOP per training step (forward and backward at the config's crop and batch, torch's
 FlopCounterMode, bench.trainer_cpu_recipe.count) and the parameters. The run's length is sized as
 bench.trainer_accuracy sizes it (step decay at 25, 50 and 75 % of the steps). `--report` prints the

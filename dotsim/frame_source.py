@@ -15,6 +15,7 @@ the splits present, the scene whose rig differs from the first one's, or the pat
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -112,8 +113,11 @@ class FrameSource:
 
     def first(self, count: int) -> FrameSource:
         """The source cut to its first `count` frames (all of them when count is 0)."""
-        return self if count <= 0 else FrameSource(self.name, self.split, self.frames[:count], self.rig,
-                                                   self.pattern_file)
+        if count <= 0:
+            return self
+        cut = copy.copy(self)  # keeps the pattern once read
+        cut.frames = self.frames[:count]
+        return cut
 
     def held_out(self, count: int, others: FrameSource, role: str) -> list[FrameRef]:
         """`count` validation frames spread evenly over this source (all when count is 0), checked to be
