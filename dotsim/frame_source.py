@@ -65,11 +65,13 @@ class FrameRef:
         return {c: frame[c] for c in channels}
 
     def channels(self) -> tuple[str, ...]:
-        """The channels the frame stores (an export's sample may hold fewer than its scene.json lists)."""
+        """The channels the frame stores, in the channel registry's order (an export's sample may hold
+        fewer than its scene.json lists)."""
         if self.sample is None:
-            return stored_channels(self.scene_meta().get("channels", ()))
-        members = {ext.split(".")[0] for ext, _, _ in self.sample.members}
-        return tuple(name for name in FRAME_CHANNELS if name in members)
+            stored = set(stored_channels(self.scene_meta().get("channels", ())))
+        else:
+            stored = {ext.split(".")[0] for ext, _, _ in self.sample.members}
+        return tuple(name for name in FRAME_CHANNELS if name in stored)
 
     def scene_meta(self) -> dict:
         """The frame's scene.json dict."""
