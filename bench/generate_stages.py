@@ -43,7 +43,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 FULL_WIDTH = 1216
-TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")  # trainer/data.py's
+TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")  # trainer/samples.py's
 # Stage rows: (label, function, caller or None). With a caller, the time of that call edge (the
 # stages make_frame calls); without, the function's own total (the writer's stages). A function
 # renamed since is "old|new": whichever the side's code has.

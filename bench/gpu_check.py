@@ -52,15 +52,16 @@ from bench.trainer_gpu import (
     variant_backbone,
 )
 from dotsim.file_io import atomic_write_bytes, atomic_write_json
+from dotsim.frame_source import open_source
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate, overall
 from trainer.metrics import ratio
 from trainer.model import autocast, build_model
+from trainer.samples import FrameDataset
 from trainer.train import train
 
 CUDA_TESTS = ("tests/trainer/test_trainer_cuda.py", "tests/trainer/test_trainer_precision.py")
@@ -230,21 +231,22 @@ def accuracy_section(report: Report, clock: Clock, cfg, train_data, test_data, d
     d["train"].update(max_steps=planned, checkpoint_every=10**9, image_every=10**9, epochs=10**6)
     d["data"]["workers"] = 0
     run = work / "accuracy_run"
+    train_source = open_source(train_data, "train")
     started = time.monotonic()
-    result = train(config_from_dict(d, "gpu_check accuracy run"), train_data, run, device=device,
+    result = train(config_from_dict(d, "gpu_check accuracy run"), train_source, run, device=device,
                    progress=False, max_seconds=max(seconds, 1.0))
     took = time.monotonic() - started
     losses = np.asarray(result["losses"])
     k = max(1, min(50, len(losses) // 10))
-    frames = len(list_frames(train_data, "train")[0])
+    frames = len(train_source.frames)
     report.add("accuracy", {"planned_steps": planned, "steps": int(result["step"]), "seconds": took,
                             "steps_per_s": result["step"] / took, "train_frames": frames,
                             "loss_first": float(losses[:k].mean()), "loss_last": float(losses[-k:].mean())},
                f"  accuracy: {result['step']} steps (planned {planned}) in {took:.0f} s "
                f"({result['step'] / took:.1f} steps/s) on {frames} frames, loss {losses[:k].mean():.2f} -> "
                f"{losses[-k:].mean():.2f}")
-    rows = evaluate(run / "checkpoint.pt", test_data, work / "eval", device=device, images=2,
-                    progress=False, val_data=train_data, val_split="train", val_frames=8)
+    rows = evaluate(run / "checkpoint.pt", open_source(test_data, "test"), work / "eval", device=device,
+                    images=2, progress=False, validation=train_source, val_frames=8)
     net = overall(rows, "network")
     sgbm = next(r for r in rows if r["chosen"] and r["range"] == "all")
     text = (work / "eval" / "eval.md").read_text()
@@ -275,11 +277,12 @@ def tests_section(report: Report, clock: Clock, tests: list[str], out: Path) -> 
                f"  tests: {'TIMED OUT after ' + format(timeout, '.0f') + ' s' if code is None else summary}")
 
 
-def first_batch(cfg, source) -> tuple:
-    """(rig, one training batch) of `source`'s train split: the config's batch size of augmented crops,
+def first_batch(cfg, data) -> tuple:
+    """(rig, one training batch) of `data`'s train split: the config's batch size of augmented crops,
     frames repeated when there are fewer (the dry run has 2)."""
-    frames, rig, _ = list_frames(source, "train")
-    ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
+    source = open_source(data, "train")
+    rig = source.rig
+    ds = FrameDataset(source.frames, rig, cfg.data, cfg.seed, augment=True)
     samples = [ds[i % len(ds)] for i in range(cfg.train.batch_size)]
     return rig, {k: torch.stack([s[k] for s in samples]) for k in samples[0]}
 

@@ -26,12 +26,13 @@ import numpy as np
 from dotsim.config_schema import read_toml
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset import read_frame
+from dotsim.frame_source import open_source
 from dotsim.solvable import solvable_pixels
 from generator.config import config_from_dict
 from generator.pipeline import generate
-from trainer.data import dataset_pattern, list_frames
-from trainer.evaluate import load_reference, pixel_classes, sgbm_nearest_depth
+from trainer.evaluate import load_reference, sgbm_nearest_depth
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
+from trainer.scoring import pixel_classes
 from trainer.sgbm import PREPROCESSINGS, num_disparities_for, sgbm_disparity
 
 CLEAN = {"lighting": {"world_strength": [0.0, 0.0], "extra_lights": [0, 0]},
@@ -73,12 +74,13 @@ def main(argv=None) -> int:
 
     summary = generate(clean_config(args.config, args.scale), args.out, "test", args.scenes, seed=args.seed)
     print(summary.line())
-    frames, rig, _ = list_frames(args.out, "test")
-    reference = load_reference(args.out, rig)
+    source = open_source(args.out, "test")
+    frames, rig = source.frames, source.rig
+    reference = load_reference(source)
     bits = read_toml(args.config).get("sensor", {}).get("bit_depth", 10)
     nearest = sgbm_nearest_depth(frames, rig)
     n_disp = num_disparities_for(rig, nearest)
-    pattern = dataset_pattern(args.out, rig)
+    pattern = source.pattern
     rows: dict[tuple[str, str], np.ndarray] = {}
     missing = dict.fromkeys(PREPROCESSINGS, 0)
     for ref in frames:

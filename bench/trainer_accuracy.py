@@ -42,13 +42,14 @@ from pathlib import Path
 
 import torch
 
+from dotsim.frame_source import open_source
 from generator.config import load_config as load_generator_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import chosen_sgbm, evaluate, overall, row_of
 from trainer.metrics import THRESHOLDS, ratio
+from trainer.samples import FrameDataset
 from trainer.train import train
 
 OUTLIER_KEYS = tuple(f"o({t:g})" for t in THRESHOLDS)
@@ -141,8 +142,8 @@ def main(argv=None) -> int:
                                             frames_per_scene=2, test_scenes=args.test_scenes, seed=7)
             source = (f"oracle-rendered synthetic data (tests/trainer_fixtures.py), {args.train_scenes} "
                       f"train / {args.test_scenes} test scenes x 2 frames; no generator output under out/")
-        frames, rig, _ = list_frames(data, "train")
-        test_frames, _, _ = list_frames(test_data, "test")
+        train_source, test_source = open_source(data, "train"), open_source(test_data, "test")
+        frames, rig, test_frames = train_source.frames, train_source.rig, test_source.frames
         base = load_config(args.config).to_dict()
 
         def config(steps: int, epochs: int, cache_mb: int | None = None):
@@ -151,7 +152,7 @@ def main(argv=None) -> int:
         # A step's time is the difference of two short runs: one run's time also holds start-up
         # (model, loader, TensorBoard, first-step allocations), which made a 60 min budget train 41 min.
         # Both read every sample (no cache), so the difference is 20 steps with their reads.
-        short, long = (train(config(n, 1000, cache_mb=0), data, work / f"calibration_{n}",
+        short, long = (train(config(n, 1000, cache_mb=0), train_source, work / f"calibration_{n}",
                              progress=False)["seconds"] for n in (5, 25))
         steps = planned_steps(max(long - short, 1e-3) / 20, frames, rig, config(1, 1), args.minutes * 60)
         per_step = args.minutes * 60 / steps
@@ -163,10 +164,10 @@ def main(argv=None) -> int:
               flush=True)
         cfg = config(steps, epochs)
         start = time.perf_counter()
-        result = train(cfg, data, work / "run", max_seconds=args.minutes * 60 * 1.1)
+        result = train(cfg, train_source, work / "run", max_seconds=args.minutes * 60 * 1.1)
         trained_s = time.perf_counter() - start
-        rows = evaluate(work / "run" / "checkpoint.pt", test_data, work / "eval", progress=False,
-                        val_data=data)
+        rows = evaluate(work / "run" / "checkpoint.pt", test_source, work / "eval", progress=False,
+                        validation=train_source)
         eval_md = (work / "eval" / "eval.md").read_text()
         train_scenes = len({f.scene_index for f in frames})
         test_scenes = len({f.scene_index for f in test_frames})

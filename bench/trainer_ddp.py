@@ -19,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from dotsim.frame_source import open_source
 from tests.trainer_fixtures import make_dataset
 from trainer.config import load_config
 from trainer.distributed import run_on_ranks
@@ -41,7 +42,7 @@ def main(argv=None) -> int:
     setups = list(dict.fromkeys([(1, args.threads), (1, per_rank), (args.nproc, per_rank)]))
     best = dict.fromkeys(setups, 0.0)
     with tempfile.TemporaryDirectory() as tmp:
-        data = make_dataset(Path(tmp) / "ds", scenes=8, frames_per_scene=2)
+        data = open_source(make_dataset(Path(tmp) / "ds", scenes=8, frames_per_scene=2), "train")
         for repeat in range(2):
             for nproc, threads in setups:
                 out = Path(tmp) / f"run{nproc}_{threads}_{repeat}"

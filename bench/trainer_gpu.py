@@ -29,12 +29,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dotsim.frame_source import open_source
 from dotsim.patterns import generate_dot_pattern
 from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS, load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames, make_loader
 from trainer.model import LOW_PRECISION, autocast, build_model
+from trainer.samples import FrameDataset, make_loader
 from trainer.train import batch_loss, make_optimizer, train
 
 PUBLISHED_MS = 60.0  # GigaDepth's conv network per 1216 x 896 frame on a GPU; its UNet ablation 1 s
@@ -177,7 +178,8 @@ def train_run(cfg, data, out, device, precision, steps) -> dict:
     run = out / f"run_{precision}"
     if (run / "checkpoint.pt").exists():
         (run / "checkpoint.pt").unlink()
-    result = train(config_from_dict(d, "bench"), data, run, device=device, progress=False)
+    result = train(config_from_dict(d, "bench"), open_source(data, "train"), run, device=device,
+                   progress=False)
     losses = np.array(result["losses"])
     k = max(1, min(10, len(losses) // 4))
     return {"precision": precision, "steps": len(losses), "seconds": result["seconds"],
@@ -247,7 +249,8 @@ def main(argv=None) -> int:
     if not (data / "dataset.json").exists():
         print(f"rendering {args.frames} oracle frames at scale {scale:g} into {data} ...", flush=True)
         make_dataset(data, scenes=max(1, args.frames // 2), frames_per_scene=2, scale=scale, test_scenes=1)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     ds = FrameDataset(frames, rig, cfg.data, cfg.seed, augment=True)
     batch = next(iter(make_loader(ds, cfg.train.batch_size, 0, 0, 0)))
     pattern = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0).image.astype(np.float64)

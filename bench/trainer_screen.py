@@ -8,7 +8,7 @@ split); what a step of it costs is counted, not timed (timings on a shared machi
 
 Each run appends one line to OUT/results.jsonl: the variant's name and settings (`--set SECTION.KEY=VALUE`,
 VALUE in TOML, any number of them), the steps, the mean loss of its last tenth, the validation o(t) of
-the network over the valid and the solvable pixels (trainer.train.Validation, `--val-frames` frames spread
+the network over the valid and the solvable pixels (trainer.scoring.Validation, `--val-frames` frames spread
 over --val-data), GFLOP per training step (forward and backward at the config's crop and batch, torch's
 FlopCounterMode, bench.trainer_cpu_recipe.count) and the parameters. The run's length is sized as
 bench.trainer_accuracy sizes it (step decay at 25, 50 and 75 % of the steps). `--report` prints the
@@ -29,8 +29,8 @@ import torch
 
 from bench.trainer_accuracy import sized_config
 from bench.trainer_cpu_recipe import count, synthetic_batch
+from dotsim.frame_source import open_source
 from trainer.config import config_from_dict, load_config, output_rows
-from trainer.data import list_frames
 from trainer.metrics import THRESHOLDS
 from trainer.model import build_model
 from trainer.train import train
@@ -92,7 +92,9 @@ def main(argv=None) -> int:
     if args.data is None or args.val_data is None:
         parser.error("--data and --val-data are needed (or --report DIR)")
     torch.set_num_threads(args.threads)
-    frames, rig, _ = list_frames(args.data, args.split)
+    source = open_source(args.data, args.split)
+    frames, rig = source.frames, source.rig
+    validation = open_source(args.val_data, args.val_split)
     base = with_settings(load_config(args.config).to_dict(), args.set)
     spe = max(len(frames) // base["train"]["batch_size"], 1)
     sized = sized_config(base, args.steps, max(1, round(args.steps / spe)), args.config).to_dict()
@@ -100,8 +102,7 @@ def main(argv=None) -> int:
     cfg = config_from_dict(sized, f"{args.config} with {args.set}")
     run = args.out / args.name
     start = time.perf_counter()
-    result = train(cfg, args.data, run, split=args.split, progress=False, val_data=args.val_data,
-                   val_split=args.val_split, val_frames=args.val_frames)
+    result = train(cfg, source, run, progress=False, validation=validation, val_frames=args.val_frames)
     last = result["losses"][-max(len(result["losses"]) // 10, 1):]
     line = {"name": args.name, "config": args.config, "settings": args.set, "steps": result["step"],
             "data": str(args.data), "val_data": str(args.val_data), "frames": len(frames),

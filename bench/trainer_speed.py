@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dotsim.frame_source import open_source
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
@@ -83,11 +84,12 @@ def main(argv=None) -> int:
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        from trainer.data import FrameDataset, list_frames, make_loader
+        from trainer.samples import FrameDataset, make_loader
 
         data = make_dataset(Path(tmp) / "ds", scenes=4, frames_per_scene=2)
         cfg = load_config("dotsim/configs/train_tiny.toml")
-        frames, small_rig, _ = list_frames(data, "train")
+        source = open_source(data, "train")
+        frames, small_rig = source.frames, source.rig
         ds = FrameDataset(frames, small_rig, cfg.data, cfg.seed, augment=True)
         batch = next(iter(make_loader(ds, cfg.train.batch_size, 0, 0, 0)))
         model = build_model(cfg, small_rig)

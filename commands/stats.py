@@ -27,6 +27,7 @@ import numpy as np
 from dotsim import dataset as ds
 from dotsim.command_options import add_output
 from dotsim.file_io import atomic_write_json
+from dotsim.frame_source import FrameSource, open_source
 from dotsim.images import write_image
 from dotsim.option_types import integer
 from dotsim.rig.geometry import Rig, backproject, is_ground_truth, project_to_projector
@@ -196,25 +197,12 @@ def _trimmed(hist: np.ndarray) -> list[int]:
     return hist[: nonzero[-1] + 1].tolist() if nonzero.size else []
 
 
-def dataset_stats(dataset_dir: str | Path, split: str = "all", max_frames: int = 0) -> CoverageStats:
-    """CoverageStats over the frames of `split` ("all", "train", "test") of a sealed dataset."""
-    dataset = ds.open_dataset(dataset_dir)
-    scenes = dataset.scenes if split == "all" else dataset.split(split)
-    if not scenes:
-        present = sorted({str(s.split) for s in dataset.scenes})
-        raise ds.FormatError(f"{dataset_dir}: no scenes with split {split!r} (splits present: {present})")
-    stats = None
-    for scene in scenes:
-        meta = ds.read_scene_meta(scene.path)
-        rig = Rig.from_dict(meta["rig"])
-        if stats is None:
-            stats = CoverageStats(rig)
-        elif rig != stats.rig:
-            raise ds.FormatError(f"{scene.path}: its rig differs from the first scene's; stats need one rig")
-        for path in scene.frame_paths:
-            if max_frames and stats.frames >= max_frames:
-                return stats
-            stats.add_frame(ds.read_frame(path, channels=STATS_CHANNELS, meta=meta))
+def dataset_stats(source: FrameSource, max_frames: int = 0) -> CoverageStats:
+    """CoverageStats over the frames of a data source (dotsim.frame_source.open_source: one split of a
+    dataset folder or of its export), the first `max_frames` of them (0: all)."""
+    stats = CoverageStats(source.rig)
+    for ref in source.first(max_frames).frames:
+        stats.add_frame(ref.read(STATS_CHANNELS))
     return stats
 
 
@@ -308,7 +296,7 @@ def draw(stats: CoverageStats, title: str) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    stats = dataset_stats(args.path, args.split, args.max_frames)
+    stats = dataset_stats(open_source(args.path, args.split), args.max_frames)
     summary = stats.summary()
     output = Path(args.output)
     json_path = Path(args.json) if args.json else output.with_suffix(".json")
@@ -329,7 +317,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "from; regions the camera can see at some depth but with under a tenth of the mean such region's "
         "lit pixels are listed as barely shown, apart from those it never sees (its field is narrower). "
         "Prints a summary, draws a PNG and writes the figures as JSON.")
-    parser.add_argument("path", metavar="DIR", help="sealed dotsim dataset")
+    parser.add_argument("path", metavar="DIR", help="sealed dotsim dataset (or its `dotsim export` shards)")
     parser.add_argument("--split", default="all", help="scene split: all (default), train or test")
     add_output(parser, "PNG to draw (default: stats.png)", metavar="PNG", required=False, old=("--output",),
                dest="output", default="stats.png")

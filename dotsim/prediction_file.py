@@ -1,7 +1,7 @@
 """`dotsim infer`'s output files: where each input's prediction goes and what the EXR holds.
 
 Per input NAME (a dataset frame scene_SSSSSSS/frame_K.exr gives scene_SSSSSSS_frame_K, the sample key of
-dotsim.shard_format; any other file its stem): NAME.exr, a single-part ZIP-compressed OpenEXR of the
+dotsim/shards/format.py; any other file its stem): NAME.exr, a single-part ZIP-compressed OpenEXR of the
 float32 channels `disparity` (camera px) and `depth` (metres), nan where the network gives no estimate,
 whose header attribute `dotsim_prediction` (JSON: the checkpoint, the input, the precision) says that
 they are a network's predictions, not ground truth. `trainer.infer` writes them; `dotsim show` labels
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes
-from dotsim.shard_format import sample_key
+from dotsim.shards.format import sample_key
 
 
 def output_name(path: Path) -> str:

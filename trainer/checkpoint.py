@@ -1,23 +1,124 @@
-"""Loading a trained network and predicting with it: what `dotsim eval` and `dotsim infer` stand on.
+"""Checkpoints, written and read in one place, and predicting with a trained network: what training's
+resume, `dotsim eval` and `dotsim infer` stand on.
 
-A checkpoint (trainer/train.py writes it) holds the network's weights with the config and rig it was
-trained with, so the network is rebuilt from the file alone. The network's half-resolution column is
-turned into full-resolution disparity and depth here, once, for evaluation and inference alike.
+RUN/checkpoint.pt holds everything a resume needs (model, optimiser, scheduler, loss scaler, step,
+config, rig, RNG states: save_checkpoint, restore_checkpoint), written atomically so a failed save
+leaves the last good one. The config and rig it was trained with come along, so the network is rebuilt
+from the file alone (load_model). The network's half-resolution column is turned into full-resolution
+disparity and depth here, once, for evaluation and inference alike (predict_disparity).
 """
 
 from __future__ import annotations
 
+import random
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from dotsim.file_io import atomic_writer
 from dotsim.rig.geometry import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
 from trainer.config import Config, config_from_dict
-from trainer.data import DataError
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model
+from trainer.samples import DataError
 
 PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
+CHECKPOINT = "checkpoint.pt"
+
+
+@dataclass
+class TrainingState:
+    """What training changes step by step and a checkpoint keeps: the network, the optimiser, its
+    learning-rate schedule and the loss scaler."""
+
+    model: GigaDepthNet
+    opt: torch.optim.Optimizer
+    sched: object
+    scaler: torch.amp.GradScaler
+
+
+def save_checkpoint(path: Path, state: TrainingState, step: int, cfg: Config, rig: Rig) -> None:
+    """Write the checkpoint of a run at `step` atomically (RNG states included, for an exact resume)."""
+    atomic_torch_save({
+        "model": state.model.state_dict(), "optimizer": state.opt.state_dict(),
+        "scheduler": state.sched.state_dict(), "scaler": state.scaler.state_dict(), "step": step,
+        "config": cfg.to_dict(), "rig": rig.to_dict(), "rng": _rng_states(),
+        "torch_version": torch.__version__,
+    }, path)
+
+
+def restore_checkpoint(path: Path, resume: bool, state: TrainingState, cfg: Config, rig: Rig, source: str
+                       ) -> int:
+    """The step to start at: 0 without a checkpoint at `path`, else (with `resume`) the checkpoint's,
+    its state loaded into `state` and the RNGs; DataError for a checkpoint without --resume, of another
+    config (only [train].epochs and max_steps may change) or of another rig than `source`'s."""
+    if not path.exists():
+        return 0
+    if not resume:
+        raise DataError(f"{path}: exists; pass --resume to continue it or choose another --out")
+    # read to CPU: load_state_dict moves each tensor to the model's device, and the RNG states
+    # must stay CPU tensors (mapped to CUDA, torch.set_rng_state refuses them)
+    ckpt, old_cfg, old_rig = load_checkpoint(path)
+    if _without_length(old_cfg) != _without_length(cfg):
+        raise DataError(f"{path}: was trained with another config; resume needs the same one "
+                        "(only [train].epochs and max_steps may change)")
+    check_rig(old_rig, rig, "checkpoint", source)
+    state.model.load_state_dict(ckpt["model"])
+    state.opt.load_state_dict(ckpt["optimizer"])
+    state.sched.load_state_dict(ckpt["scheduler"])
+    if ckpt["scaler"]:  # empty when saved disabled (CPU runs with the former amp = true)
+        state.scaler.load_state_dict(ckpt["scaler"])
+    _set_rng_states(ckpt["rng"])
+    return ckpt["step"]
+
+
+class _WriteErrors:
+    """The file object torch.save writes through: keeps the OSError a write raised, which torch's
+    writer reports only as RuntimeError("unexpected pos ...")."""
+
+    def __init__(self, stream):
+        self.stream, self.error = stream, None
+
+    def write(self, data) -> int:
+        try:
+            return self.stream.write(data)
+        except OSError as error:
+            self.error = error
+            raise
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    """torch.save to `path` atomically: a save that fails (a full disk: DiskFullError naming the
+    file) leaves the previous file as it was."""
+    with atomic_writer(path) as stream:
+        writes = _WriteErrors(stream)
+        try:
+            torch.save(obj, writes)
+        except RuntimeError:
+            if writes.error is not None:
+                raise writes.error from None  # atomic_writer turns ENOSPC into its one-line DiskFullError
+            raise
+
+
+def _without_length(cfg: Config) -> Config:
+    """The config without how long to train: a resumed run may be extended."""
+    return replace(cfg, train=replace(cfg.train, epochs=1, max_steps=0))
+
+
+def _rng_states() -> dict:
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def _set_rng_states(s: dict) -> None:
+    torch.set_rng_state(s["torch"])
+    np.random.set_state(s["numpy"])
+    random.setstate(s["python"])
+
+
 
 
 def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config, Rig]:

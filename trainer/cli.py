@@ -9,9 +9,10 @@ from functools import partial
 from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.file_io import check_writable_folder
+from dotsim.frame_source import open_source
 from dotsim.option_types import integer, number
 from trainer.config import ConfigError, load_config
-from trainer.data import DataError
+from trainer.samples import DataError
 
 # The trainer's expected errors: one line and exit status 1 (commands.cli.main prints them).
 EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointError: 1}
@@ -25,21 +26,22 @@ def _train(args: argparse.Namespace) -> None:
     cfg = load_config(args.config)
     if args.max_steps is not None:
         cfg = replace(cfg, train=replace(cfg.train, max_steps=args.max_steps))
+    data = open_source(args.data, args.split)
+    validation = open_source(args.val_data, args.val_split) if args.val_data is not None else None
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
     with disk_full_in(args.out):
-        run(cfg, args.data, args.out, resume=args.resume, device=args.device, split=args.split,
-            max_seconds=args.minutes * 60, val_data=args.val_data, val_split=args.val_split,
-            val_frames=args.val_frames, progress_bar=not args.no_progress)
+        run(cfg, data, args.out, resume=args.resume, device=args.device, max_seconds=args.minutes * 60,
+            validation=validation, val_frames=args.val_frames, progress_bar=not args.no_progress)
 
 
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
     check_writable_folder(args.out, "--out")
-    evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
+    validation = open_source(args.val_data, args.val_split) if args.val_data is not None else None
+    evaluate(args.checkpoint, open_source(args.data, args.split), args.out, device=args.device,
              max_frames=args.max_frames, images=args.images, precision=args.precision,
-             val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames,
-             progress_bar=not args.no_progress)
+             validation=validation, val_frames=args.val_frames, progress_bar=not args.no_progress)
 
 
 def _infer(args: argparse.Namespace) -> None:

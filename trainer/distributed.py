@@ -1,7 +1,7 @@
 """Data-parallel training over several processes: joining the process group, and launching one.
 
 A run with N processes ("ranks") is the same optimisation as a run with one: `[train].batch_size` is the
-global batch, each rank takes batch_size / N of its samples (trainer/data.py), the loss is normalised by
+global batch, each rank takes batch_size / N of its samples (trainer/samples.py), the loss is normalised by
 the global batch (trainer/train.py) and BatchNorm uses global batch statistics (trainer/model.py), so
 the ranks only change the speed. torchrun (or `dotsim train --nproc N`, which calls run_on_ranks) puts
 RANK, LOCAL_RANK, WORLD_SIZE, MASTER_ADDR and MASTER_PORT in each process's environment;
@@ -22,7 +22,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 
 from dotsim.process_lifetime import die_with_parent, stop_processes
-from trainer.data import DataError
+from trainer.samples import DataError
 
 
 @dataclass(frozen=True)

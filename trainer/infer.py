@@ -25,7 +25,7 @@ from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.prediction_file import output_name, write_prediction
 from dotsim.rig.geometry import Rig
 from trainer.checkpoint import load_model, predict_disparity
-from trainer.data import DataError
+from trainer.samples import DataError
 
 
 def read_ir(path: str | Path, rig: Rig) -> np.ndarray:

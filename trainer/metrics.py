@@ -2,8 +2,8 @@
 
 Disparities are in camera pixels at full resolution; `valid` selects the pixels that are scored. A
 pixel a method gives no estimate for (nan) counts as wrong at every threshold, so no method gains by
-abstaining. trainer/evaluate.py, bench/sgbm_clean.py and bench/trainer_accuracy.py compute every
-figure they print with these.
+abstaining. trainer/scoring.py (eval and training's validation), bench/sgbm_clean.py and
+bench/trainer_accuracy.py compute every figure they print with these.
 """
 
 from __future__ import annotations

@@ -127,8 +127,8 @@ def parse_index(path: Path, data: bytes | None = None) -> dict:
     index = load_json(path, data)
     if "format" in index:  # an export (`dotsim export`) names its format; a dataset's index.json does not
         raise FormatError(f"{path}: format {index['format']!r} is not a dotsim dataset's index.json; "
-                          "a folder of `dotsim export` shards is read by dotsim.data and `dotsim train "
-                          "--data`")
+                          "a folder of `dotsim export` shards is read by dotsim.shards.reader and "
+                          "`dotsim train --data`")
     check_format_version(index.get("format_version"), path)
     if not _is_checksums(index.get("files", {})):
         raise FormatError(f"{path}: 'files' must map top-level file names to sha256 hex digests")

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from bench.gpu_check import main
-from commands.export import export_webdataset
+from dotsim.shards.writer import export_webdataset
 from tests.trainer_fixtures import make_dataset
 
 TRAINING = ["ir", "projector_column", "visibility", "edge"]

@@ -10,6 +10,7 @@ import pytest
 from commands.cli import main as dotsim_main
 from commands.stats import dataset_stats
 from dotsim.dataset import seal_dataset, write_scene
+from dotsim.frame_source import open_source
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
 from tests.trainer_fixtures import synthetic_frame
@@ -52,7 +53,7 @@ def dataset(tmp_path_factory):
 
 def test_shares_histograms_and_coverage(dataset):
     root, rig = dataset
-    s = dataset_stats(root).summary()
+    s = dataset_stats(open_source(root, "all")).summary()
     h, w = rig.camera.height, rig.camera.width
     near_visible, far_visible = (h - 1) * (w // 2), (h // 2) * (w - w // 2)
     visible = near_visible + far_visible

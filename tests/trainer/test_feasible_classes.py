@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 import torch
 
+from dotsim.frame_source import open_source
 from dotsim.rig.geometry import Intrinsics, Rig, rotation_matrix
 from dotsim.rig.presets import get_preset
 from generator.config import config_from_dict, load_config
 from generator.pipeline import generate
 from tests.trainer_fixtures import tiny_config
 from trainer.config import Config
-from trainer.data import FrameDataset, list_frames
 from trainer.model import FEASIBLE_MARGIN, build_model
+from trainer.samples import FrameDataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -103,7 +104,8 @@ def rendered(tmp_path_factory):
 def test_the_true_class_is_never_excluded_on_rendered_frames(rendered, name):
     """Every valid pixel no nearer than min_depth keeps its true class at every level, whole frames and
     random crops alike: in_range holds and the cross-entropy over the feasible children is finite."""
-    frames, rig, _ = list_frames(rendered / name, "train")
+    source = open_source(rendered / name, "train")
+    frames, rig = source.frames, source.rig
     assert rig.is_rectified == (name == "rectified")
     near = 0.4 * 0.875  # the tiny config's nearest object centre, less a quarter of its largest size
     cfg = restricted(near)
@@ -143,9 +145,10 @@ def test_a_restricted_network_trains_and_routes_only_to_feasible_leaves(data, tm
     send nearly all to the far left."""
     from trainer.train import train
 
-    result = train(restricted(0.5), data, tmp_path / "run", progress=False)
+    result = train(restricted(0.5), open_source(data, "train"), tmp_path / "run", progress=False)
     assert len(result["losses"]) == 10 and np.isfinite(result["losses"]).all()
-    frames, rig, _ = list_frames(data, "test")
+    source = open_source(data, "test")
+    frames, rig = source.frames, source.rig
     ir = torch.from_numpy(frames[0].read(("ir",))["ir"].astype(np.float32))[None, None]
     leaves, shape = {}, None
     for min_depth in (0.5, 0.0):

@@ -8,12 +8,13 @@ import pytest
 import torch
 
 from dotsim.dataset import read_frame
+from dotsim.frame_source import open_source
 from tests.trainer_fixtures import make_dataset
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
-from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import evaluate
 from trainer.model import build_model
+from trainer.samples import FrameDataset
 from trainer.train import batch_loss, train
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(),
@@ -50,7 +51,8 @@ def exact_float32():
 @pytest.mark.parametrize("amp", ["float16", "bfloat16"])
 def test_published_config_trains_resumes_and_moves_to_cpu(data, tmp_path, amp):
     cfg = published(STEPS, amp)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     fixed = FrameDataset(frames[:4], rig, cfg.data, seed=0, augment=False)
     batch = {k: torch.stack([fixed[i][k] for i in range(4)]).cuda() for k in fixed[0]}
 
@@ -60,15 +62,17 @@ def test_published_config_trains_resumes_and_moves_to_cpu(data, tmp_path, amp):
 
     torch.manual_seed(cfg.seed)
     before = fixed_loss(build_model(cfg, rig).cuda())
-    first = train(published(STEPS // 2, amp), data, tmp_path, device="cuda", progress=False)["losses"]
-    rest = train(cfg, data, tmp_path, resume=True, device="cuda", progress=False)["losses"]
+    first = train(published(STEPS // 2, amp), open_source(data, "train"), tmp_path, device="cuda",
+                  progress=False)["losses"]
+    rest = train(cfg, open_source(data, "train"), tmp_path, resume=True, device="cuda",
+                 progress=False)["losses"]
     losses = first + rest
     assert len(losses) == STEPS and np.all(np.isfinite(losses)), losses
     on_cuda, _, _ = load_model(tmp_path / "checkpoint.pt", "cuda")
     assert fixed_loss(on_cuda) < before, (before, losses)
 
     on_cpu, _, _ = load_model(tmp_path / "checkpoint.pt", "cpu")
-    ir = read_frame(list_frames(data, "test")[0][0].path, channels=("ir",))["ir"].astype(np.float32)
+    ir = read_frame(open_source(data, "test").frames[0].path, channels=("ir",))["ir"].astype(np.float32)
     got = predict_disparity(on_cpu, rig, ir, "cpu")[0]
     want = predict_disparity(on_cuda, rig, ir, "cuda")[0]
     assert np.mean(np.isfinite(got) == np.isfinite(want)) > 0.999
@@ -77,10 +81,12 @@ def test_published_config_trains_resumes_and_moves_to_cpu(data, tmp_path, amp):
 
 
 def test_eval_on_cuda_in_reduced_precision(data, tmp_path):
-    train(published(2, "bfloat16"), data, tmp_path / "run", device="cuda", progress=False)
+    train(published(2, "bfloat16"), open_source(data, "train"), tmp_path / "run", device="cuda",
+          progress=False)
     rows = {}
     for precision in ("float32", "bfloat16", "float16"):
-        rows[precision] = evaluate(tmp_path / "run" / "checkpoint.pt", data, tmp_path / precision,
+        rows[precision] = evaluate(tmp_path / "run" / "checkpoint.pt", open_source(data, "test"),
+                                   tmp_path / precision,
                                    device="cuda", max_frames=1, images=1, progress=False,
                                    precision=precision)
     net = {p: next(r for r in rs if r["method"] == "network" and r["range"] == "all")

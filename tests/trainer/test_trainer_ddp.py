@@ -13,12 +13,13 @@ import torch.distributed as dist
 from torch import nn
 
 from commands.cli import main
+from dotsim.frame_source import open_source
 from tests.trainer_fixtures import make_dataset
 from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict, load_config
-from trainer.data import EpochSampler
 from trainer.distributed import Ranks, leave_process_group, run_on_ranks
 from trainer.model import GlobalBatchNorm2d
+from trainer.samples import EpochSampler
 from trainer.train import train
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -122,17 +123,18 @@ def test_two_ranks_train_as_one_process_and_resume_across_process_counts(data, t
     with per-rank statistics instead of global ones is off by 6e-5, 3e-5 and 2e-4 there (measured with
     Adam on 128 x 94 frames). Later steps drift apart as any change of summation order makes them drift;
     1 vs 2 CPU threads in one process differ by 6e-6 at step 4 and 1.5e-5 at step 5."""
-    one = train(tiny_config(6), data, tmp_path / "one", progress=False)["losses"]
+    one = train(tiny_config(6), open_source(data, "train"), tmp_path / "one", progress=False)["losses"]
     run = tmp_path / "ddp"
-    first = run_on_ranks(2, train, tiny_config(3), data, run, progress=False)
+    first = run_on_ranks(2, train, tiny_config(3), open_source(data, "train"), run, progress=False)
     assert first["step"] == 3
     np.testing.assert_allclose(first["losses"], one[:3], rtol=2e-6)
     assert sorted(p.name for p in run.iterdir()) == ["checkpoint.pt", "tb"]
     assert len(list((run / "tb").iterdir())) == 1  # one SummaryWriter: rank 0's
     assert load_checkpoint(run / "checkpoint.pt")[0]["step"] == 3
 
-    second = train(tiny_config(5), data, run, resume=True, progress=False)["losses"]
-    third = run_on_ranks(2, train, tiny_config(6), data, run, resume=True, progress=False)["losses"]
+    second = train(tiny_config(5), open_source(data, "train"), run, resume=True, progress=False)["losses"]
+    third = run_on_ranks(2, train, tiny_config(6), open_source(data, "train"), run, resume=True,
+                         progress=False)["losses"]
     np.testing.assert_allclose(second + third, one[3:], rtol=1e-4)
     assert one[0] != one[1]
 

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from commands.cli import main as dotsim_main
+from dotsim.frame_source import SourceError, open_source
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
@@ -15,9 +16,9 @@ from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.checkpoint import load_checkpoint, upsample_half
 from trainer.config import config_from_dict, load_config
-from trainer.data import DataError
 from trainer.evaluate import evaluate
 from trainer.infer import infer
+from trainer.samples import DataError
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train
 
@@ -72,24 +73,25 @@ def run(tmp_path_factory):
     cfg = load_config("dotsim/configs/train_tiny.toml").to_dict()
     cfg["train"].update(max_steps=1, batch_size=2)
     out = tmp_path_factory.mktemp("run")
-    train(config_from_dict(cfg, "t"), data, out, progress=False)
+    train(config_from_dict(cfg, "t"), open_source(data, "train"), out, progress=False)
     yield {"data": data, "ckpt": out / "checkpoint.pt", "cfg": cfg, "out": out}
     torch.set_num_threads(threads)
 
 
 def test_empty_or_missing_data_folder(tmp_path, run):
-    with pytest.raises(DataError, match=r"index\.json: missing"):
-        train(load_config("dotsim/configs/train_tiny.toml"), tmp_path, tmp_path / "o", progress=False)
-    with pytest.raises(DataError, match="does not exist"):
-        evaluate(run["ckpt"], tmp_path / "nope", tmp_path / "e", progress=False)
-    with pytest.raises(DataError, match=r"no scenes with split 'val'.*'train': 1"):
-        evaluate(run["ckpt"], run["data"], tmp_path / "e", split="val", progress=False)
+    with pytest.raises(SourceError, match=r"index\.json: missing"):
+        train(load_config("dotsim/configs/train_tiny.toml"), open_source(tmp_path, "train"), tmp_path / "o",
+              progress=False)
+    with pytest.raises(SourceError, match="does not exist"):
+        evaluate(run["ckpt"], open_source(tmp_path / "nope", "test"), tmp_path / "e", progress=False)
+    with pytest.raises(SourceError, match=r"no scenes with split 'val'.*'train': 1"):
+        evaluate(run["ckpt"], open_source(run["data"], "val"), tmp_path / "e", progress=False)
 
 
 def test_data_of_another_rig_or_resolution(tmp_path, run):
     other = make_dataset(tmp_path / "other", scenes=0, test_scenes=1, frames_per_scene=1, scale=0.08)
     with pytest.raises(DataError, match=r"97x72.*differs from the checkpoint.*122x90"):
-        evaluate(run["ckpt"], other, tmp_path / "e", progress=False)
+        evaluate(run["ckpt"], open_source(other, "test"), tmp_path / "e", progress=False)
     png = tmp_path / "small.png"
     cv2.imwrite(str(png), np.zeros((72, 97), np.uint16))
     with pytest.raises(DataError, match=r"small\.png: image is 97x72.*122x90"):
@@ -100,17 +102,18 @@ def test_data_of_another_rig_or_resolution(tmp_path, run):
 def test_resume_refuses_another_config_and_overwrite(run):
     cfg = run["cfg"]
     with pytest.raises(DataError, match="pass --resume"):
-        train(config_from_dict(cfg, "t"), run["data"], run["out"], progress=False)
+        train(config_from_dict(cfg, "t"), open_source(run["data"], "train"), run["out"], progress=False)
     changed = {**cfg, "model": {**cfg["model"], "lines": 4}}
     with pytest.raises(DataError, match="another config"):
-        train(config_from_dict(changed, "t"), run["data"], run["out"], resume=True, progress=False)
+        train(config_from_dict(changed, "t"), open_source(run["data"], "train"), run["out"], resume=True,
+              progress=False)
 
 
 def test_not_a_checkpoint(tmp_path, run):
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
     with pytest.raises(DataError, match=r"bad\.pt: not a readable torch checkpoint"):
-        evaluate(bad, run["data"], tmp_path / "e", progress=False)
+        evaluate(bad, open_source(run["data"], "test"), tmp_path / "e", progress=False)
     torch.save({"weights": 1}, bad)
     with pytest.raises(DataError, match="not a dotsim trainer checkpoint"):
         infer(bad, [bad], tmp_path / "i", progress=False)
@@ -172,16 +175,17 @@ def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
     """The SGBM variant the verdict uses is the one with the lower o(0.5) on the validation frames (here
     the train split, scored separately by a full evaluate of it), and validation frames overlapping the
     evaluated ones are refused."""
-    rows = evaluate(run["ckpt"], run["data"], tmp_path / "e", progress=False, val_data=run["data"])
+    rows = evaluate(run["ckpt"], open_source(run["data"], "test"), tmp_path / "e", progress=False,
+                    validation=open_source(run["data"], "train"))
     chosen = {r["method"] for r in rows if r["chosen"]}
     assert len(chosen) == 1 and chosen <= {"sgbm-plain", "sgbm-lcn"}
-    on_train = evaluate(run["ckpt"], run["data"], tmp_path / "t", split="train", progress=False)
+    on_train = evaluate(run["ckpt"], open_source(run["data"], "train"), tmp_path / "t", progress=False)
     rates = {r["method"]: r["o(0.5)"] for r in on_train if r["range"] == "all" and r["method"] != "network"}
     assert min(rates, key=rates.get) == chosen.pop()
     assert "chosen on 2 validation frame(s)" in (tmp_path / "e" / "eval.md").read_text()
-    with pytest.raises(DataError, match="overlap the evaluated frames"):
-        evaluate(run["ckpt"], run["data"], tmp_path / "o", progress=False, val_data=run["data"],
-                 val_split="test")
+    with pytest.raises(SourceError, match="overlap the evaluated frames"):
+        evaluate(run["ckpt"], open_source(run["data"], "test"), tmp_path / "o", progress=False,
+                 validation=open_source(run["data"], "test"))
 
 
 def _command(command: str, run: dict, out: Path) -> list[str]:

@@ -12,6 +12,7 @@ import torch
 from dotsim.config_schema import ConfigError
 from dotsim.dataset import read_frame
 from dotsim.false_colour import LINE, colourise
+from dotsim.frame_source import FrameRef, SourceError, open_source
 from dotsim.lcn import lcn
 from dotsim.patterns import load_pattern
 from dotsim.prediction_file import prediction_source
@@ -20,10 +21,10 @@ from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
-from trainer.data import DataError, FrameDataset, FrameRef, list_frames
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.model import build_model
+from trainer.samples import FrameDataset
 from trainer.sgbm import sgbm_disparity
 from trainer.train import batch_loss, train
 
@@ -34,7 +35,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 def trained(data, tmp_path_factory):
     """A tiny network after 20 steps, and its loss on a fixed batch before and after training."""
     cfg = tiny_config(20, lr=0.01)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     fixed = FrameDataset(frames[:4], rig, cfg.data, seed=0, augment=False)
     batch = {k: torch.stack([fixed[i][k] for i in range(4)]) for k in fixed[0]}
 
@@ -45,7 +47,8 @@ def trained(data, tmp_path_factory):
     torch.manual_seed(cfg.seed)
     before = fixed_loss(build_model(cfg, rig))
     run = tmp_path_factory.mktemp("run")
-    result = train(cfg, data, run, progress=False, val_data=data, val_split="test", val_frames=2)
+    result = train(cfg, open_source(data, "train"), run, progress=False, val_frames=2,
+                   validation=open_source(data, "test"))
     ckpt, _, _ = load_checkpoint(run / "checkpoint.pt")
     model = build_model(cfg, rig)
     model.load_state_dict(ckpt["model"])
@@ -59,9 +62,10 @@ def test_training_lowers_the_loss_on_a_fixed_batch(trained):
 
 
 def test_same_seed_same_losses_and_resume_continues_identically(data, tmp_path):
-    straight = train(tiny_config(6), data, tmp_path / "a", progress=False)["losses"]
-    first = train(tiny_config(3), data, tmp_path / "b", progress=False)["losses"]
-    rest = train(tiny_config(6), data, tmp_path / "b", resume=True, progress=False)["losses"]
+    straight = train(tiny_config(6), open_source(data, "train"), tmp_path / "a", progress=False)["losses"]
+    first = train(tiny_config(3), open_source(data, "train"), tmp_path / "b", progress=False)["losses"]
+    rest = train(tiny_config(6), open_source(data, "train"), tmp_path / "b", resume=True,
+                 progress=False)["losses"]
     assert first == straight[:3]  # two runs, same seed: bit-identical
     assert first + rest == straight  # 3 steps + resume for 3 more == 6 unbroken steps
     assert straight[0] != straight[1]
@@ -77,21 +81,21 @@ def test_annealing_schedules_follow_their_formula_over_the_run(data, tmp_path, s
         return [e.value for e in EventAccumulator(str(run / "tb")).Reload().Scalars("lr")]
 
     cfg = tiny_config(10, lr_schedule=schedule, log_every=1, lr=0.01, lr_final=0.05)
-    train(cfg, data, tmp_path / "a", progress=False)
+    train(cfg, open_source(data, "train"), tmp_path / "a", progress=False)
     # the rate of optimiser step k (1-based) is logged after the scheduler moved on: factor at step k
     if schedule == "cosine":
         want = [0.01 * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * k / 10))) for k in range(1, 11)]
     else:  # [1, .5, .25, .12, .01], each for 2 of the 10 steps
         want = [0.01 * f for f in (1, .5, .5, .25, .25, .12, .12, .01, .01, .01)]
     np.testing.assert_allclose(logged(tmp_path / "a"), want, rtol=1e-6)
-    train(tiny_config(4, lr_schedule=schedule, log_every=1, lr=0.01, lr_final=0.05), data, tmp_path / "b",
-          progress=False)
+    train(tiny_config(4, lr_schedule=schedule, log_every=1, lr=0.01, lr_final=0.05),
+          open_source(data, "train"), tmp_path / "b", progress=False)
     # TensorBoard orders a run's event files by name: second, host, pid, then the process's writer
     # count, unpadded. Two writers of one process in one second sort as text (writer 10 before 9), and
     # the resumed file read first hid the steps before it (seen in the full suite). A resumed run is
     # another process, or another second, in use; so it is here.
     time.sleep(1.1)
-    train(cfg, data, tmp_path / "b", resume=True, progress=False)
+    train(cfg, open_source(data, "train"), tmp_path / "b", resume=True, progress=False)
     resumed = logged(tmp_path / "b")
     assert len(resumed) == 10
     np.testing.assert_allclose(resumed[4:], want[4:], rtol=1e-6)
@@ -101,8 +105,10 @@ def test_loader_workers_do_not_change_the_run(data, tmp_path):
     """Augmentations are keyed by (seed, epoch, frame), so 2 worker processes give the same losses."""
     cfg = tiny_config(2).to_dict()
     cfg["data"]["workers"] = 2
-    with_workers = train(config_from_dict(cfg, "workers"), data, tmp_path / "w", progress=False)["losses"]
-    assert with_workers == train(tiny_config(2), data, tmp_path / "n", progress=False)["losses"]
+    with_workers = train(config_from_dict(cfg, "workers"), open_source(data, "train"), tmp_path / "w",
+                         progress=False)["losses"]
+    assert with_workers == train(tiny_config(2), open_source(data, "train"), tmp_path / "n",
+                                 progress=False)["losses"]
 
 
 @pytest.mark.parametrize("stride", [2, 1])
@@ -112,7 +118,8 @@ def test_samples_keep_line_identity_and_target_alignment(data, stride):
     cfg = tiny_config(1)
     plain = dataclasses.replace(cfg.data, noise_std=0.0, intensity_scale=(1.0, 1.0))
     cfg = dataclasses.replace(cfg, data=plain)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     ds = FrameDataset(frames, rig, cfg.data, seed=3, augment=True, stride=stride)
     for i in range(3):
         s = ds[i]
@@ -138,10 +145,10 @@ def test_a_full_resolution_network_trains_and_predicts_every_pixel(data, tmp_pat
     of every pixel is the network's own (no upsampling): converted back to a column it is the output."""
     cfg = tiny_config(3)
     cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, stride=1, lines=90))
-    result = train(cfg, data, tmp_path / "run", progress=False)
+    result = train(cfg, open_source(data, "train"), tmp_path / "run", progress=False)
     assert len(result["losses"]) == 3 and np.isfinite(result["losses"]).all()
     model, _, rig = load_model(tmp_path / "run" / "checkpoint.pt")
-    frames, _, _ = list_frames(data, "test")
+    frames = open_source(data, "test").frames
     ir = read_frame(frames[0].path)["ir"].astype(np.float32)
     with torch.no_grad():
         column = model(torch.from_numpy(ir)[None, None])[0].numpy()
@@ -153,7 +160,8 @@ def test_a_full_resolution_network_trains_and_predicts_every_pixel(data, tmp_pat
 
 def test_model_input_lcn_equals_numpy_lcn(data):
     cfg = tiny_config(1)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     ir = read_frame(frames[0].path)["ir"].astype(np.float32)
     x = build_model(cfg, rig).inputs(torch.from_numpy(ir)[None, None])
     np.testing.assert_array_equal(x[0, 0].numpy(), ir)
@@ -162,7 +170,8 @@ def test_model_input_lcn_equals_numpy_lcn(data):
 
 
 def test_eval_table_matches_independent_count_from_infer_output(data, trained, tmp_path):
-    rows = evaluate(trained["run"] / "checkpoint.pt", data, tmp_path / "eval", progress=False)
+    rows = evaluate(trained["run"] / "checkpoint.pt", open_source(data, "test"), tmp_path / "eval",
+                    progress=False)
     md = (tmp_path / "eval" / "eval.md").read_text()
     assert "| network | all |" in md and "| sgbm-plain | all |" in md and "| sgbm-lcn | all |" in md
     assert "verdict: the network is" in md and "10.4-12.9 %" in md  # GigaDepth's reference figures
@@ -176,7 +185,7 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     strip = cv2.imread(str(pngs[0]))
     assert strip.shape[1] == 3 * 244 + 2 * 2
     scene, _, k = pngs[0].stem.removeprefix("scene_").partition("_frame_")
-    frame = next(f for f in list_frames(data, "test")[0]
+    frame = next(f for f in open_source(data, "test").frames
                  if (f.scene_index, f.frame_index) == (int(scene), int(k)))
     ir = read_frame(frame.path)["ir"].astype(np.float32)
     grey = np.clip(ir / max(float(np.percentile(ir, 99.5)), 1e-12) * 255, 0, 255).astype(np.uint8)
@@ -184,7 +193,8 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     assert np.array_equal(panel, np.repeat(np.repeat(grey, 2, 0), 2, 1)[..., None].repeat(3, 2))
     # recompute the network's overall and edge o(1) and the joint table's "only the network" at 0.5 px
     # from infer's EXRs, SGBM and the GT, by hand
-    frames, rig, _ = list_frames(data, "test")
+    source = open_source(data, "test")
+    frames, rig = source.frames, source.rig
     infer(trained["run"] / "checkpoint.pt", [f.path for f in frames], tmp_path / "inf", progress=False)
     import OpenEXR
 
@@ -223,7 +233,9 @@ def test_validation_while_training_scores_the_held_out_frames(data, trained, tmp
     import OpenEXR
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    frames, rig, _ = list_frames(data, "test")
+    source = open_source(data, "test")
+
+    frames, rig = source.frames, source.rig
     infer(trained["run"] / "checkpoint.pt", [f.path for f in frames], tmp_path / "inf", progress=False)
     pattern = np.asarray(load_pattern(data / "pattern.png").image, np.float64)
     counts = {"all": [0, 0], "solvable": [0, 0]}
@@ -245,13 +257,16 @@ def test_validation_while_training_scores_the_held_out_frames(data, trained, tmp
     events = EventAccumulator(str(trained["run"] / "tb")).Reload()
     assert "validation/solvable o(5)" in events.Tags()["scalars"]
     (image,) = events.Images("validation/ir_and_error_0_to_5_px")
-    assert (image.width, image.height) == (rig.camera.width, 2 * rig.camera.height)
-    with pytest.raises(DataError, match="validation frames .* overlap the training frames"):
-        train(trained["cfg"], data, tmp_path / "again", progress=False, val_data=data, val_split="all")
+    # the error strip eval draws too (trainer.scoring.error_strip): IR | network |err|, titled, a legend
+    assert image.width >= 2 * rig.camera.width and image.height > rig.camera.height
+    with pytest.raises(SourceError, match="validation frames .* overlap the training frames"):
+        train(trained["cfg"], open_source(data, "train"), tmp_path / "again", progress=False,
+              validation=open_source(data, "all"))
 
 
 def test_infer_writes_exr_png_ply_from_frames_and_plain_images(data, trained, tmp_path):
-    frames, rig, _ = list_frames(data, "test")
+    source = open_source(data, "test")
+    frames, rig = source.frames, source.rig
     ir = read_frame(frames[0].path)["ir"].astype(np.float32)
     png = tmp_path / "captured.png"
     cv2.imwrite(str(png), np.round(np.clip(ir, 0, 1) * 65535).astype(np.uint16))
@@ -289,7 +304,7 @@ def test_infer_point_cloud_keeps_depths_within_max_depth(data, trained, tmp_path
     none beyond (the EXR keeps every depth)."""
     import OpenEXR
 
-    frames, _, _ = list_frames(data, "test")
+    frames = open_source(data, "test").frames
     infer(trained["run"] / "checkpoint.pt", [frames[0].path], tmp_path / "full", progress=False)
     name = f"{frames[0].path.parent.name}_{frames[0].path.stem}"
     depth = OpenEXR.File(str(tmp_path / "full" / f"{name}.exr"), separate_channels=True
@@ -312,7 +327,7 @@ def test_unet_backbone_trains_a_step(data, tmp_path):
     cfg = tiny_config(2)
     d = cfg.to_dict()
     d["model"].update(backbone="unet", unet_channels=[16, 16])
-    result = train(config_from_dict(d, "unet"), data, tmp_path, progress=False)
+    result = train(config_from_dict(d, "unet"), open_source(data, "train"), tmp_path, progress=False)
     assert result["step"] == 2 and all(np.isfinite(result["losses"]))
 
 
@@ -321,7 +336,8 @@ def test_cached_frames_give_the_same_samples_and_are_read_once(data, monkeypatch
     each frame is read once, a sample changed in place leaves the cache as read, and cache_mb = 0
     keeps nothing."""
     cfg = tiny_config(1)
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     reads, read = [], FrameRef.read
 
     def counted_read(ref, channels):
@@ -359,7 +375,7 @@ def test_infer_by_its_command_draws_a_bar_unless_told_not_to(data, trained, tmp_
     the bar (tqdm, on stderr) only without it; the line saying what was written either way."""
     from commands.cli import main
 
-    frames, _, _ = list_frames(data, "test")
+    frames = open_source(data, "test").frames
     argv = ["infer", "--checkpoint", str(trained["run"] / "checkpoint.pt"), str(frames[0].path)]
     assert main([*argv, "-o", str(tmp_path / "bar")]) == 0
     out, err = capsys.readouterr()

@@ -8,12 +8,13 @@ import pytest
 import torch
 
 from dotsim.dataset import read_frame
+from dotsim.frame_source import open_source
 from tests.trainer.test_trainer_model import _naive_linear
 from tests.trainer_fixtures import tiny_config
 from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
 from trainer.config import config_from_dict
-from trainer.data import FrameDataset, list_frames
 from trainer.model import IndexedLinear, autocast, build_model, plan_groups
+from trainer.samples import FrameDataset
 from trainer.train import batch_loss, train
 
 LOW = [torch.bfloat16, torch.float16]
@@ -22,7 +23,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 def fixed_batch(data, cfg):
-    frames, rig, _ = list_frames(data, "train")
+    source = open_source(data, "train")
+    frames, rig = source.frames, source.rig
     fixed = FrameDataset(frames[:4], rig, cfg.data, seed=0, augment=False)
     return {k: torch.stack([fixed[i][k] for i in range(4)]) for k in fixed[0]}, rig
 
@@ -88,7 +90,7 @@ def test_amp_training_on_cpu_lowers_the_loss_and_resumes_exactly(data, tmp_path,
 
     torch.manual_seed(cfg.seed)
     before = fixed_loss(build_model(cfg, rig))
-    straight = train(cfg, data, tmp_path / "a", progress=False)["losses"]
+    straight = train(cfg, open_source(data, "train"), tmp_path / "a", progress=False)["losses"]
     assert np.all(np.isfinite(straight))
     ckpt, _, _ = load_checkpoint(tmp_path / "a" / "checkpoint.pt")
     model = build_model(cfg, rig)
@@ -99,9 +101,9 @@ def test_amp_training_on_cpu_lowers_the_loss_and_resumes_exactly(data, tmp_path,
         assert ckpt["scaler"]["scale"] > 0 and ckpt["scaler"]["_growth_tracker"] == steps
     else:
         assert ckpt["scaler"] == {}
-    first = train(tiny_config(steps // 2, lr=0.01, amp=precision), data, tmp_path / "b",
+    first = train(tiny_config(steps // 2, lr=0.01, amp=precision), open_source(data, "train"), tmp_path / "b",
                   progress=False)["losses"]
-    rest = train(cfg, data, tmp_path / "b", resume=True, progress=False)["losses"]
+    rest = train(cfg, open_source(data, "train"), tmp_path / "b", resume=True, progress=False)["losses"]
     assert first + rest == straight
 
 
@@ -109,14 +111,14 @@ def test_amp_training_on_cpu_lowers_the_loss_and_resumes_exactly(data, tmp_path,
 def checkpoint(data, tmp_path_factory):
     """A tiny network trained for 20 float32 steps (enough to route pixels over many leaves)."""
     run = tmp_path_factory.mktemp("run")
-    train(tiny_config(20, lr=0.01), data, run, progress=False)
+    train(tiny_config(20, lr=0.01), open_source(data, "train"), run, progress=False)
     return run / "checkpoint.pt"
 
 
 def test_reduced_precision_inference_agrees_with_float32(data, checkpoint):
     """Disparity differences of float16 / bfloat16 autocast against float32, on the test frames
     (the figures docs/TRAINER.md quotes come from bench.trainer_gpu --device cpu --small)."""
-    frames, _, _ = list_frames(data, "test")
+    frames = open_source(data, "test").frames
     model, _, rig = load_model(checkpoint)
     for precision, median_px in (("float16", 0.01), ("bfloat16", 0.1)):
         diffs = []
@@ -138,7 +140,7 @@ def test_checkpoint_loads_on_every_device_with_the_same_predictions(data, checkp
     model, _, rig = load_model(checkpoint, device)
     assert {p.device.type for p in [*model.parameters(), *model.buffers()]} == {device}
     reference, _, _ = load_model(checkpoint, "cpu")
-    frames, _, _ = list_frames(data, "test")
+    frames = open_source(data, "test").frames
     ir = read_frame(frames[0].path, channels=("ir",))["ir"].astype(np.float32)
     got, want = predict_disparity(model, rig, ir, device)[0], predict_disparity(reference, rig, ir)[0]
     np.testing.assert_array_equal(np.isfinite(got), np.isfinite(want))

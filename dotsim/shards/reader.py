@@ -1,27 +1,18 @@
-"""dotsim frames for torch, from either form: a dataset folder or WebDataset shards (commands.export).
+"""Reading `dotsim export`'s WebDataset shards (dotsim/shards/writer.py writes them; numpy only).
 
-`Frames(source)` is a torch IterableDataset that yields one dict per frame: the channels as numpy
-arrays (as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`,
-`split` and `meta` (the scene.json dict: rig, pattern, poses; a SceneMeta). It needs no trainer config,
-and PyTorch's default collate batches it (the channels as tensors, `meta` as a list: collate_meta):
+A source of shards is an export folder (its index.json, written by dotsim.shards.writer), a shard
+path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a URL the `webdataset` library
+opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`), or a list of these; `resolve`
+says which, and also recognises a dataset folder (dotsim.dataset) so that one argument names either
+form. Local shards listed in the index.json of the export folder they lie in are checked against
+their sha256 before they are read, whether the folder, their paths or a pattern named them.
 
-    from torch.utils.data import DataLoader
-    from dotsim.data import Frames
-    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=4, num_workers=4)
-
-The webdataset library's own pipelines read the shards too: `decode_webdataset` turns one of its raw
-samples into the same frame dict, without `meta` (each sample decodes alone from its frame.json):
+Streaming: `iter_tar_samples` and `decode_sample` turn a shard into frame dicts (trainer.samples.Frames
+streams them into torch). The webdataset library's own pipelines read the shards too: `decode_webdataset`
+turns one of its raw samples into the same frame dict, without `meta` (each sample decodes alone from
+its frame.json):
 
     wds.WebLoader(wds.WebDataset(urls).map(decode_webdataset).batched(4), batch_size=None, num_workers=4)
-
-A source is a dataset folder (index.json of dotsim.dataset), an export folder (index.json of
-commands.export), a shard path, a brace pattern of shards (`shards/shard-{000000..000009}.tar`), a
-URL the `webdataset` library opens (http(s)://, pipe:..., needs `pip install "dotsim[webdataset]"`),
-or a list of these. Work is split first over ranks (torch.distributed's, or the RANK and
-WORLD_SIZE environment variables), then over the DataLoader's workers: shards for shard sources,
-frames for a folder. Local shards listed in the index.json of the export folder they lie in are
-checked against their sha256 before they are read, whether the folder, their paths or a pattern
-named them. The pattern a source's frames were rendered with: `pattern_file`.
 
 For random access (a trainer's seeded shuffle), `index_shards` lists every sample of local shards
 with the byte ranges of its members, and `read_indexed` reads one sample by seeking to them;
@@ -40,25 +31,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
-from torch.utils.data._utils.collate import default_collate_fn_map
 
 from dotsim import dataset as ds
 from dotsim.dataset.frames import DERIVATIONS, derivable_channels
 from dotsim.dataset.layout import load_json
 from dotsim.file_io import atomic_writer, sha256_bytes, sha256_file
 from dotsim.rig.geometry import Rig, projector_column_to_depth
-from dotsim.shard_format import (
+from dotsim.shards.format import (
     INDEX_NAME,
-    PATTERN_NAME,
     WEBDATASET_FORMAT,
     channel_member,
     check_version,
     decode_channel,
-    sample_key,
 )
-
-FRAME_KEYS = ("key", "scene_index", "frame_index", "split", "meta")
 
 
 @dataclass(frozen=True)
@@ -71,7 +56,7 @@ class Source:
     checksums: tuple[tuple[str, str], ...] = ()
 
 
-def _is_url(text: str) -> bool:
+def is_url(text: str) -> bool:
     return "://" in text and not text.startswith("file://") or text.startswith("pipe:")
 
 
@@ -124,7 +109,7 @@ def resolve(source) -> Source:
     if not items:
         raise ds.FormatError("no data source given")
     folder = Path(_local(items[0]))
-    if len(items) == 1 and not _is_url(items[0]) and (folder.is_dir() or not _names_shards(items[0])):
+    if len(items) == 1 and not is_url(items[0]) and (folder.is_dir() or not _names_shards(items[0])):
         meta = _export_index(folder) if folder.is_dir() else None
         if meta is None:
             return Source(folder=folder)  # a dataset folder; open_dataset names what is missing
@@ -133,7 +118,7 @@ def resolve(source) -> Source:
     shards, checksums, indexes = [], {}, {}
     for item in items:
         for name in _expand(item):
-            if _is_url(name):
+            if is_url(name):
                 shards.append(name)
                 continue
             path = Path(_local(name))
@@ -150,22 +135,10 @@ def resolve(source) -> Source:
     return Source(None, tuple(shards), tuple(checksums.items()))
 
 
-def pattern_file(source) -> Path:
-    """The projector pattern of a source: DATASET/pattern.png of a folder, else the pattern.png that
-    `dotsim export` put beside the (local) shards."""
-    src = resolve(source)
-    if src.folder is not None:
-        return ds.pattern_path(src.folder)
-    local = [s for s in src.shards if not _is_url(s)]
-    if not local:
-        raise ds.FormatError("shards behind URLs: stage them first (stage_shards) to find their pattern")
-    return Path(local[0]).parent / PATTERN_NAME
-
-
 def open_shard(location: str, checksums: dict[str, str] | None = None):
     """A binary stream of a shard: a local file (its sha256 checked first when `checksums` lists it)
     or a URL through webdataset.gopen."""
-    if not _is_url(location):
+    if not is_url(location):
         expected = (checksums or {}).get(location)
         if expected is not None and sha256_file(location) != expected:
             raise ds.FormatError(f"{location}: sha256 differs from the one in {INDEX_NAME} (file changed "
@@ -237,10 +210,11 @@ def decode_sample(key: str, files: dict[str, bytes], channels=None, where: str =
 def decode_webdataset(sample: dict, channels=None) -> dict:
     """One raw sample of the webdataset library ({"__key__": KEY, "__url__": shard, "ir.png": bytes,
     "frame.json": bytes, ...}, as `webdataset.WebDataset(urls)` yields it without `.decode()`) as the
-    frame dict Frames yields, without `meta`: the channels (PNG codes decoded as its frame.json says,
-    .npy.gz unpacked, `disparity` derived) and key, scene_index, frame_index, split. It needs no other
-    sample: frame.json carries the rig and the codecs, so it suits a shuffled pipeline, in which a
-    scene's scene.json.gz (in its first sample per shard only) may come later, or in another worker.
+    frame dict trainer.samples.Frames yields, without `meta`: the channels (PNG codes decoded as its
+    frame.json says, .npy.gz unpacked, `disparity` derived) and key, scene_index, frame_index, split.
+    It needs no other sample: frame.json carries the rig and the codecs, so it suits a shuffled
+    pipeline, in which a scene's scene.json.gz (in its first sample per shard only) may come later,
+    or in another worker.
     FormatError naming the shard and the sample."""
     key = sample.get("__key__")
     if not isinstance(key, str):
@@ -301,90 +275,6 @@ def _decode_frame(key: str, files: dict[str, bytes], channels, where: str, meta:
     return out
 
 
-class SceneMeta(dict):
-    """The scene.json dict of a Frames sample. Its own type so that PyTorch's default collate batches
-    it with collate_meta (registered in torch's default_collate_fn_map, PyTorch's documented way to
-    extend default_collate, when this module is imported): scene.json holds null values and lists of
-    per-scene lengths (objects, lights), which default_collate cannot stack."""
-
-
-def collate_meta(batch, *, collate_fn_map=None) -> list[dict]:
-    """The collate rule for SceneMeta: a batch's metadata as a list, one scene.json dict per sample,
-    in the batch's order (default_collate uses it for the `meta` of Frames samples; a custom collate_fn
-    can call it on [sample["meta"] for sample in samples])."""
-    return list(batch)
-
-
-default_collate_fn_map[SceneMeta] = collate_meta
-
-
-def rank_and_world() -> tuple[int, int]:
-    """This process's rank and the number of ranks: torch.distributed's when it is initialised,
-    else RANK and WORLD_SIZE from the environment (torchrun sets them), else 0 and 1."""
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
-
-
-def share(items: list, rank: int, world: int, worker: int, workers: int) -> list:
-    """The items of (rank, worker): item i goes to the (i mod world*workers)-th of them, rank-major."""
-    slot, slots = rank * workers + worker, world * workers
-    return items[slot::slots]
-
-
-class Frames(torch.utils.data.IterableDataset):
-    """The frames of a source (see the module docstring) as dicts; `split` keeps one scene split,
-    `channels` some channels (default all), `shuffle` with `seed` reorders the shards (or frames of a
-    folder) per epoch (set_epoch). A sample's `meta` is a SceneMeta, so DataLoader(frames,
-    batch_size=N) batches samples with PyTorch's default collate."""
-
-    def __init__(self, source, channels=None, split: str | None = None, shuffle: bool = False,
-                 seed: int = 0, rank: int | None = None, world: int | None = None, verify: bool = True):
-        self.source = resolve(source)
-        self.channels = None if channels is None else tuple(channels)
-        self.split, self.shuffle, self.seed, self.verify = split, shuffle, seed, verify
-        self.rank, self.world = rank, world
-        self.epoch = 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
-    def _units(self) -> list:
-        if self.source.folder is None:
-            units = list(self.source.shards)
-        else:
-            dataset = ds.open_dataset(self.source.folder, verify=self.verify)
-            scenes = dataset.scenes if self.split is None else dataset.split(self.split)
-            units = [(ref, k) for ref in scenes for k in range(ref.frame_count)]
-        if self.shuffle:
-            order = np.random.default_rng([self.seed, self.epoch]).permutation(len(units))
-            units = [units[i] for i in order]
-        rank, world = rank_and_world()
-        rank = rank if self.rank is None else self.rank
-        world = world if self.world is None else self.world
-        info = torch.utils.data.get_worker_info()
-        worker, workers = (0, 1) if info is None else (info.id, info.num_workers)
-        return share(units, rank, world, worker, workers)
-
-    def __iter__(self) -> Iterator[dict]:
-        if self.source.folder is not None:
-            for ref, k in self._units():
-                meta = ds.read_scene_meta(ref.path, verify=self.verify)
-                frame = ds.read_frame(ref.path / ds.frame_name(k), verify=self.verify, channels=self.channels,
-                                      meta=meta)
-                yield {"key": sample_key(ref.scene_index, k), "scene_index": ref.scene_index,
-                       "frame_index": k, "split": meta["split"], "meta": SceneMeta(meta), **frame}
-            return
-        checksums = dict(self.source.checksums) if self.verify else {}
-        for location in self._units():
-            with open_shard(location, checksums) as stream:
-                metas: dict[int, dict] = {}
-                for key, files in iter_tar_samples(stream, location):
-                    sample = decode_sample(key, files, self.channels, location, metas)
-                    if self.split is None or sample["split"] == self.split:
-                        yield {**sample, "meta": SceneMeta(sample["meta"])}
-
-
 def default_cache_dir() -> Path:
     """Where shards behind URLs are copied for random access: $DOTSIM_CACHE, else ~/.cache/dotsim."""
     return Path(os.environ.get("DOTSIM_CACHE") or Path.home() / ".cache" / "dotsim") / "shards"
@@ -394,13 +284,13 @@ def stage_shards(source, cache_dir: str | Path | None = None) -> Source:
     """`source` with every shard behind a URL copied to a local file in cache_dir (default
     default_cache_dir()), named after the URL, kept for the next run; local shards stay as they are."""
     src = resolve(source)
-    if src.folder is not None or not any(_is_url(s) for s in src.shards):
+    if src.folder is not None or not any(is_url(s) for s in src.shards):
         return src
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
     local = []
     for location in src.shards:
-        if _is_url(location):
+        if is_url(location):
             path = cache / f"{sha256_bytes(location.encode())[:16]}-{location.rstrip('/').rsplit('/', 1)[-1]}"
             if not path.is_file():
                 with open_shard(location) as stream, atomic_writer(path) as out:
@@ -428,9 +318,9 @@ def index_shards(source) -> list[IndexedSample]:
     checksums = dict(src.checksums)
     samples = []
     for location in src.shards:
-        if _is_url(location):
+        if is_url(location):
             raise ds.FormatError(f"{location}: random access needs local shards (copy them, or stream "
-                                 f"with dotsim.data.Frames)")
+                                 f"with trainer.samples.Frames)")
         with open_shard(location, checksums) as stream:
             try:
                 members = tarfile.open(fileobj=stream, mode="r:").getmembers()

@@ -1,9 +1,9 @@
 """The WebDataset sample format of `dotsim export`: member names, channel codecs, versions.
 
-One module for both sides: `commands.export` writes samples with `encode_channel`, `dotsim.data`
-reads them with `decode_channel`, so a codec is defined once. A sample is one frame; its members
-are named KEY.EXT (the WebDataset convention), KEY = scene_SSSSSSS_frame_K. Format 2.0 stores each
-channel in the first codec of this list that holds it:
+One module for both sides: dotsim/shards/writer.py writes samples with `encode_channel`,
+dotsim/shards/reader.py reads them with `decode_channel`, so a codec is defined once. A sample is
+one frame; its members are named KEY.EXT (the WebDataset convention), KEY = scene_SSSSSSS_frame_K.
+Format 2.0 stores each channel in the first codec of this list that holds it:
 
 - ``CHANNEL.png``: a PNG of integer codes, which every image tool opens, decoded as the sample's
   frame.json `encoding` entry says. Masks: a 1-bit PNG (nonzero = 1). The IR images (`ir`,

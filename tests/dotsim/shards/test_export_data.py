@@ -1,9 +1,9 @@
-"""`dotsim export --format webdataset`, dotsim.data.Frames, and the trainer and eval on shards.
+"""`dotsim export --format webdataset`, trainer.samples.Frames, and the trainer and eval on shards.
 
 Tiny oracle datasets (tests/trainer_fixtures.py, written with the dataset writer) are exported; the
-shards are read back by dotsim.data (streamed and indexed), by the webdataset library and OpenCV
-(independently of dotsim's decoder), by the trainer and by eval, and everything is compared with
-the folder read through dotsim.dataset.
+shards are read back by dotsim.shards.reader and trainer.samples.Frames (streamed and indexed), by
+the webdataset library and OpenCV (independently of dotsim's decoder), by the trainer and by eval,
+and everything is compared with the folder read through dotsim.dataset.
 """
 
 import hashlib
@@ -17,15 +17,16 @@ import pytest
 import torch
 
 from commands import cli
-from commands import export as export_module
-from commands.export import export_webdataset, tar_bytes_of
 from dotsim import dataset as ds
 from dotsim import file_io
-from dotsim.data import Frames, SceneMeta, decode_webdataset, index_shards, read_indexed
+from dotsim.frame_source import SourceError, open_source
+from dotsim.shards import writer as export_module
+from dotsim.shards.reader import decode_webdataset, index_shards, read_indexed
+from dotsim.shards.writer import export_webdataset, tar_bytes_of
 from tests.output_folders import assert_one_line_error, leftovers
 from tests.trainer_fixtures import make_dataset, tiny_config
-from trainer.data import DataError, list_frames
 from trainer.evaluate import evaluate
+from trainer.samples import Frames, SceneMeta
 from trainer.train import train
 
 SHARD_BYTES = 260_000  # a frame's sample takes about 120 kB of tar: two per shard
@@ -183,8 +184,8 @@ def test_export_resumes_after_a_crash_exactly_as_an_unbroken_run(data, tmp_path,
     assert sorted(p.name for p in out.glob("shard-*.tar")) == ["shard-000000.tar", "shard-000001.tar"]
     assert not (out / "index.json").exists()
     (out / ".tmp-shard-000002.tar-99999").write_bytes(b"half a shard a kill -9 left")
-    with pytest.raises(DataError, match="not a usable dotsim dataset"):  # unfinished: no index.json
-        list_frames(out, "all")
+    with pytest.raises(SourceError, match="not a usable dotsim dataset"):  # unfinished: no index.json
+        open_source(out, "all")
     result = export_webdataset(data, out, samples_per_shard=2)
     assert result.resumed == 2 and "found done" in result.line()
     assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in (tmp_path / "unbroken").iterdir())
@@ -231,10 +232,10 @@ def test_bad_sources_and_damaged_shards_are_named(data, export, tmp_path):
     for source in (copy, copy / "shard-000001.tar", str(copy / "shard-{000000..000003}.tar")):
         with pytest.raises(ds.FormatError, match="shard-000001.tar: sha256 differs"):
             list(Frames(source))
-        with pytest.raises(DataError, match="shard-000001.tar: sha256 differs"):
-            list_frames(source, "all")
-    with pytest.raises(DataError, match="no scenes with split 'val'"):
-        list_frames(export, "val")
+        with pytest.raises(SourceError, match="shard-000001.tar: sha256 differs"):
+            open_source(source, "all")
+    with pytest.raises(SourceError, match="no scenes with split 'val'"):
+        open_source(export, "val")
     index = json.loads((copy / "index.json").read_text())
     index["format_version"] = "3.0"
     (copy / "index.json").write_text(json.dumps(index))
@@ -259,28 +260,31 @@ def test_rank_and_worker_splitting_covers_every_frame_once(data, export):
 
 @pytest.mark.usefixtures("one_thread")
 def test_training_and_eval_from_shards_give_the_folders_figures(data, export, tmp_path):
-    folder = train(tiny_config(4), data, tmp_path / "folder", progress=False)["losses"]
-    shards = train(tiny_config(4), export, tmp_path / "wds", progress=False)["losses"]
+    folder = train(tiny_config(4), open_source(data, "train"), tmp_path / "folder", progress=False)["losses"]
+    shards = train(tiny_config(4), open_source(export, "train"), tmp_path / "wds", progress=False)["losses"]
     assert shards == folder and folder[0] != folder[1]
     pattern = str(export / "shard-{000000..000003}.tar")
-    assert train(tiny_config(2), pattern, tmp_path / "pattern", progress=False)["losses"] == folder[:2]
+    assert train(tiny_config(2), open_source(pattern, "train"), tmp_path / "pattern",
+                 progress=False)["losses"] == folder[:2]
     # a URL (webdataset's pipe:) is copied to the cache once, then read as a local shard
     urls = [f"pipe:cat {export / f'shard-{n:06d}.tar'}" for n in range(4)]
-    frames, rig, _ = list_frames(urls, "train", cache_dir=tmp_path / "cache")
+    frames = open_source(urls, "train", cache_dir=tmp_path / "cache").frames
     assert len(frames) == 6 and len(list((tmp_path / "cache").iterdir())) == 4
-    local, _, _ = list_frames(export, "train")
+    local = open_source(export, "train").frames
     for a, b in zip(frames, local, strict=True):
         assert (a.scene_index, a.frame_index) == (b.scene_index, b.frame_index)
         assert np.array_equal(a.read(("ir",))["ir"], b.read(("ir",))["ir"])
     checkpoint = tmp_path / "folder" / "checkpoint.pt"
-    on_folder = evaluate(checkpoint, data, tmp_path / "e1", progress=False, images=1, val_data=data)
-    on_shards = evaluate(checkpoint, export, tmp_path / "e2", progress=False, images=1, val_data=export)
+    on_folder = evaluate(checkpoint, open_source(data, "test"), tmp_path / "e1", progress=False, images=1,
+                         validation=open_source(data, "train"))
+    on_shards = evaluate(checkpoint, open_source(export, "test"), tmp_path / "e2", progress=False, images=1,
+                         validation=open_source(export, "train"))
     assert json.dumps(on_folder) == json.dumps(on_shards) and on_folder[0]["pixels"] > 0  # nan == nan
 
 
 def test_default_collate_batches_frames_with_workers_and_their_metadata_as_a_list(data, tmp_path):
     """DataLoader(Frames(...), batch_size=N) with PyTorch's default collate: channels as tensors, keys
-    and splits as lists, the scene.json dicts (which hold nulls) as a list (dotsim.data.collate_meta)."""
+    and splits as lists, the scene.json dicts (which hold nulls) as a list (trainer.samples.collate_meta)."""
     out = tmp_path / "two"
     assert cli.main(["export", str(data), str(out), "--shards", "2"]) == 0
     expected = {key: (meta, frame) for key, meta, frame in folder_frames(data)}
@@ -313,8 +317,9 @@ def test_default_collate_batches_frames_with_workers_and_their_metadata_as_a_lis
 def test_the_webdataset_library_loads_an_export_into_batches_with_two_workers(data, tmp_path, precision,
                                                                               channels):
     """An export read by the webdataset library's own pipeline and WebLoader(num_workers=2), each raw
-    sample decoded alone by dotsim.data.decode_webdataset (shuffled, so a scene's scene.json.gz may come
-    after its other frames), batched by webdataset, against the folder read by dotsim.dataset."""
+    sample decoded alone by dotsim.shards.reader.decode_webdataset (shuffled, so a scene's
+    scene.json.gz may come after its other frames), batched by webdataset, against the folder read by
+    dotsim.dataset."""
     import webdataset as wds
 
     out = tmp_path / precision

@@ -1,5 +1,6 @@
-"""Training samples from dotsim shards: IR crops with the GT projector column at the network's output
-resolution (half, or full with [model] stride 1).
+"""What the network is fed, as torch datasets: training samples (IR crops with the GT projector column
+at the network's output resolution: half, or full with [model] stride 1), and whole frames streamed from
+any source (`Frames`).
 
 A sample keeps the identity of the network's lines: crops start on full-resolution rows that are
 multiples of the network's stride and carry their first output row (`row0`) and column (`x0`), so the
@@ -7,145 +8,49 @@ per-line weights see the rows they are meant for. The targets are read at the fu
 the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated.
 Augmentations (gain, noise, vertical jitter) draw from an RNG keyed by (seed, epoch, frame index): the
 same sample comes out in any worker and after a resume.
+
+`Frames(source)` is a torch IterableDataset that yields one dict per frame of a dataset folder or of
+`dotsim export`'s shards (dotsim.shards.reader.resolve names the forms): the channels as numpy arrays
+(as dotsim.dataset.read_frame returns them), plus `key`, `scene_index`, `frame_index`, `split` and
+`meta` (the scene.json dict: rig, pattern, poses; a SceneMeta). It needs no trainer config, and
+PyTorch's default collate batches it (the channels as tensors, `meta` as a list: collate_meta):
+
+    from torch.utils.data import DataLoader
+    from trainer.samples import Frames
+    loader = DataLoader(Frames("data/train.wds", channels=("ir", "depth")), batch_size=4, num_workers=4)
+
+Its work is split first over ranks (torch.distributed's, or the RANK and WORLD_SIZE environment
+variables), then over the DataLoader's workers: shards for shard sources, frames for a folder.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
+import os
+from collections.abc import Iterator
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data._utils.collate import default_collate_fn_map
 
-from dotsim.data import IndexedSample, index_shards, pattern_file, read_indexed, resolve, stage_shards
-from dotsim.dataset import FormatError, open_dataset, read_frame, read_scene_meta
-from dotsim.patterns import PatternError, load_pattern
+from dotsim import dataset as ds
+from dotsim.frame_source import FrameRef
 from dotsim.rig.geometry import Rig
+from dotsim.shards.format import sample_key
+from dotsim.shards.reader import (
+    decode_sample,
+    iter_tar_samples,
+    open_shard,
+    resolve,
+)
 from trainer.config import DataConfig
 
 TRAIN_CHANNELS = ("ir", "visibility", "edge", "projector_column")
 
 
 class DataError(ValueError):
-    """The data folder cannot be used with this configuration or checkpoint."""
-
-
-@dataclass(frozen=True)
-class FrameRef:
-    """One frame: its EXR in a dataset folder, or its sample in a WebDataset shard (`sample`)."""
-
-    path: Path
-    scene_index: int
-    frame_index: int
-    sample: IndexedSample | None = None
-
-    def read(self, channels) -> dict[str, np.ndarray]:
-        if self.sample is None:
-            return read_frame(self.path, channels=channels)
-        frame = read_indexed(self.sample, channels)
-        return {c: frame[c] for c in channels}
-
-    def stored_channels(self) -> set[str]:
-        """The channels the frame stores (an export's sample may hold fewer than its scene.json lists)."""
-        if self.sample is None:
-            return set(self.scene_meta().get("channels", ()))
-        return {ext.split(".")[0] for ext, _, _ in self.sample.members}
-
-    def scene_meta(self) -> dict:
-        """The frame's scene.json dict."""
-        if self.sample is None:
-            return read_scene_meta(self.path.parent)
-        return read_indexed(self.sample, channels=())["meta"]
-
-
-def _no_split_error(data: str, split: str, splits: list) -> DataError:
-    present: dict[str, int] = {}
-    for s in splits:
-        present[str(s)] = present.get(str(s), 0) + 1
-    return DataError(f"{data}: no scenes with split {split!r} "
-                     f"(splits present: {present or 'none, empty dataset'}); choose one of those or 'all'")
-
-
-def list_frames(data: str | Path, split: str, cache_dir: str | Path | None = None
-                ) -> tuple[list[FrameRef], Rig, dict]:
-    """Frames of the scenes of `split` ("all" for every scene) and the one rig they share.
-
-    data: a dataset folder, or WebDataset shards of `dotsim export` (its folder, shard paths, a brace
-    pattern, URLs: dotsim.data.resolve); shards behind URLs are first copied to `cache_dir`
-    (dotsim.data.stage_shards). Frames keep the dataset's order either way, so a seeded run sees the
-    same samples from both forms. Returns (frames, rig, pattern meta of the first scene). Errors name
-    the data, the split and the splits present, or the scene whose rig differs from the first one's.
-    """
-    try:
-        source = resolve(data)
-        if source.folder is None:
-            return _list_shard_frames(str(data), stage_shards(source, cache_dir), split)
-        ds = open_dataset(source.folder)
-    except FormatError as e:
-        raise DataError(f"{data}: not a usable dotsim dataset: {e}") from e
-    scenes = ds.scenes if split == "all" else ds.split(split)
-    if not scenes:
-        raise _no_split_error(str(data), split, [s.split for s in ds.scenes])
-    frames, rigs = [], _OneRig()
-    for s in scenes:
-        rigs.check(read_scene_meta(s.path), s.path)
-        frames += [FrameRef(p, s.scene_index, k) for k, p in enumerate(s.frame_paths)]
-    return frames, rigs.rig, rigs.pattern
-
-
-def dataset_pattern(data, rig: Rig) -> np.ndarray:
-    """The projector pattern the data was rendered with (its pattern.png, or an export's), checked
-    against the rig's projector; DataError naming the file otherwise."""
-    try:
-        return load_pattern(pattern_file(data), (rig.projector.height, rig.projector.width)).image
-    except PatternError as e:
-        raise DataError(str(e)) from e
-
-
-def spread(frames: list, count: int) -> list:
-    """`count` items spread evenly over `frames` (all of them when there are fewer, or count is 0)."""
-    if count <= 0 or len(frames) <= count:
-        return list(frames)
-    return [frames[k] for k in np.linspace(0, len(frames) - 1, count).round().astype(int)]
-
-
-def check_held_out(frames: list[FrameRef], others: list[FrameRef], what: str, where: str) -> None:
-    """DataError when any of `frames` (`what`) is one of `others` (`where`): validation frames must be
-    held out from the frames they judge."""
-    taken = {(f.path, f.scene_index, f.frame_index) for f in others}
-    if any((f.path, f.scene_index, f.frame_index) in taken for f in frames):
-        raise DataError(f"{what} overlap {where}; give another split or dataset")
-
-
-class _OneRig:
-    """The rig and pattern of the first scene seen; DataError for a scene with another rig."""
-
-    rig = pattern = first = None
-
-    def check(self, meta: dict, where) -> None:
-        scene_rig = Rig.from_dict(meta["rig"])
-        if self.rig is None:
-            self.rig, self.pattern, self.first = scene_rig, meta["pattern"], where
-        elif scene_rig != self.rig:
-            raise DataError(f"{where}: its rig differs from {self.first}'s; a dataset for training has "
-                            "one rig")
-
-
-def _list_shard_frames(data: str, source, split: str) -> tuple[list[FrameRef], Rig, dict]:
-    frames, rigs, splits = [], _OneRig(), {}
-    for sample in index_shards(source):
-        info = read_indexed(sample, channels=())
-        if split != "all" and info["split"] != split:
-            splits[info["scene_index"]] = info["split"]
-            continue
-        if info["scene_index"] not in splits:
-            splits[info["scene_index"]] = info["split"]
-            rigs.check(info["meta"], f"{sample.shard} ({sample.key})")
-        frames.append(FrameRef(Path(sample.shard), info["scene_index"], info["frame_index"], sample))
-    if not frames:
-        raise _no_split_error(data, split, list(splits.values()))
-    return frames, rigs.rig, rigs.pattern
+    """The data cannot be used with this configuration or checkpoint (the data source's own errors:
+    dotsim.frame_source.SourceError)."""
 
 
 def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarray]:
@@ -253,3 +158,87 @@ def make_loader(ds: FrameDataset, batch_size: int, epoch: int, skip: int, worker
                                                                   rank, world),
         num_workers=workers, drop_last=True, persistent_workers=False,
     )
+
+
+class SceneMeta(dict):
+    """The scene.json dict of a Frames sample. Its own type so that PyTorch's default collate batches
+    it with collate_meta (registered in torch's default_collate_fn_map, PyTorch's documented way to
+    extend default_collate, when this module is imported): scene.json holds null values and lists of
+    per-scene lengths (objects, lights), which default_collate cannot stack."""
+
+
+def collate_meta(batch, *, collate_fn_map=None) -> list[dict]:
+    """The collate rule for SceneMeta: a batch's metadata as a list, one scene.json dict per sample,
+    in the batch's order (default_collate uses it for the `meta` of Frames samples; a custom collate_fn
+    can call it on [sample["meta"] for sample in samples])."""
+    return list(batch)
+
+
+default_collate_fn_map[SceneMeta] = collate_meta
+
+
+def rank_and_world() -> tuple[int, int]:
+    """This process's rank and the number of ranks: torch.distributed's when it is initialised,
+    else RANK and WORLD_SIZE from the environment (torchrun sets them), else 0 and 1."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+
+
+def share(items: list, rank: int, world: int, worker: int, workers: int) -> list:
+    """The items of (rank, worker): item i goes to the (i mod world*workers)-th of them, rank-major."""
+    slot, slots = rank * workers + worker, world * workers
+    return items[slot::slots]
+
+
+class Frames(torch.utils.data.IterableDataset):
+    """The frames of a source (see the module docstring) as dicts; `split` keeps one scene split,
+    `channels` some channels (default all), `shuffle` with `seed` reorders the shards (or frames of a
+    folder) per epoch (set_epoch). A sample's `meta` is a SceneMeta, so DataLoader(frames,
+    batch_size=N) batches samples with PyTorch's default collate."""
+
+    def __init__(self, source, channels=None, split: str | None = None, shuffle: bool = False,
+                 seed: int = 0, rank: int | None = None, world: int | None = None, verify: bool = True):
+        self.source = resolve(source)
+        self.channels = None if channels is None else tuple(channels)
+        self.split, self.shuffle, self.seed, self.verify = split, shuffle, seed, verify
+        self.rank, self.world = rank, world
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def _units(self) -> list:
+        if self.source.folder is None:
+            units = list(self.source.shards)
+        else:
+            dataset = ds.open_dataset(self.source.folder, verify=self.verify)
+            scenes = dataset.scenes if self.split is None else dataset.split(self.split)
+            units = [(ref, k) for ref in scenes for k in range(ref.frame_count)]
+        if self.shuffle:
+            order = np.random.default_rng([self.seed, self.epoch]).permutation(len(units))
+            units = [units[i] for i in order]
+        rank, world = rank_and_world()
+        rank = rank if self.rank is None else self.rank
+        world = world if self.world is None else self.world
+        info = torch.utils.data.get_worker_info()
+        worker, workers = (0, 1) if info is None else (info.id, info.num_workers)
+        return share(units, rank, world, worker, workers)
+
+    def __iter__(self) -> Iterator[dict]:
+        if self.source.folder is not None:
+            for ref, k in self._units():
+                meta = ds.read_scene_meta(ref.path, verify=self.verify)
+                frame = ds.read_frame(ref.path / ds.frame_name(k), verify=self.verify, channels=self.channels,
+                                      meta=meta)
+                yield {"key": sample_key(ref.scene_index, k), "scene_index": ref.scene_index,
+                       "frame_index": k, "split": meta["split"], "meta": SceneMeta(meta), **frame}
+            return
+        checksums = dict(self.source.checksums) if self.verify else {}
+        for location in self._units():
+            with open_shard(location, checksums) as stream:
+                metas: dict[int, dict] = {}
+                for key, files in iter_tar_samples(stream, location):
+                    sample = decode_sample(key, files, self.channels, location, metas)
+                    if self.split is None or sample["split"] == self.split:
+                        yield {**sample, "meta": SceneMeta(sample["meta"])}
