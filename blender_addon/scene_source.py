@@ -43,7 +43,8 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
                               "camera_info or Kalibr calibration), or the config's rig or a preset")
         config = with_rig(config, rig)
     request = RunRequest(config, work_dir, split, scenes=1, start=scene_index, seed=base_seed)
-    return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(request))
+    return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(
+        config, request.split, request.out, request.pattern))
 
 
 def check_frame(frame: int, spec: SceneSpec) -> int:

@@ -12,8 +12,8 @@ Modules (one idea each; only generator/blender/ imports bpy):
   post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
   render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
-                 carrying the rig and the pattern
-  executor       the Executor protocol (prepare, render, seal) that every engine implements
+                 carrying the rig and the pattern; the Executor protocol (prepare, render, seal) that
+                 every engine implements; RunSummary, what a run did
   run_steps      the steps every engine takes on the dataset folder: prepare_run, render_missing
                  (resume, progress), sealing; seal_run for clusters
   pipeline       run(request): the request's executor through prepare, render and seal; generate()

@@ -12,7 +12,7 @@ from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.option_types import integer
 from generator.config import ConfigError
-from generator.executor import Executor
+from generator.run_request import Executor
 from generator.scene_spec import SPLITS
 
 DESCRIPTION = """\
@@ -57,7 +57,7 @@ Config keys: docs/CONFIG.md.
 
 
 # The engine modules `dotsim generate` offers besides the local pool, in --help order (each defines
-# add_options and from_args: generator/executor.py).
+# add_options and from_args: generator/run_request.py).
 ENGINES = ("generator.ray_cluster", "generator.slurm")
 
 

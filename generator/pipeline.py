@@ -1,7 +1,7 @@
 """The generator run: RunRequest -> its executor's prepare, render and seal -> a sealed dataset.
 
 `run(request)` (generator/run_request.py: a request checked when it was made) drives every engine
-(generator/executor.py) the same way: `executor.prepare` gets the dataset folder ready (checks
+(generator/run_request.py's Executor) the same way: `executor.prepare` gets the dataset folder ready (checks
 first, then the writer lock, pattern, run record and textures), `executor.render` renders the
 scenes of the range not yet complete (resume) and `executor.seal` seals them, each engine through
 the shared steps of generator/run_steps.py: in W spawned processes (generator/local_pool.py, the
@@ -19,10 +19,8 @@ import sys
 import time
 
 from generator.config import Config
-from generator.executor import Executor
 from generator.local_pool import LocalExecutor
-from generator.run_request import RunRequest
-from generator.run_steps import RunSummary
+from generator.run_request import Executor, RunRequest, RunSummary
 
 
 def run(request: RunRequest) -> RunSummary:

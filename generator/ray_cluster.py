@@ -1,5 +1,5 @@
 """The Ray engine: a generator run rendered on a Ray cluster, one Ray task per small batch of scenes
-(`dotsim generate --ray ADDRESS`; the Executor protocol: generator/executor.py).
+(`dotsim generate --ray ADDRESS`; the Executor protocol: generator/run_request.py).
 
 `RayExecutor.prepare` checks everything as for a local run, then connects to the cluster and makes
 sure every node sees the output folder (a marker file written here, read by a task on each node)
@@ -34,8 +34,7 @@ from generator.config import ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
     from generator.render_scenes import RenderJob, SceneResult
-    from generator.run_request import RunRequest
-    from generator.run_steps import RunSummary
+    from generator.run_request import RunRequest, RunSummary
 
 INSTALL_HINT = 'pip install "dotsim[ray]" (or `make ray`)'
 # Scenes per task: a retry after a node failure redoes at most this many (seconds each at full

@@ -1,7 +1,7 @@
 """Render scenes into a dataset: `render_scenes(job, indices)`, here in this process.
 
 A RenderJob is everything a scene needs besides its index; `generator.run_steps.prepare_run` makes
-one (and gets the dataset folder ready). Every engine (generator/executor.py) hands out indices to
+one (and gets the dataset folder ready). Every engine (the Executor protocol: generator/run_request.py) hands out indices to
 processes that call `render_scenes` on their share: a local pool worker (generator/local_pool.py),
 a Ray task, a Slurm array task. For each index the scene is sampled (generator/sample_scene.py),
 rendered (bpy as a module: one SceneRenderer per process, reused; or with `job.blender`: `EXE

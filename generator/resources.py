@@ -18,17 +18,14 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes, atomic_write_json, sha256_bytes, sha256_file
+from dotsim.patterns import DotPattern
 from generator.config import Config, ConfigError
 from generator.sample_scene import MeshAsset, SceneResources, TextureAsset
 from generator.scene_spec import SPLITS
-
-if TYPE_CHECKING:
-    from generator.run_request import RunRequest
 
 TEXTURE_DIR = "textures"
 TEXTURE_CHECKSUMS = "checksums.json"
@@ -151,13 +148,12 @@ def split_assets(config: Config, split: str, folder: str | os.PathLike) -> Scene
     return SceneResources("", "", textures=builtin_textures(Path(folder), split))
 
 
-def resources_in_folder(request: RunRequest) -> SceneResources:
-    """Pattern and assets of the request's split with its pattern and the built-in textures written
-    under request.out (a work folder, not a dataset) once: the pattern as
-    out/pattern_<sha256 prefix>.png, so configs with different patterns never share one.
-    ConfigError naming the config when its pattern or asset cache cannot be used."""
-    folder, pattern = request.out, request.pattern
-    assets = split_assets(request.config, request.split, folder)
+def resources_in_folder(config: Config, split: str, folder: Path, pattern: DotPattern) -> SceneResources:
+    """Pattern and assets of `split` with `pattern` and the built-in textures written under `folder`
+    (a work folder, not a dataset) once: the pattern as folder/pattern_<sha256 prefix>.png, so
+    configs with different patterns never share one. ConfigError naming the config when its asset
+    cache cannot be used."""
+    assets = split_assets(config, split, folder)
     pattern_path = folder / f"pattern_{pattern.sha256[:16]}.png"
     if not pattern_path.exists():
         pattern.save_png(pattern_path)

@@ -1,5 +1,5 @@
 """The steps of a generator run on its dataset folder, the same for every engine
-(generator/executor.py): get the folder ready, render what is missing, seal.
+(the Executor protocol: generator/run_request.py): get the folder ready, render what is missing, seal.
 
   `prepare_run` (an executor's prepare; `prepare_writer` for engines that render their range
      themselves) checks the output directory's existing dataset, the pattern, the asset cache and
@@ -30,7 +30,6 @@ import platform
 import subprocess
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -43,43 +42,11 @@ from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
 from dotsim.version import __version__
 from generator.config import Config, ConfigError
-from generator.render_scenes import LOG_DIR, RenderJob, SceneResult
+from generator.render_scenes import RenderJob, SceneResult
 from generator.resources import input_checksums, split_assets
-from generator.run_request import RunRequest
+from generator.run_request import RunRequest, RunSummary
 
 RUN_FILE = "generate.json"
-
-
-@dataclass
-class RunSummary:
-    """What a run did; `line()` is the summary printed at the end."""
-    out: Path
-    done: int = 0
-    skipped: int = 0
-    frames: int = 0
-    seconds: float = 0.0
-    worker_seconds: float = 0.0
-    failed: list[int] = field(default_factory=list)
-    redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
-    unsealed: str = ""  # why the run could not seal (other writers kept changing the dataset)
-    submitted: str = ""  # what was handed to a batch system instead (Slurm): the whole line then
-
-    def line(self) -> str:
-        if self.submitted:
-            return self.submitted
-        per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
-                     "one worker's time each" if self.done else "no scene rendered")
-        scenes = "scene" if self.done == 1 else "scenes"
-        text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
-                f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
-        if self.unsealed:
-            text += f"; not sealed: {self.unsealed}"
-        if self.redone:
-            text += f"; {len(self.redone)} damaged scene(s) found and redone: {self.redone[:10]}"
-        if self.failed:
-            text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
-                    f"tracebacks in {self.out / LOG_DIR}"
-        return text
 
 
 def _run_record(config: Config, split: str, seed: int) -> dict:

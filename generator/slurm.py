@@ -1,6 +1,6 @@
 """The Slurm engine: a job array (one array task = one range of scenes) and a job that seals the
 dataset when every task has ended (`dotsim generate --slurm`; the Executor protocol:
-generator/executor.py).
+generator/run_request.py).
 
 The driver (SlurmExecutor) checks everything and writes what all scenes share (as a local run
 does), then writes the run's config (DATASET/slurm/TAG/config.json: generator.config.config_json,
@@ -33,8 +33,7 @@ from generator.config import Config, ConfigError, config_json
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
     from generator.render_scenes import RenderJob
-    from generator.run_request import RunRequest
-    from generator.run_steps import RunSummary
+    from generator.run_request import RunRequest, RunSummary
 
 SLURM_DIR = "slurm"
 CONFIG_FILE = "config.json"
@@ -251,7 +250,7 @@ class SlurmExecutor:
         """Write the config, the scripts and the visibility marker and submit the array (dry run:
         nothing)."""
         from dotsim.file_io import atomic_write_bytes
-        from generator.run_steps import RunSummary
+        from generator.run_request import RunSummary
 
         if self.dry_run:
             return RunSummary(out=request.out, submitted=self.slurm_plan.dry_run_text())

@@ -1,6 +1,6 @@
 """RunRequest (generator/run_request.py): a run's values checked once, with one-line errors naming
 the option; the rig file read once per run and the pattern made once, however many scenes are
-sampled; the engine chosen by one option (generator/executor.py). Nothing here renders."""
+sampled; the engine chosen by one option (generator/run_request.py's Executor). Nothing here renders."""
 
 from __future__ import annotations
 
