@@ -13,7 +13,7 @@ measures, per frame:
 - each stage of the work around the render, run one frame after another in one thread and timed
   with cProfile (the functions make_frame and write_scene call: exposure, sensor model, masks,
   ground truth, the checks of the frame, encoding, hashing, writing); their sum;
-- all-in work: generator.render_scenes._finish_scene, the generator's own path from raw passes to
+- all-in work: generator.render_worker._finish_scene, the generator's own path from raw passes to
   a written scene (the after side post-renders and encodes a scene's frames in as many threads as
   it renders with), wall and CPU seconds, and its share of the render;
 - MB per scene on disk, and reading the scene back (every channel, and the trainer's four).
@@ -144,7 +144,10 @@ def measure(config_path: Path, width: int, scene: int, repeats: int, compression
     from generator.blender.render import SceneRenderer
     from generator.config import config_from_dict
     from generator.post_render import make_frame
-    from generator.render_scenes import _finish_scene
+    try:
+        from generator.render_worker import _finish_scene
+    except ImportError:  # before issue 40, generator.render_scenes held it
+        from generator.render_scenes import _finish_scene
     from generator.sample_scene import frame_sensor_rng, sample_scene_spec
 
     data = tomllib.loads(config_path.read_text())

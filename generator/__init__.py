@@ -10,7 +10,8 @@ Modules (one idea each; only generator/blender/ imports bpy):
                  projector's and flood's direct light)
   sensor_model   pure IR sensor model: exposure, bloom, blur, shot/read noise, quantisation
   post_render    raw passes + SceneSpec -> stored channels (IR, ambient, flood, depth, masks, GT)
-  render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
+  render_worker  what every render worker does: render_scenes(job, indices) samples, renders,
+                 post-renders and writes scenes in this process
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
                  carrying the rig and the pattern; the Executor protocol (prepare, render, seal) that
                  every engine implements; RunSummary, what a run did

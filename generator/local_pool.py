@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dotsim.file_io import DiskFullError
 from dotsim.process_lifetime import die_with_parent, stop_processes
 from generator.config import ConfigError
-from generator.render_scenes import RenderJob, SceneResult, failed_batch, process_renderer, render_scenes
+from generator.render_worker import RenderJob, SceneResult, failed_batch, process_renderer, render_scenes
 from generator.run_request import RunRequest, RunSummary
 from generator.run_steps import prepare_writer, render_missing, seal_written
 

@@ -4,7 +4,7 @@
 `RayExecutor.prepare` checks everything as for a local run, then connects to the cluster and makes
 sure every node sees the output folder (a marker file written here, read by a task on each node)
 before anything is written. Each task
-calls `generator.render_scenes.render_scenes`, which keeps one Blender scene per Ray worker
+calls `generator.render_worker.render_scenes`, which keeps one Blender scene per Ray worker
 process for all the batches it gets, as a local pool worker does, and skips scenes a dead attempt
 already wrote; scene k depends only on (config, k, seed), so the bytes equal a local run's. A task
 whose node dies is retried by Ray; a scene that raises is logged in DATASET/logs/ as in a local
@@ -33,7 +33,7 @@ from dotsim.process_lifetime import kill_tree_when_gone
 from generator.config import ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.render_scenes import RenderJob, SceneResult
+    from generator.render_worker import RenderJob, SceneResult
     from generator.run_request import RunRequest, RunSummary
 
 INSTALL_HINT = 'pip install "dotsim[ray]" (or `make ray`)'
@@ -79,7 +79,7 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
-    from generator.render_scenes import render_scenes
+    from generator.render_worker import render_scenes
     from generator.run_steps import RUN_FILE
 
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
@@ -229,7 +229,7 @@ class RayExecutor:
         """Render scene indices `todo` of `job` as tasks; `on_results` gets each task's results as
         they come (a task whose retries ran out reports its scenes failed). A full disk on any
         node cancels the tasks not yet done and raises DiskFullError."""
-        from generator.render_scenes import failed_batch
+        from generator.render_worker import failed_batch
 
         ray = self.ray
         render = job.config.render

@@ -32,7 +32,7 @@ bytes.
 
 The request, the contract and the summary live together because each names the others; the
 engines and the steps they share (generator/run_steps.py) stand above them, the worker side
-(generator/render_scenes.py) below.
+(generator/render_worker.py) below.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from dotsim.pattern_store import make_pattern
 from dotsim.patterns import DotPattern, PatternError
 from dotsim.rig_files import CalibratedRig
 from generator.config import Config, ConfigError, check_output_dir
-from generator.render_scenes import LOG_DIR, RUN_IN_BLENDER, RenderJob
+from generator.render_worker import LOG_DIR, RUN_IN_BLENDER, RenderJob
 from generator.scene_spec import SPLITS
 
 

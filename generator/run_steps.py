@@ -11,7 +11,7 @@
      worker checks before it renders a scene;
   `render_missing` (an executor's render) skips complete scenes (resume), removes damaged ones (a
      frame deleted after the fact) and has the engine render them with the others (each scene
-     through generator/render_scenes.py: sample, render, post-render, write atomically; a failing
+     through generator/render_worker.py: sample, render, post-render, write atomically; a failing
      scene is logged and the run goes on), with a progress bar and the run's summary;
   `seal_written` (an executor's seal) seals the dataset (dotsim.dataset.seal_dataset: incremental,
      so every run seals, and a run killed before its seal leaves nothing a rerun does not mend), or
@@ -42,7 +42,7 @@ from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
 from dotsim.version import __version__
 from generator.config import Config, ConfigError
-from generator.render_scenes import RenderJob, SceneResult
+from generator.render_worker import RenderJob, SceneResult
 from generator.resources import input_checksums, split_assets
 from generator.run_request import RunRequest, RunSummary
 

@@ -32,7 +32,7 @@ from dotsim.option_types import integer
 from generator.config import Config, ConfigError, config_json
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.render_scenes import RenderJob
+    from generator.render_worker import RenderJob
     from generator.run_request import RunRequest, RunSummary
 
 SLURM_DIR = "slurm"

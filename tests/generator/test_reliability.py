@@ -26,7 +26,7 @@ from dotsim.dataset.layout import record_layout
 from dotsim.dataset.seal import seal_shard
 from generator.config import load_config
 from generator.pipeline import generate
-from generator.render_scenes import LOG_DIR
+from generator.render_worker import LOG_DIR
 from generator.resources import TEXTURE_DIR
 from tests.output_folders import leftovers
 
@@ -481,7 +481,7 @@ def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_p
 
 def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
                                                                                       capsys):
-    from generator.render_scenes import _sample, render_scenes
+    from generator.render_worker import _sample, render_scenes
     from generator.run_request import RunRequest
     from generator.run_steps import prepare_run
 
@@ -504,7 +504,7 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
 
 
 def dataset_inputs(spec) -> list[str]:
-    from generator.render_scenes import spec_inputs
+    from generator.render_worker import spec_inputs
 
     return spec_inputs(spec)
 

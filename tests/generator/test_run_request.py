@@ -16,7 +16,7 @@ from generator.cli import executor_from_args
 from generator.config import ConfigError, load_config
 from generator.local_pool import LocalExecutor
 from generator.ray_cluster import RayExecutor
-from generator.render_scenes import _sample
+from generator.render_worker import _sample
 from generator.run_request import RunRequest
 from generator.run_steps import prepare_run
 from generator.slurm import SlurmExecutor

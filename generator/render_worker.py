@@ -1,4 +1,5 @@
-"""Render scenes into a dataset: `render_scenes(job, indices)`, here in this process.
+"""What every render worker does: `render_scenes(job, indices)` renders scenes into a dataset, here
+in this process.
 
 A RenderJob is everything a scene needs besides its index; `generator.run_steps.prepare_run` makes
 one (and gets the dataset folder ready). Every engine (the Executor protocol: generator/run_request.py) hands out indices to
