@@ -31,7 +31,7 @@ from bench.scene_cost import config_at
 from dotsim import dataset
 from generator.config import load_config
 from generator.pipeline import generate, run
-from generator.ray_cluster import RayExecutor
+from generator.engines.ray_cluster import RayExecutor
 from generator.run_request import RunRequest
 
 SLURM_CONFIG = Path("dotsim/configs/tiny.toml")
@@ -67,7 +67,7 @@ def timed_run(config, out: Path, scenes: int, workers: int, executor=None) -> tu
 def slurm_first_scene(config_path: Path, scenes: int, tmp: Path) -> tuple[float, float]:
     """(submit to first scene, submit to sealed) on a one-node Slurm started here."""
     from bench.one_node_slurm import one_node_slurm, wait_for_jobs
-    from generator.slurm import SlurmExecutor, SlurmOptions
+    from generator.engines.slurm import SlurmExecutor, SlurmOptions
 
     with one_node_slurm(tmp / "slurm") as env:
         os.environ["SLURM_CONF"] = env["SLURM_CONF"]  # for the sbatch that SlurmExecutor runs

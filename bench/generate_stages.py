@@ -128,9 +128,12 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
 def prepared(config, folder: Path):
     """The RenderJob of a train-split dataset in `folder` (seed 0), with either side's code."""
     try:
-        from generator.run_steps import prepare_run
-    except ImportError:  # before issue 37, generator.pipeline held it
-        from generator.pipeline import prepare_run
+        from generator.engines.steps import prepare_run
+    except ImportError:
+        try:  # before issue 40, generator.run_steps held it
+            from generator.run_steps import prepare_run
+        except ImportError:  # before issue 37, generator.pipeline did
+            from generator.pipeline import prepare_run
     try:
         from generator.run_request import RunRequest
     except ImportError:  # before issue 28, prepare_run took the run's values themselves

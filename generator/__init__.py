@@ -15,12 +15,10 @@ Modules (one idea each; only generator/blender/ imports bpy):
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
                  carrying the rig and the pattern; the Executor protocol (prepare, render, seal) that
                  every engine implements; RunSummary, what a run did
-  run_steps      the steps every engine takes on the dataset folder: prepare_run, render_missing
-                 (resume, progress), sealing; seal_run for clusters
   pipeline       run(request): the request's executor through prepare, render and seal; generate()
                  for python callers
-  local_pool     LocalExecutor: spawned render processes on this machine (`--workers`, the default)
-  ray_cluster    RayExecutor: the scenes as Ray tasks (`--ray`; docs/SCALE.md)
-  slurm          SlurmExecutor: a job array and its sealing job (`--slurm`; docs/SCALE.md)
+  engines/       the engines that render a run (local_pool: processes here, the default; ray_cluster;
+                 slurm) and the steps on the dataset folder they share (steps: prepare, render what
+                 is missing, seal)
   cli            `dotsim generate`, and the engine modules it offers (ENGINES)
 """

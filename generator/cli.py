@@ -58,7 +58,7 @@ Config keys: docs/CONFIG.md.
 
 # The engine modules `dotsim generate` offers besides the local pool, in --help order (each defines
 # add_options and from_args: generator/run_request.py).
-ENGINES = ("generator.ray_cluster", "generator.slurm")
+ENGINES = ("generator.engines.ray_cluster", "generator.engines.slurm")
 
 
 def engine_modules() -> list[ModuleType]:
@@ -69,7 +69,7 @@ def engine_modules() -> list[ModuleType]:
 def executor_from_args(args: argparse.Namespace) -> Executor:
     """The executor the parsed `dotsim generate` options ask for: an engine of ENGINES, or the
     local pool of --workers processes. ConfigError when they ask for more than one engine."""
-    from generator.local_pool import LocalExecutor
+    from generator.engines.local_pool import LocalExecutor
 
     chosen = [executor for executor in (module.from_args(args) for module in engine_modules()) if executor]
     if len(chosen) > 1:
@@ -137,8 +137,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def _run(args: argparse.Namespace) -> int:
     from dotsim.rig_report import summary_line
-    from generator import pipeline, run_steps
+    from generator import pipeline
     from generator.config import load_config, with_rig
+    from generator.engines.steps import seal_run
     from generator.run_request import RunRequest
 
     executor = executor_from_args(args)
@@ -152,7 +153,7 @@ def _run(args: argparse.Namespace) -> int:
     for note in filter(None, notes):
         print(note, file=sys.stderr)
     if args.seal_only:
-        summary = run_steps.seal_run(request)
+        summary = seal_run(request)
         missing = summary.failed
         text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
                 f"{args.scenes} scenes complete")

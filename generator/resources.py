@@ -1,7 +1,7 @@
 """The files a split's scenes refer to: the projector pattern, built-in textures, the asset cache.
 
 One module for every front end, so they all sample scenes from the same files: `dotsim generate`
-(generator/run_steps.py) keeps the pattern in the dataset (DATASET/pattern.png) and the built-in
+(generator/engines/steps.py) keeps the pattern in the dataset (DATASET/pattern.png) and the built-in
 textures in DATASET/textures; the Blender add-on (blender_addon/scene_source.py) keeps both in its
 work folder (`resources_in_folder`). Everything is made once and reused: a file that exists is the
 same image (names carry the split, the texture family and index, or the pattern's sha256).

@@ -12,7 +12,7 @@ Config.calibrated_rig) and the projector pattern (made on first use) are carried
 `generator.pipeline.run(request)` drives every run the same way, through the request's executor
 (RunRequest.executor), which implements the `Executor` protocol:
   prepare(request, hold) -> RenderJob | None: get the dataset folder ready with
-      generator.run_steps.prepare_run, checking and connecting what the engine needs before
+      generator.engines.steps.prepare_run, checking and connecting what the engine needs before
       anything is written (ConfigError), and taking the writer lock into `hold` when the engine's
       run is the folder's one writer (None: a dry run, nothing to render);
   render(request, job) -> RunSummary: render the request's range of scenes (those not yet complete);
@@ -20,9 +20,9 @@ Config.calibrated_rig) and the projector pattern (made on first use) are carried
   close(): let go of what prepare took (a connection, a cluster started for the run).
 
 One module per engine, each holding its executor and its `dotsim generate` options:
-  generator/local_pool.py   LocalExecutor: spawned processes on this machine (the default, --workers)
-  generator/ray_cluster.py  RayExecutor: Ray tasks (--ray)
-  generator/slurm.py        SlurmExecutor: a Slurm job array and a sealing job (--slurm)
+  generator/engines/local_pool.py   LocalExecutor: spawned processes on this machine (the default, --workers)
+  generator/engines/ray_cluster.py  RayExecutor: Ray tasks (--ray)
+  generator/engines/slurm.py        SlurmExecutor: a Slurm job array and a sealing job (--slurm)
 An engine module other than the default one defines `add_options(group)`, which adds its options
 to `dotsim generate`'s "clusters" group, and `from_args(args)`, which returns its executor when
 the parsed options ask for it and None otherwise. Adding an engine (Kubernetes, Dask, ...) is
@@ -31,7 +31,7 @@ stay as they are. Scene k depends only on (config, k, base seed), so every engin
 bytes.
 
 The request, the contract and the summary live together because each names the others; the
-engines and the steps they share (generator/run_steps.py) stand above them, the worker side
+engines and the steps they share (generator/engines/steps.py) stand above them, the worker side
 (generator/render_worker.py) below.
 """
 

@@ -25,7 +25,7 @@ from generator.pipeline import generate
 from generator.post_render import make_frame
 from generator.render_worker import LOG_DIR
 from generator.run_request import RunRequest
-from generator.run_steps import RUN_FILE, prepare_run
+from generator.engines.steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
 from generator.scene_spec import camera_views
 

@@ -483,7 +483,7 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
                                                                                       capsys):
     from generator.render_worker import _sample, render_scenes
     from generator.run_request import RunRequest
-    from generator.run_steps import prepare_run
+    from generator.engines.steps import prepare_run
 
     cache, config = copied_cache(asset_cache, tmp_path)
     texture = sorted((cache / "test" / "textures").glob("*.png"))[0]

@@ -14,12 +14,12 @@ import generator.run_request
 from commands.cli import build_parser
 from generator.cli import executor_from_args
 from generator.config import ConfigError, load_config
-from generator.local_pool import LocalExecutor
-from generator.ray_cluster import RayExecutor
+from generator.engines.local_pool import LocalExecutor
+from generator.engines.ray_cluster import RayExecutor
 from generator.render_worker import _sample
 from generator.run_request import RunRequest
-from generator.run_steps import prepare_run
-from generator.slurm import SlurmExecutor
+from generator.engines.steps import prepare_run
+from generator.engines.slurm import SlurmExecutor
 
 TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 

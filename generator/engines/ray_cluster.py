@@ -80,7 +80,7 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
     from generator.render_worker import render_scenes
-    from generator.run_steps import RUN_FILE
+    from generator.engines.steps import RUN_FILE
 
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
         raise RuntimeError(f"{job.out} is not visible on {socket.gethostname()}: put --out on a "
@@ -198,7 +198,7 @@ class RayExecutor:
         self.check_visible(request.out)
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob:
-        from generator.run_steps import prepare_writer
+        from generator.engines.steps import prepare_writer
 
         return prepare_writer(request, hold, engine_check=lambda: self._start(request))
 
@@ -210,7 +210,7 @@ class RayExecutor:
 
     def render(self, request: RunRequest, job: RenderJob) -> RunSummary:
         from dotsim import dataset
-        from generator.run_steps import render_missing
+        from generator.engines.steps import render_missing
 
         summary = render_missing(request, job, self._render_todo)
         if summary.skipped < request.scenes:
@@ -220,7 +220,7 @@ class RayExecutor:
         return summary
 
     def seal(self, request: RunRequest, job: RenderJob, summary: RunSummary) -> None:
-        from generator.run_steps import seal_written
+        from generator.engines.steps import seal_written
 
         seal_written(request, job, summary)
 

@@ -16,9 +16,9 @@ from dotsim import dataset
 from generator.config import config_from_dict, load_config, with_rig
 from generator.pipeline import generate
 from generator.run_request import RunRequest
-from generator.run_steps import seal_run
-from generator.slurm import CONFIG_FILE, SlurmOptions, plan
-from tests.generator.test_cluster_ray import tree_bytes
+from generator.engines.steps import seal_run
+from generator.engines.slurm import CONFIG_FILE, SlurmOptions, plan
+from tests.generator.engines.test_ray_cluster import tree_bytes
 from tests.generator.test_generate import TINY, run_cli
 
 SEED = 7

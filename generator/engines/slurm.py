@@ -9,7 +9,7 @@ sbatch scripts beside it, and submits them: the array (its
 `render`), and the sealing job with `--dependency=afterany:ARRAY_JOB` (its `seal`). Array task i
 runs the ordinary idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a
 requeued or failed task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
-(generator.run_steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
+(generator.engines.steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
 Plain sbatch scripts (not submitit): no extra package on the login node, nothing pickled, and the
 scripts are what `--slurm-dry-run` prints and what a user can read, edit and resubmit.
 """
@@ -234,7 +234,7 @@ class SlurmExecutor:
         self.array_id = ""
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob | None:
-        from generator.run_steps import prepare_run
+        from generator.engines.steps import prepare_run
 
         self.slurm_plan = plan(request.config, request.out, request.split, request.scenes, request.start,
                                request.seed, self.options, new_tag(), request.blender)

@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 from generator.config import load_config
-from generator.local_pool import LocalExecutor
+from generator.engines.local_pool import LocalExecutor
 from generator.pipeline import run
-from generator.ray_cluster import RayExecutor
+from generator.engines.ray_cluster import RayExecutor
 from generator.run_request import RunRequest
-from generator.run_steps import RUN_FILE
+from generator.engines.steps import RUN_FILE
 
-TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
+TINY = Path(__file__).resolve().parents[3] / "dotsim" / "configs" / "tiny.toml"
 SCENES = 3  # tiny.toml: two scenes per shard, so the run spans two shards
 SEED = 11
 
