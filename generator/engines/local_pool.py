@@ -23,9 +23,9 @@ from collections.abc import Callable
 from dotsim.file_io import DiskFullError
 from dotsim.process_lifetime import die_with_parent, stop_processes
 from generator.config import ConfigError
+from generator.engines.steps import prepare_writer, render_missing, seal_written
 from generator.render_worker import RenderJob, SceneResult, failed_batch, process_renderer, render_scenes
 from generator.run_request import RunRequest, RunSummary
-from generator.engines.steps import prepare_writer, render_missing, seal_written
 
 # Scenes per `blender` call: large enough to amortise Blender's start-up (seconds), small enough
 # that the progress bar moves and a crash loses little.

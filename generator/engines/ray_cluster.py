@@ -79,8 +79,8 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
-    from generator.render_worker import render_scenes
     from generator.engines.steps import RUN_FILE
+    from generator.render_worker import render_scenes
 
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
         raise RuntimeError(f"{job.out} is not visible on {socket.gethostname()}: put --out on a "

@@ -17,7 +17,7 @@
      so every run seals, and a run killed before its seal leaves nothing a rerun does not mend), or
      only a range's own shards; `seal_run` seals what several range runs wrote (the Slurm sealing
      job).
-The engines (generator/engines/local_pool.py, generator/engines/ray_cluster.py, generator/engines/slurm.py) build on these;
+The engines beside it (generator/engines/local_pool.py, ray_cluster.py, slurm.py) build on these;
 generator/pipeline.py drives a run through its engine.
 """
 

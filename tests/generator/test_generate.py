@@ -21,11 +21,11 @@ from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
+from generator.engines.steps import RUN_FILE, prepare_run
 from generator.pipeline import generate
 from generator.post_render import make_frame
 from generator.render_worker import LOG_DIR
 from generator.run_request import RunRequest
-from generator.engines.steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
 from generator.scene_spec import camera_views
 

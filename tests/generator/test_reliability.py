@@ -481,9 +481,9 @@ def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_p
 
 def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
                                                                                       capsys):
+    from generator.engines.steps import prepare_run
     from generator.render_worker import _sample, render_scenes
     from generator.run_request import RunRequest
-    from generator.engines.steps import prepare_run
 
     cache, config = copied_cache(asset_cache, tmp_path)
     texture = sorted((cache / "test" / "textures").glob("*.png"))[0]

@@ -16,10 +16,10 @@ from generator.cli import executor_from_args
 from generator.config import ConfigError, load_config
 from generator.engines.local_pool import LocalExecutor
 from generator.engines.ray_cluster import RayExecutor
+from generator.engines.slurm import SlurmExecutor
+from generator.engines.steps import prepare_run
 from generator.render_worker import _sample
 from generator.run_request import RunRequest
-from generator.engines.steps import prepare_run
-from generator.engines.slurm import SlurmExecutor
 
 TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 

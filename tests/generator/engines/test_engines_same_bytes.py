@@ -12,10 +12,10 @@ import pytest
 
 from generator.config import load_config
 from generator.engines.local_pool import LocalExecutor
-from generator.pipeline import run
 from generator.engines.ray_cluster import RayExecutor
-from generator.run_request import RunRequest
 from generator.engines.steps import RUN_FILE
+from generator.pipeline import run
+from generator.run_request import RunRequest
 
 TINY = Path(__file__).resolve().parents[3] / "dotsim" / "configs" / "tiny.toml"
 SCENES = 3  # tiny.toml: two scenes per shard, so the run spans two shards
