@@ -30,8 +30,8 @@ from pathlib import Path
 from bench.scene_cost import config_at
 from dotsim import dataset
 from generator.config import load_config
+from generator.driver import generate, run
 from generator.engines.ray_cluster import RayExecutor
-from generator.pipeline import generate, run
 from generator.run_request import RunRequest
 
 SLURM_CONFIG = Path("dotsim/configs/tiny.toml")

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from generator.config import Config, config_from_dict
-from generator.pipeline import generate
+from generator.driver import generate
 
 # Still scenes, over a built-in config (a partial generator config, table by table).
 STILL = {

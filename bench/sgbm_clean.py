@@ -28,7 +28,7 @@ from dotsim.configs import config_path, relative_base
 from dotsim.dataset import read_frame
 from dotsim.solvable import solvable_pixels
 from generator.config import config_from_dict
-from generator.pipeline import generate
+from generator.driver import generate
 from trainer.data import dataset_pattern, list_frames
 from trainer.evaluate import load_reference, pixel_classes, sgbm_nearest_depth
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels

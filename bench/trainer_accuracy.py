@@ -43,7 +43,7 @@ from pathlib import Path
 import torch
 
 from generator.config import load_config as load_generator_config
-from generator.pipeline import generate
+from generator.driver import generate
 from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames

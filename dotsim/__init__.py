@@ -54,7 +54,7 @@ def generate(config, out: str | os.PathLike, *, split: str, scenes: int, start: 
              workers: int = 1, blender: str | None = None, progress: bool = False):
     """Render scenes start .. start+scenes-1 of `split` ("train" or "test") into the dataset folder
     `out`, as `dotsim generate` does: resumable (complete scenes are skipped), sealed at the end.
-    Returns the run's summary (generator.pipeline.RunSummary: done, skipped, failed, ...; `line()`
+    Returns the run's summary (generator.driver.RunSummary: done, skipped, failed, ...; `line()`
     is what the command prints).
 
     config: a generator Config (dotsim.load_config) or what load_config takes, a built-in config's
@@ -87,7 +87,7 @@ def generate(config, out: str | os.PathLike, *, split: str, scenes: int, start: 
     >>> shutil.rmtree(out.parent)
     """
     from generator.config import Config, load_config
-    from generator.pipeline import generate as run
+    from generator.driver import generate as run
 
     if not isinstance(config, Config):
         config = load_config(config)

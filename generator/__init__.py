@@ -15,7 +15,7 @@ Modules (one idea each; only generator/blender/ imports bpy):
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
                  carrying the rig and the pattern; the Executor protocol (prepare, render, seal) that
                  every engine implements; RunSummary, what a run did
-  pipeline       run(request): the request's executor through prepare, render and seal; generate()
+  driver         run(request): the request's executor through prepare, render and seal; generate()
                  for python callers
   engines/       the engines that render a run (local_pool: processes here, the default; ray_cluster;
                  slurm) and the steps on the dataset folder they share (steps: prepare, render what

@@ -137,7 +137,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def _run(args: argparse.Namespace) -> int:
     from dotsim.rig_report import summary_line
-    from generator import pipeline
+    from generator import driver
     from generator.config import load_config, with_rig
     from generator.engines.steps import seal_run
     from generator.run_request import RunRequest
@@ -165,7 +165,7 @@ def _run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr if missing or summary.unsealed else sys.stdout)
         return 1 if missing or summary.unsealed else 0
     try:
-        return pipeline.main_summary(pipeline.run(request))
+        return driver.main_summary(driver.run(request))
     finally:
         executor.close()
 

@@ -2,14 +2,14 @@
 (`Executor`) and what it did (`RunSummary`).
 
 `dotsim generate` (generator/cli.py), the Blender add-on (blender_addon/scene_source.py), the
-benchmarks and the python API (`generator.pipeline.generate`) all describe a run by a RunRequest:
+benchmarks and the python API (`generator.driver.generate`) all describe a run by a RunRequest:
 the config, the dataset folder, the split, the base seed, the range of scenes, the Blender
 executable, and the executor that renders it. Its values are checked when it is made
 (ConfigError naming the option, the value and what is allowed) and `out` and `blender` are made
 absolute there, once; nothing downstream checks them again. The rig (resolved once per config:
 Config.calibrated_rig) and the projector pattern (made on first use) are carried on it.
 
-`generator.pipeline.run(request)` drives every run the same way, through the request's executor
+`generator.driver.run(request)` drives every run the same way, through the request's executor
 (RunRequest.executor), which implements the `Executor` protocol:
   prepare(request, hold) -> RenderJob | None: get the dataset folder ready with
       generator.engines.steps.prepare_run, checking and connecting what the engine needs before
@@ -26,7 +26,7 @@ One module per engine, each holding its executor and its `dotsim generate` optio
 An engine module other than the default one defines `add_options(group)`, which adds its options
 to `dotsim generate`'s "clusters" group, and `from_args(args)`, which returns its executor when
 the parsed options ask for it and None otherwise. Adding an engine (Kubernetes, Dask, ...) is
-adding one such module and naming it in generator/cli.py's ENGINES; pipeline and the other engines
+adding one such module and naming it in generator/cli.py's ENGINES; the driver and the other engines
 stay as they are. Scene k depends only on (config, k, base seed), so every engine writes the same
 bytes.
 

@@ -18,7 +18,7 @@
      only a range's own shards; `seal_run` seals what several range runs wrote (the Slurm sealing
      job).
 The engines beside it (generator/engines/local_pool.py, ray_cluster.py, slurm.py) build on these;
-generator/pipeline.py drives a run through its engine.
+generator/driver.py drives a run through its engine.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import Intrinsics, get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.driver import generate
 
 rs = pytest.importorskip("pyrealsense2")
 from capture.devices.realsense import RealSenseDevice, open_realsense  # noqa: E402

@@ -18,7 +18,7 @@ from commands.cli import main
 from dotsim import dataset
 from dotsim.rig import get_preset
 from generator.config import config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
 from generator.scene_spec import SensorSettings
 from generator.sensor_model import SensorModel
 

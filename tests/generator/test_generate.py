@@ -21,8 +21,8 @@ from dotsim.rig import get_preset
 from dotsim.rig_files import load_rig_file, rig_file_json
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config, with_rig
+from generator.driver import generate
 from generator.engines.steps import RUN_FILE, prepare_run
-from generator.pipeline import generate
 from generator.post_render import make_frame
 from generator.render_worker import LOG_DIR
 from generator.run_request import RunRequest

@@ -25,7 +25,7 @@ from dotsim import dataset, file_io
 from dotsim.dataset.layout import record_layout
 from dotsim.dataset.seal import seal_shard
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.driver import generate
 from generator.render_worker import LOG_DIR
 from generator.resources import TEXTURE_DIR
 from tests.output_folders import leftovers

@@ -13,7 +13,7 @@ import torch
 
 from dotsim.rig import Intrinsics, Rig, get_preset, rotation_matrix
 from generator.config import config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
 from tests.trainer_fixtures import tiny_config
 from trainer.config import Config
 from trainer.data import FrameDataset, list_frames

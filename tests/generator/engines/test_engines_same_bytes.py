@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 
 from generator.config import load_config
+from generator.driver import run
 from generator.engines.local_pool import LocalExecutor
 from generator.engines.ray_cluster import RayExecutor
 from generator.engines.steps import RUN_FILE
-from generator.pipeline import run
 from generator.run_request import RunRequest
 
 TINY = Path(__file__).resolve().parents[3] / "dotsim" / "configs" / "tiny.toml"

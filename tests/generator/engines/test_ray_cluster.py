@@ -19,8 +19,8 @@ from ray.cluster_utils import Cluster
 from bench.one_node_slurm import free_port
 from dotsim import dataset
 from generator.config import ConfigError, load_config
+from generator.driver import generate
 from generator.engines.ray_cluster import RayExecutor
-from generator.pipeline import generate
 from tests.generator.test_generate import TINY, run_cli
 
 SEED = 5

@@ -14,9 +14,9 @@ import pytest
 from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from generator.config import config_from_dict, load_config, with_rig
+from generator.driver import generate
 from generator.engines.slurm import CONFIG_FILE, SlurmOptions, plan
 from generator.engines.steps import seal_run
-from generator.pipeline import generate
 from generator.run_request import RunRequest
 from tests.generator.engines.test_ray_cluster import tree_bytes
 from tests.generator.test_generate import TINY, run_cli

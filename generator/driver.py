@@ -1,12 +1,14 @@
-"""The generator run: RunRequest -> its executor's prepare, render and seal -> a sealed dataset.
+"""The driver of a generator run: RunRequest -> its executor's prepare, render and seal -> a sealed
+dataset.
 
 `run(request)` (generator/run_request.py: a request checked when it was made) drives every engine
-(generator/run_request.py's Executor) the same way: `executor.prepare` gets the dataset folder ready (checks
-first, then the writer lock, pattern, run record and textures), `executor.render` renders the
-scenes of the range not yet complete (resume) and `executor.seal` seals them, each engine through
-the shared steps of generator/engines/steps.py: in W spawned processes (generator/engines/local_pool.py, the
-default), as Ray tasks (generator/engines/ray_cluster.py), or as a Slurm job array whose tasks are this same
-run on their range with seal=False (generator/engines/slurm.py).
+(generator/run_request.py's Executor) the same way: `executor.prepare` gets the dataset folder ready
+(checks first, then the writer lock, pattern, run record and textures), `executor.render` renders
+the scenes of the range not yet complete (resume) and `executor.seal` seals them, each engine
+through the shared steps of generator/engines/steps.py: in W spawned processes
+(generator/engines/local_pool.py, the default), as Ray tasks (generator/engines/ray_cluster.py), or
+as a Slurm job array whose tasks are this same run on their range with seal=False
+(generator/engines/slurm.py).
 `generate(config, out, split, scenes, ...)` is run() for python callers. Scene k is sampled from
 (config, k, base seed) alone, so the output does not depend on the engine or the number of workers.
 """
