@@ -71,7 +71,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("out/sgbm_clean"))
     args = parser.parse_args(argv)
 
-    summary = generate(clean_config(args.config, args.scale), args.out, "test", args.scenes, seed=args.seed)
+    summary = generate(clean_config(args.config, args.scale), args.out, "test", args.scenes, seed=args.seed,
+                       progress=True)
     print(summary.line())
     frames, rig, _ = list_frames(args.out, "test")
     reference = load_reference(args.out, rig)

@@ -124,7 +124,8 @@ def main(argv=None) -> int:
             config = load_generator_config(args.generate)
             times = {}
             for split, scenes, seed in (("train", args.train_scenes, 0), ("test", args.test_scenes, 1)):
-                summary = generate(config, work / split, split, scenes, workers=args.workers, seed=seed)
+                summary = generate(config, work / split, split, scenes, workers=args.workers, seed=seed,
+                                   progress=True)
                 times[split] = (summary.done, summary.seconds)
             data, test_data = work / "train", work / "test"
             rendered = "; ".join(f"{split}: {done} scene(s) rendered in {sec / 60:.1f} min "
