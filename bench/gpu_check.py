@@ -52,9 +52,9 @@ from bench.trainer_gpu import (
     variant_backbone,
 )
 from dotsim.file_io import atomic_write_bytes, atomic_write_json
+from dotsim.oracle_dataset import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
-from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames

@@ -22,7 +22,7 @@ o(0.5..5) of the three methods over all valid and over the solvable pixels, and 
 Data: --generate, else --data (its train split) and --test-data (its test split; default --data), else
 the Blender generator's output under out/: a folder holding a train and a test split, or sibling folders (e.g.
 out/bench_accuracy/train and out/bench_accuracy/test from dotsim/configs/bench_accuracy.toml, whose header
-has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
+has the commands), else an oracle-rendered dataset (dotsim/oracle_dataset.py: random tilted walls and
 boxes, exact geometry, Structure Core scaled to 122 x 90) written to a temporary folder. The output
 says which. The step count is fitted to the time budget from the time per step of two short
 calibration runs (5 and 25 steps, reading every sample; their difference leaves out start-up), less
@@ -42,9 +42,9 @@ from pathlib import Path
 
 import torch
 
+from dotsim.oracle_dataset import make_dataset
 from generator.config import load_config as load_generator_config
 from generator.driver import generate
-from tests.trainer_fixtures import make_dataset
 from trainer.config import config_from_dict, load_config
 from trainer.data import FrameDataset, list_frames
 from trainer.evaluate import chosen_sgbm, evaluate, overall, row_of
@@ -140,7 +140,7 @@ def main(argv=None) -> int:
         else:
             data = test_data = make_dataset(work / "oracle_dataset", scenes=args.train_scenes,
                                             frames_per_scene=2, test_scenes=args.test_scenes, seed=7)
-            source = (f"oracle-rendered synthetic data (tests/trainer_fixtures.py), {args.train_scenes} "
+            source = (f"oracle-rendered synthetic data (dotsim/oracle_dataset.py), {args.train_scenes} "
                       f"train / {args.test_scenes} test scenes x 2 frames; no generator output under out/")
         frames, rig, _ = list_frames(data, "train")
         test_frames, _, _ = list_frames(test_data, "test")

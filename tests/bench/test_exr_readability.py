@@ -5,7 +5,7 @@ import json
 import subprocess
 import sys
 
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 
 def test_the_readers_verdicts_and_sizes(tmp_path):

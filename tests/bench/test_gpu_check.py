@@ -8,7 +8,7 @@ import pytest
 
 from bench.gpu_check import main
 from commands.export import export_webdataset
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 TRAINING = ["ir", "projector_column", "visibility", "edge"]
 

@@ -6,7 +6,7 @@ import json
 import pytest
 
 from bench.trainer_screen import main, with_settings
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 
 def test_settings_are_toml_values_of_dotted_keys():

@@ -282,7 +282,7 @@ def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
 def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
-    from tests.trainer_fixtures import make_dataset
+    from dotsim.oracle_dataset import make_dataset
 
     data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
     command = ["train", "--config", str(REPO / "dotsim" / "configs" / "train_tiny.toml"), "--data", str(data),
@@ -637,7 +637,7 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
 def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
     """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
     the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
-    from tests.trainer_fixtures import make_dataset
+    from dotsim.oracle_dataset import make_dataset
     from trainer.checkpoint import load_checkpoint
 
     data = make_dataset(tmp_path / "data", scenes=2)

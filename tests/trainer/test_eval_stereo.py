@@ -8,7 +8,8 @@ import dataclasses
 import numpy as np
 
 from commands.export import export_webdataset
-from tests.trainer_fixtures import make_dataset, tiny_config
+from dotsim.oracle_dataset import make_dataset
+from tests.trainer_fixtures import tiny_config
 from trainer.data import list_frames
 from trainer.evaluate import evaluate, row_of, sgbm_nearest_depth
 from trainer.sgbm import num_disparities_for, stereo_sgbm_disparity

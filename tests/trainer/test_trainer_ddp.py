@@ -13,7 +13,7 @@ import torch.distributed as dist
 from torch import nn
 
 from commands.cli import main
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict, load_config
 from trainer.data import EpochSampler
