@@ -7,6 +7,7 @@ generator/run_request.py).
   local_pool   LocalExecutor: spawned render processes on this machine (`--workers`, the default)
   ray_cluster  RayExecutor: the scenes as Ray tasks (`--ray`; docs/SCALE.md)
   slurm        SlurmExecutor: a job array and its sealing job (`--slurm`; docs/SCALE.md)
+  one_node_slurm  a one-node Slurm cluster of its own on this machine, to try the Slurm engine here
 
 Imports go one way: an engine imports steps, generator/run_request.py and generator/render_worker.py
 (what each of its workers runs); nothing below imports an engine.
