@@ -2,7 +2,7 @@
 
 A GPU machine is at hand only now and then, for minutes; this script is what such a session runs, in
 one call of at most 9 minutes, writing its results as it goes so that a cut-off run still reports.
-On the device machine (docs/TRAINER.md "On a GPU" has the exact command and what it carries):
+On the device machine (docs/TRAINER.md "The prepared check" has the exact command and what it carries):
 
     python3 -m bench.gpu_check --train 'gpu/train/shard-{000000..000006}.tar' --test gpu/test \
         --out $OUT --minutes 7

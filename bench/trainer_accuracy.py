@@ -7,7 +7,7 @@ over the solvable ones (dotsim/solvable.py), and under GigaDepth's Table 2 condi
 
     python -m bench.trainer_accuracy [--data DIR] [--test-data DIR] [--minutes 10] \
         [--config train_tiny]
-    # the two benchmarks of docs/TRAINER.md "Benchmarks" (there run side by side, one thread each):
+    # the two benchmarks of docs/results/trainer_accuracy.md (there run side by side, one thread each):
     # Table 2 conditions, and make dataset's data
     python -m bench.trainer_accuracy --generate table2 --train-scenes 240 --test-scenes 20 \
         --workers 2 --config train_table2 --minutes 60 --threads 1 --out out/bench_table2
