@@ -19,7 +19,7 @@ measures, per frame:
 - MB per scene on disk, and reading the scene back (every channel, and the trainer's four).
 
 --compression also encodes the after side's frames with each lossless OpenEXR compression (size,
-encode and decode CPU seconds: docs/FORMAT.md "Compression"). Then it prints both sides side by
+encode and decode CPU seconds: docs/results/exr_compression.md). Then it prints both sides side by
 side, with the core-seconds per scene of this run and the 15,000- and 1,000,000-scene plans
 (docs/SCALE.md) recomputed from them. Medians of --repeats.
 Run it on idle cores: the children run one after another and each uses every core.

@@ -1,5 +1,5 @@
 """bench.exr_readability, run as the docs say (its own process, so that OpenCV's EXR codec is on), on a
-small real dataset: the readers' verdicts that docs/FORMAT.md "Compression" reports."""
+small real dataset: the readers' verdicts that docs/results/exr_compression.md reports."""
 
 import json
 import subprocess
