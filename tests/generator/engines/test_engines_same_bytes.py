@@ -1,6 +1,6 @@
 """Every engine writes the same bytes (issue 28): the same tiny scenes rendered through the local
 pool with one worker and with two, and through Ray (the one-machine cluster `--ray local` starts),
-give files of equal sha256, frames and all. Slurm's array against a local run: test_cluster_slurm.py
+give files of equal sha256, frames and all. Slurm's array against a local run: test_slurm.py
 (it needs a one-node Slurm started as root)."""
 
 from __future__ import annotations
