@@ -11,9 +11,9 @@ seed and range) into fresh folders, once with `--workers W` local processes and 
 `--ray local` on a cluster of W CPUs started beforehand (a cluster outlives runs; its start-up is
 printed separately), alternating which goes first. Throughput is scenes per hour of wall time
 from the call to the sealed dataset; Ray's overhead is (local rate / Ray rate - 1), median over
-repeats (goal: at most 5%). Submit to first scene: from the call (Ray) or from
-`dotsim generate --slurm` (Slurm: a one-node cluster of its own, bench.one_node_slurm, needs root
-and slurm-wlm; dotsim/configs/tiny.toml, two array tasks) until the first scene folder is complete.
+repeats (goal: at most 5%). Submit to first scene: from the call (Ray) or from `dotsim generate
+--slurm` (Slurm: a one-node cluster of its own, generator.engines.one_node_slurm, needs root and
+slurm-wlm; dotsim/configs/tiny.toml, two array tasks) until the first scene folder is complete.
 Run on a quiet machine: other load on the cores changes both rates.
 """
 
@@ -30,8 +30,8 @@ from pathlib import Path
 from bench.scene_cost import config_at
 from dotsim import dataset
 from generator.config import load_config
-from generator.pipeline import generate, run
-from generator.ray_cluster import RayExecutor
+from generator.driver import generate, run
+from generator.engines.ray_cluster import RayExecutor
 from generator.run_request import RunRequest
 
 SLURM_CONFIG = Path("dotsim/configs/tiny.toml")
@@ -66,8 +66,8 @@ def timed_run(config, out: Path, scenes: int, workers: int, executor=None) -> tu
 
 def slurm_first_scene(config_path: Path, scenes: int, tmp: Path) -> tuple[float, float]:
     """(submit to first scene, submit to sealed) on a one-node Slurm started here."""
-    from bench.one_node_slurm import one_node_slurm, wait_for_jobs
-    from generator.slurm import SlurmExecutor, SlurmOptions
+    from generator.engines.one_node_slurm import one_node_slurm, wait_for_jobs
+    from generator.engines.slurm import SlurmExecutor, SlurmOptions
 
     with one_node_slurm(tmp / "slurm") as env:
         os.environ["SLURM_CONF"] = env["SLURM_CONF"]  # for the sbatch that SlurmExecutor runs

@@ -28,8 +28,8 @@ from dotsim.configs import builtin_path
 from generator.blender.frame_recipe import DIRECT_LIGHT_RENDER, LIGHT_PASSES
 from generator.blender.render import SceneRenderer
 from generator.config import config_from_dict
+from generator.engines.steps import prepare_run
 from generator.run_request import RunRequest
-from generator.run_steps import prepare_run
 from generator.sample_scene import sample_scene_spec
 
 FULL_WIDTH = 1216

@@ -13,13 +13,13 @@ measures, per frame:
 - each stage of the work around the render, run one frame after another in one thread and timed
   with cProfile (the functions make_frame and write_scene call: exposure, sensor model, masks,
   ground truth, the checks of the frame, encoding, hashing, writing); their sum;
-- all-in work: generator.render_scenes._finish_scene, the generator's own path from raw passes to
+- all-in work: generator.render_worker._finish_scene, the generator's own path from raw passes to
   a written scene (the after side post-renders and encodes a scene's frames in as many threads as
   it renders with), wall and CPU seconds, and its share of the render;
 - MB per scene on disk, and reading the scene back (every channel, and the trainer's four).
 
 --compression also encodes the after side's frames with each lossless OpenEXR compression (size,
-encode and decode CPU seconds: docs/FORMAT.md "Compression"). Then it prints both sides side by
+encode and decode CPU seconds: docs/results/exr_compression.md). Then it prints both sides side by
 side, with the core-seconds per scene of this run and the 15,000- and 1,000,000-scene plans
 (docs/SCALE.md) recomputed from them. Medians of --repeats.
 Run it on idle cores: the children run one after another and each uses every core.
@@ -128,9 +128,12 @@ def compression_table(frames: list[dict], meta: dict, repeats: int) -> dict[str,
 def prepared(config, folder: Path):
     """The RenderJob of a train-split dataset in `folder` (seed 0), with either side's code."""
     try:
-        from generator.run_steps import prepare_run
-    except ImportError:  # before issue 37, generator.pipeline held it
-        from generator.pipeline import prepare_run
+        from generator.engines.steps import prepare_run
+    except ImportError:
+        try:  # before issue 40, generator.run_steps held it
+            from generator.run_steps import prepare_run
+        except ImportError:  # before issue 37, generator.pipeline did
+            from generator.pipeline import prepare_run
     try:
         from generator.run_request import RunRequest
     except ImportError:  # before issue 28, prepare_run took the run's values themselves
@@ -145,7 +148,10 @@ def measure(config_path: Path, width: int, scene: int, repeats: int, compression
     from generator.blender.render import SceneRenderer
     from generator.config import config_from_dict
     from generator.post_render import make_frame
-    from generator.render_scenes import _finish_scene
+    try:
+        from generator.render_worker import _finish_scene
+    except ImportError:  # before issue 40, generator.render_scenes held it
+        from generator.render_scenes import _finish_scene
     from generator.sample_scene import sample_scene_spec
 
     data = tomllib.loads(config_path.read_text())

@@ -2,7 +2,7 @@
 
 A GPU machine is at hand only now and then, for minutes; this script is what such a session runs, in
 one call of at most 9 minutes, writing its results as it goes so that a cut-off run still reports.
-On the device machine (docs/TRAINER.md "On a GPU" has the exact command and what it carries):
+On the device machine (docs/TRAINER.md "The prepared check" has the exact command and what it carries):
 
     python3 -m bench.gpu_check --train 'gpu/train/shard-{000000..000006}.tar' --test gpu/test \
         --out $OUT --minutes 7
@@ -53,9 +53,9 @@ from bench.trainer_gpu import (
 )
 from dotsim.file_io import atomic_write_bytes, atomic_write_json
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
-from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate, overall

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from dotsim import dataset
 from generator.config import config_from_dict
-from generator.pipeline import generate
+from generator.driver import generate
 
 
 def config_at(config_path: Path, scale: float, threads: int = 1):

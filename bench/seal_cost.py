@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 def source_scene(work: Path) -> Path:
     """One scene rendered with dotsim/configs/tiny.toml (bpy, about 2 s)."""
     from generator.config import load_config
-    from generator.pipeline import generate
+    from generator.driver import generate
 
     generate(load_config("tiny"), work / "source", "train", 1, progress=False)
     return dataset.scene_dir(work / "source", 0, 2)

@@ -1,6 +1,7 @@
 """How closely `dotsim capture fit-sensor` recovers a known sensor: still scenes rendered twice, once
 with the known [sensor] (the "capture") and once with the defaults (the rendering it is compared with),
-then the fit of the first against the second, parameter by parameter (accuracy, not speed).
+then the fit of the first against the second, parameter by parameter (accuracy, not speed). The
+scenes and the known sensor: capture/still_scenes.py.
 
     python -m bench.sensor_fit [--scale 1.0] [--scenes 2] [--samples 4] [--threads 1] [--out DIR]
 
@@ -18,47 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from generator.config import Config, config_from_dict
-from generator.pipeline import generate
+from capture.still_scenes import KNOWN, render_pair
 
-# Still scenes, over a built-in config (a partial generator config, table by table).
-STILL = {
-    "render": {"samples": 4},
-    "pattern": {"density": 0.003, "min_spacing": 6.0},
-    "scene": {"object_count": [0, 0], "textured_share": 0.0, "room_size": [3.0, 6.0]},
-    "lighting": {"extra_lights": [0, 0]},
-    "motion": {"translation": 0.0, "rotation": 0.0},
-    "assets": {"source": "primitives"},
-}
-# The sensor to recover (full-resolution px), and the one it is compared with: the defaults without
-# blur and speckle, as docs/CAPTURE.md "Fitting the sensor" asks of a comparison.
-KNOWN = {"read_noise": 0.006, "shot_noise": 0.03, "blur_sigma": 1.2, "speckle_contrast": 0.4,
-         "speckle_grain": 3.0, "auto_target": 0.3}
-REFERENCE = {"auto_target": 0.3, "blur_sigma": 0.0}
 CHECKED = ("read_noise", "shot_noise", "blur_sigma", "speckle_contrast")
-
-
-def still_config(base: Config, scale: float, sensor: dict, **tables: dict) -> Config:
-    """`base` with STILL and `tables` over it, at [rig] scale `scale`, with `sensor` as its [sensor]."""
-    data = base.to_dict()
-    data.pop("source")
-    for name, table in {**STILL, **tables}.items():
-        data[name] = {**data[name], **table}
-    data["rig"] = {**data["rig"], "scale": scale}
-    data["sensor"] = sensor
-    return config_from_dict(data, source=f"{base.source} (still scenes)")
-
-
-def render_pair(base: Config, folder: Path, scale: float, scenes: int, known: dict, seed: int = 1,
-                **tables: dict) -> dict[str, Path]:
-    """The 'capture' (known sensor) and the 'reference' (REFERENCE sensor): the same still scenes
-    (a scene's 4 frames: one pose, four draws of the noise)."""
-    out = {}
-    for name, sensor in (("capture", known), ("reference", REFERENCE)):
-        out[name] = folder / name
-        generate(still_config(base, scale, sensor, **tables), out[name], "train", scenes, seed=seed,
-                 workers=1, progress=False)
-    return out
 
 
 def main(argv: list[str] | None = None) -> int:

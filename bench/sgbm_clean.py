@@ -29,7 +29,7 @@ from dotsim.dataset import read_frame
 from dotsim.frame_source import open_source
 from dotsim.solvable import solvable_pixels
 from generator.config import config_from_dict
-from generator.pipeline import generate
+from generator.driver import generate
 from trainer.evaluate import load_reference, sgbm_nearest_depth
 from trainer.metrics import THRESHOLDS, outlier_counts, outlier_rate, valid_pixels
 from trainer.scoring import pixel_classes
@@ -72,7 +72,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("out/sgbm_clean"))
     args = parser.parse_args(argv)
 
-    summary = generate(clean_config(args.config, args.scale), args.out, "test", args.scenes, seed=args.seed)
+    summary = generate(clean_config(args.config, args.scale), args.out, "test", args.scenes, seed=args.seed,
+                       progress=True)
     print(summary.line())
     source = open_source(args.out, "test")
     frames, rig = source.frames, source.rig

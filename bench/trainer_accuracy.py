@@ -7,7 +7,7 @@ over the solvable ones (dotsim/solvable.py), and under GigaDepth's Table 2 condi
 
     python -m bench.trainer_accuracy [--data DIR] [--test-data DIR] [--minutes 10] \
         [--config train_tiny]
-    # the two benchmarks of docs/TRAINER.md "Benchmarks" (there run side by side, one thread each):
+    # the two benchmarks of docs/results/trainer_accuracy.md (there run side by side, one thread each):
     # Table 2 conditions, and make dataset's data
     python -m bench.trainer_accuracy --generate table2 --train-scenes 240 --test-scenes 20 \
         --workers 2 --config train_table2 --minutes 60 --threads 1 --out out/bench_table2
@@ -22,7 +22,7 @@ o(0.5..5) of the three methods over all valid and over the solvable pixels, and 
 Data: --generate, else --data (its train split) and --test-data (its test split; default --data), else
 the Blender generator's output under out/: a folder holding a train and a test split, or sibling folders (e.g.
 out/bench_accuracy/train and out/bench_accuracy/test from dotsim/configs/bench_accuracy.toml, whose header
-has the commands), else an oracle-rendered dataset (tests/trainer_fixtures.py: random tilted walls and
+has the commands), else an oracle-rendered dataset (dotsim/oracle_dataset.py: random tilted walls and
 boxes, exact geometry, Structure Core scaled to 122 x 90) written to a temporary folder. The output
 says which. The step count is fitted to the time budget from the time per step of two short
 calibration runs (5 and 25 steps, reading every sample; their difference leaves out start-up), less
@@ -43,9 +43,9 @@ from pathlib import Path
 import torch
 
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import make_dataset
 from generator.config import load_config as load_generator_config
-from generator.pipeline import generate
-from tests.trainer_fixtures import make_dataset
+from generator.driver import generate
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import chosen_sgbm, evaluate, overall, row_of
 from trainer.metrics import THRESHOLDS, ratio
@@ -125,7 +125,8 @@ def main(argv=None) -> int:
             config = load_generator_config(args.generate)
             times = {}
             for split, scenes, seed in (("train", args.train_scenes, 0), ("test", args.test_scenes, 1)):
-                summary = generate(config, work / split, split, scenes, workers=args.workers, seed=seed)
+                summary = generate(config, work / split, split, scenes, workers=args.workers, seed=seed,
+                                   progress=True)
                 times[split] = (summary.done, summary.seconds)
             data, test_data = work / "train", work / "test"
             rendered = "; ".join(f"{split}: {done} scene(s) rendered in {sec / 60:.1f} min "
@@ -140,7 +141,7 @@ def main(argv=None) -> int:
         else:
             data = test_data = make_dataset(work / "oracle_dataset", scenes=args.train_scenes,
                                             frames_per_scene=2, test_scenes=args.test_scenes, seed=7)
-            source = (f"oracle-rendered synthetic data (tests/trainer_fixtures.py), {args.train_scenes} "
+            source = (f"oracle-rendered synthetic data (dotsim/oracle_dataset.py), {args.train_scenes} "
                       f"train / {args.test_scenes} test scenes x 2 frames; no generator output under out/")
         train_source, test_source = open_source(data, "train"), open_source(test_data, "test")
         frames, rig, test_frames = train_source.frames, train_source.rig, test_source.frames

@@ -1,5 +1,5 @@
 """Data-parallel training throughput on CPU: samples/s of one process against N gloo ranks on the same
-threads, the same config and data (the tiny oracle dataset of tests/trainer_fixtures.py).
+threads, the same config and data (the tiny oracle dataset of dotsim/oracle_dataset.py).
 
     python -m bench.trainer_ddp [--config train_tiny] [--nproc 2] [--threads 2] [--steps 40]
 
@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from dotsim.frame_source import open_source
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 from trainer.config import load_config
 from trainer.distributed import run_on_ranks
 from trainer.train import train

@@ -6,7 +6,7 @@ and a torch.profiler table of the top ops.
                                 [--compile] [--cuda-graph] [--profile] [--out DIR]
 
 Published config (dotsim/configs/train_gigadepth.toml), batch 4 of its crop (full 1216 x 896 frames), on
-oracle-rendered frames (tests/trainer_fixtures.py: tilted walls and boxes, made once under --out).
+oracle-rendered frames (dotsim/oracle_dataset.py: tilted walls and boxes, made once under --out).
 Inference: the network's forward on one frame already on the device, median of --repeats after
 warm-up, each timed with torch.cuda.synchronize; networks have random weights unless --train-run
 trained one (then the conv rows use it). --compile compiles the backbone with torch.compile; --cuda-graph
@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
-from tests.trainer_fixtures import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import PRECISIONS, load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
 from trainer.model import LOW_PRECISION, autocast, build_model

@@ -37,7 +37,14 @@ from trainer.train import train
 
 
 def with_settings(base: dict, settings: list[str]) -> dict:
-    """base (a config's dict) with SECTION.KEY=VALUE settings (VALUE in TOML) applied."""
+    """A copy of base (a config's dict) with SECTION.KEY=VALUE settings (VALUE in TOML) applied.
+
+    >>> base = {"seed": 0, "model": {"lines": 45, "min_depth": 0.0}, "train": {"lr_schedule": "step"}}
+    >>> with_settings(base, ["model.min_depth=0.2", 'train.lr_schedule = "cosine"', "seed=3"])
+    {'seed': 3, 'model': {'lines': 45, 'min_depth': 0.2}, 'train': {'lr_schedule': 'cosine'}}
+    >>> base["model"]["min_depth"]  # a copy
+    0.0
+    """
     d = json.loads(json.dumps(base))
     for setting in settings:
         key, _, text = setting.partition("=")

@@ -3,7 +3,7 @@ on the same frame, and training samples per second of the tiny network.
 
     python -m bench.trainer_speed [--repeats 5] [--no-published] [--threads N]
 
-The frame is an oracle-rendered Structure Core frame (tests/trainer_fixtures.py): a tilted wall and boxes.
+The frame is an oracle-rendered Structure Core frame (dotsim/oracle_dataset.py): a tilted wall and boxes.
 Networks have random weights (speed does not depend on training; routing spreads pixels over the
 classes). Prints medians over --repeats runs and the ratios to SGBM.
 """
@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import make_dataset, random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
-from tests.trainer_fixtures import make_dataset, random_depth, synthetic_frame
 from trainer.checkpoint import predict_disparity
 from trainer.config import load_config
 from trainer.model import build_model

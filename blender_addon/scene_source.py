@@ -47,7 +47,8 @@ def load_spec(config_path: str | os.PathLike, split: str, scene_index: int, base
         settings, _ = with_rig_options(config.rig, config.source, rig)
         config = replace(config, rig=settings)
     request = RunRequest(config, work_dir, split, scenes=1, start=scene_index, seed=base_seed)
-    return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(request))
+    return sample_scene_spec(config, request.start, request.seed, request.split, resources_in_folder(
+        config, request.split, request.out, request.pattern))
 
 
 def check_frame(frame: int, spec: SceneSpec) -> int:

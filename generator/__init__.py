@@ -12,16 +12,15 @@ Modules (one idea each; only generator/blender/ imports bpy):
                  projector's and flood's direct light)
   post_render    raw passes + SceneSpec -> stored channels (IR through the sensor model of
                  dotsim.sensor, ambient, flood, depth, masks, GT)
-  render_scenes  render_scenes(job, indices): sample, render, post-render, write, in this process
+  render_worker  what every render worker does: render_scenes(job, indices) samples, renders,
+                 post-renders and writes scenes in this process
   run_request    RunRequest: one run (config, out, split, seed, scenes, start, executor), checked once,
-                 carrying the rig and the pattern
-  executor       the Executor protocol (prepare, render, seal) that every engine implements
-  run_steps      the steps every engine takes on the dataset folder: prepare_run, render_missing
-                 (resume, progress), sealing; seal_run for clusters
-  pipeline       run(request): the request's executor through prepare, render and seal; generate()
+                 carrying the rig and the pattern; the Executor protocol (prepare, render, seal) that
+                 every engine implements; RunSummary, what a run did
+  driver         run(request): the request's executor through prepare, render and seal; generate()
                  for python callers
-  local_pool     LocalExecutor: spawned render processes on this machine (`--workers`, the default)
-  ray_cluster    RayExecutor: the scenes as Ray tasks (`--ray`; docs/SCALE.md)
-  slurm          SlurmExecutor: a job array and its sealing job (`--slurm`; docs/SCALE.md)
+  engines/       the engines that render a run (local_pool: processes here, the default; ray_cluster;
+                 slurm) and the steps on the dataset folder they share (steps: prepare, render what
+                 is missing, seal)
   cli            `dotsim generate`, and the engine modules it offers (ENGINES)
 """

@@ -8,13 +8,16 @@ import signal
 import sys
 from dataclasses import replace
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.option_types import integer
 from generator.config import ConfigError
-from generator.executor import Executor
 from generator.scene_spec import SPLITS
+
+if TYPE_CHECKING:  # run_request loads the pattern code (scipy); a parser needs none of it
+    from generator.run_request import Executor
 
 DESCRIPTION = """\
 Render scenes START .. START+N-1 of a split into DIR with headless Blender (Cycles): each scene is
@@ -58,8 +61,8 @@ Config keys: docs/CONFIG.md.
 
 
 # The engine modules `dotsim generate` offers besides the local pool, in --help order (each defines
-# add_options and from_args: generator/executor.py).
-ENGINES = ("generator.ray_cluster", "generator.slurm")
+# add_options and from_args: generator/run_request.py).
+ENGINES = ("generator.engines.ray_cluster", "generator.engines.slurm")
 
 
 def engine_modules() -> list[ModuleType]:
@@ -70,7 +73,7 @@ def engine_modules() -> list[ModuleType]:
 def executor_from_args(args: argparse.Namespace) -> Executor:
     """The executor the parsed `dotsim generate` options ask for: an engine of ENGINES, or the
     local pool of --workers processes. ConfigError when they ask for more than one engine."""
-    from generator.local_pool import LocalExecutor
+    from generator.engines.local_pool import LocalExecutor
 
     chosen = [executor for executor in (module.from_args(args) for module in engine_modules()) if executor]
     if len(chosen) > 1:
@@ -139,8 +142,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def _run(args: argparse.Namespace) -> int:
     from dotsim.rig.options import with_rig_options
     from dotsim.rig.report import summary_line
-    from generator import pipeline, run_steps
+    from generator import driver
     from generator.config import load_config
+    from generator.engines.steps import seal_run
     from generator.run_request import RunRequest
 
     executor = executor_from_args(args)
@@ -155,7 +159,7 @@ def _run(args: argparse.Namespace) -> int:
     for note in filter(None, notes):
         print(note, file=sys.stderr)
     if args.seal_only:
-        summary = run_steps.seal_run(request)
+        summary = seal_run(request)
         missing = summary.failed
         text = (f"{'not sealed' if summary.unsealed else 'sealed'} {summary.out}: {summary.skipped} of "
                 f"{args.scenes} scenes complete")
@@ -167,7 +171,7 @@ def _run(args: argparse.Namespace) -> int:
         print(text, file=sys.stderr if missing or summary.unsealed else sys.stdout)
         return 1 if missing or summary.unsealed else 0
     try:
-        return pipeline.main_summary(pipeline.run(request))
+        return driver.main_summary(driver.run(request))
     finally:
         executor.close()
 

@@ -1,7 +1,7 @@
 """The files a split's scenes refer to: the projector pattern, built-in textures, the asset cache.
 
 One module for every front end, so they all sample scenes from the same files: `dotsim generate`
-(generator/run_steps.py) keeps the pattern in the dataset (DATASET/pattern.png) and the built-in
+(generator/engines/steps.py) keeps the pattern in the dataset (DATASET/pattern.png) and the built-in
 textures in DATASET/textures; the Blender add-on (blender_addon/scene_source.py) keeps both in its
 work folder (`resources_in_folder`). Everything is made once and reused: a file that exists is the
 same image (names carry the split, the texture family and index, or the pattern's sha256).
@@ -18,17 +18,14 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dotsim.file_io import atomic_write_bytes, atomic_write_json, sha256_bytes, sha256_file
+from dotsim.patterns import DotPattern
 from generator.config import Config, ConfigError
 from generator.sample_scene import MeshAsset, SceneResources, TextureAsset
 from generator.scene_spec import SPLITS
-
-if TYPE_CHECKING:
-    from generator.run_request import RunRequest
 
 TEXTURE_DIR = "textures"
 TEXTURE_CHECKSUMS = "checksums.json"
@@ -151,13 +148,12 @@ def split_assets(config: Config, split: str, folder: str | os.PathLike) -> Scene
     return SceneResources("", "", textures=builtin_textures(Path(folder), split))
 
 
-def resources_in_folder(request: RunRequest) -> SceneResources:
-    """Pattern and assets of the request's split with its pattern and the built-in textures written
-    under request.out (a work folder, not a dataset) once: the pattern as
-    out/pattern_<sha256 prefix>.png, so configs with different patterns never share one.
-    ConfigError naming the config when its pattern or asset cache cannot be used."""
-    folder, pattern = request.out, request.pattern
-    assets = split_assets(request.config, request.split, folder)
+def resources_in_folder(config: Config, split: str, folder: Path, pattern: DotPattern) -> SceneResources:
+    """Pattern and assets of `split` with `pattern` and the built-in textures written under `folder`
+    (a work folder, not a dataset) once: the pattern as folder/pattern_<sha256 prefix>.png, so
+    configs with different patterns never share one. ConfigError naming the config when its asset
+    cache cannot be used."""
+    assets = split_assets(config, split, folder)
     pattern_path = folder / f"pattern_{pattern.sha256[:16]}.png"
     if not pattern_path.exists():
         pattern.save_png(pattern_path)

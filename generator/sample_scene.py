@@ -28,8 +28,8 @@ from generator.scene_spec import (
     PatternRef,
     PointLight,
     PrimitiveMesh,
-    RenderSettings,
     SceneObject,
+    SceneRenderSettings,
     SceneSpec,
     Texture,
     camera_views,
@@ -350,7 +350,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     seed = scene_seed(base_seed, scene_index)
     return SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
-        render=RenderSettings(**asdict(config.render), seed=seed),
+        render=SceneRenderSettings(**asdict(config.render), seed=seed),
         rig=rig,
         pattern=PatternRef(path=resources.pattern_path, sha256=resources.pattern_sha256),
         projector_power=projector_power,

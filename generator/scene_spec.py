@@ -55,7 +55,8 @@ _WHERE = "scene spec"
 
 @dataclass(frozen=True)
 class RenderConfig(Checked):
-    """Cycles settings of every scene: the config's [render] table (docs/CONFIG.md)."""
+    """Cycles settings of every scene: the config's [render] table (docs/CONFIG.md); one scene's are
+    a SceneRenderSettings (these and the scene's seed)."""
     samples: int = setting(1, "Cycles samples per pixel (1 is enough for the projector pass: quality "
                            "0.98, docs/RENDERING.md)", low=1, high=4096)
     max_bounces: int = setting(4, "Cycles maximum light bounces", low=0, high=64)
@@ -70,13 +71,13 @@ class RenderConfig(Checked):
 
 
 @dataclass(frozen=True)
-class RenderSettings(RenderConfig):
-    """One scene's Cycles settings: the config's [render] and the scene's seed (specs from before
-    `direct_light` read as "separate")."""
+class SceneRenderSettings(RenderConfig):
+    """One scene's Cycles settings, SceneSpec.render: the config's [render] (RenderConfig) and the
+    scene's seed (specs from before `direct_light` read as "separate")."""
     seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
     @classmethod
-    def from_dict(cls, d: Any, where: str) -> RenderSettings:
+    def from_dict(cls, d: Any, where: str) -> SceneRenderSettings:
         return record_from_dict(cls, d, where, optional=("direct_light",))
 
 
@@ -308,7 +309,7 @@ class SceneSpec(Checked):
     scene_index: int = setting(REQUIRED, "the scene's index", low=0)
     split: str = setting(REQUIRED, "the split its assets and density come from", choices=SPLITS)
     seed: int = setting(REQUIRED, "the scene's seed", low=0)
-    render: RenderSettings
+    render: SceneRenderSettings
     rig: Rig
     pattern: PatternRef
     # 0 switches a light source off (tests that render the passes one at a time); the config's scenes
@@ -377,7 +378,7 @@ class SceneSpec(Checked):
             scene_index=check_field(cls, "scene_index", d["scene_index"], f"{_WHERE}: scene_index"),
             split=check_field(cls, "split", d["split"], f"{_WHERE}: split"),
             seed=check_field(cls, "seed", d["seed"], f"{_WHERE}: seed"),
-            render=RenderSettings.from_dict(d["render"], f"{_WHERE}: render"),
+            render=SceneRenderSettings.from_dict(d["render"], f"{_WHERE}: render"),
             rig=rig,
             pattern=PatternRef.from_dict(d["pattern"], f"{_WHERE}: pattern"),
             lights=tuple(light_from_dict(light, f"{_WHERE}: lights[{k}]")

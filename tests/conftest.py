@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from dotsim import file_io
+from dotsim.oracle_dataset import make_dataset
 from tests.output_folders import read_only
-from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
-    """A tiny oracle dataset (tests/trainer_fixtures.py): 3 train scenes and 1 test scene of 2 frames.
+    """A tiny oracle dataset (dotsim/oracle_dataset.py): 3 train scenes and 1 test scene of 2 frames.
     Modules that need another size define their own `data`."""
     return make_dataset(tmp_path_factory.mktemp("ds"), scenes=3, frames_per_scene=2, test_scenes=1)
 

@@ -44,8 +44,8 @@ class SensorConfig(Checked):
     speckle_contrast: float = setting(0.0, "laser speckle on the projector's direct light: standard "
                                       "deviation of its factor (mean 1; 0 = off, 1 = fully developed "
                                       "speckle); fixed "
-                                      "for a scene and pose, another for another pose (\"Laser speckle\" "
-                                      "above)", low=0.0, high=1.0)
+                                      "for a scene and pose, another for another pose "
+                                      "(docs/CONFIG_GUIDE.md \"Laser speckle\")", low=0.0, high=1.0)
     speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "
                                    "intensity autocorrelation, full-resolution px", low=0.0, high=100.0,
                                    low_open=True)

@@ -40,7 +40,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from generator.scene_spec import CameraView, RenderSettings, SceneSpec
+from generator.scene_spec import CameraView, SceneRenderSettings, SceneSpec
 
 from .exr import read_exr
 from .frame_recipe import LIGHT_PASSES, FrameRecipe, Render, frame_recipe
@@ -277,7 +277,7 @@ class SceneRenderer:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _apply_render_settings(self, render: RenderSettings) -> None:
+    def _apply_render_settings(self, render: SceneRenderSettings) -> None:
         cycles = self.scene.cycles
         cycles.samples = render.samples
         cycles.seed = render.seed

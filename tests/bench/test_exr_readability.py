@@ -1,11 +1,11 @@
 """bench.exr_readability, run as the docs say (its own process, so that OpenCV's EXR codec is on), on a
-small real dataset: the readers' verdicts that docs/FORMAT.md "Compression" reports."""
+small real dataset: the readers' verdicts that docs/results/exr_compression.md reports."""
 
 import json
 import subprocess
 import sys
 
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 
 def test_the_readers_verdicts_and_sizes(tmp_path):

@@ -1,34 +1,42 @@
-"""bench.trainer_screen's dry run: two variants of train_tiny on oracle frames, 3 steps each, scored on
-held-out frames, their FLOPs counted, the table reported."""
+"""bench.trainer_screen run as the docs say (`python -m bench.trainer_screen`, its own process): two
+variants of train_tiny on oracle frames, 3 steps each, scored on held-out frames, their FLOPs
+counted, the table reported; and its settings' examples (doctest)."""
 
 import json
+import os
+import subprocess
+import sys
 
-import pytest
+from dotsim.oracle_dataset import make_dataset
 
-from bench.trainer_screen import main, with_settings
-from tests.trainer_fixtures import make_dataset
+# One intra-op thread: on the shared 2-core machine two threads measured 3-10x slower per step.
+ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+
+def screen(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bench.trainer_screen", *args], capture_output=True,
+                          text=True, env=ENV)
 
 
 def test_settings_are_toml_values_of_dotted_keys():
-    base = {"seed": 0, "model": {"lines": 45, "min_depth": 0.0}, "train": {"lr_schedule": "step"}}
-    got = with_settings(base, ["model.min_depth=0.2", 'train.lr_schedule = "cosine"', "seed=3"])
-    assert got == {"seed": 3, "model": {"lines": 45, "min_depth": 0.2}, "train": {"lr_schedule": "cosine"}}
-    assert base["model"]["min_depth"] == 0.0  # a copy
+    done = subprocess.run([sys.executable, "-m", "doctest", "-v", "bench/trainer_screen.py"],
+                          capture_output=True, text=True, env=ENV)
+    assert done.returncode == 0 and "with_settings" in done.stdout, done.stdout[-2000:] + done.stderr
 
 
-@pytest.mark.usefixtures("one_thread")
-def test_two_variants_train_the_same_steps_and_are_reported(tmp_path, capsys):
+def test_two_variants_train_the_same_steps_and_are_reported(tmp_path):
     data = make_dataset(tmp_path / "ds", scenes=2, frames_per_scene=2)
     val = make_dataset(tmp_path / "val", scenes=1, frames_per_scene=2, seed=4)
     common = ["--config", "train_tiny", "--data", str(data), "--val-data", str(val), "--steps", "3",
               "--val-frames", "2", "--out", str(tmp_path / "screens")]
-    assert main([*common, "--name", "base"]) == 0
-    assert main([*common, "--name", "full", "--set", "model.stride=1", "--set", "model.lines=90"]) == 0
+    full = ["--name", "full", "--set", "model.stride=1", "--set", "model.lines=90"]
+    for variant in (["--name", "base"], full):
+        done = screen(*common, *variant)
+        assert done.returncode == 0, done.stderr[-2000:]
     lines = [json.loads(line) for line in (tmp_path / "screens" / "results.jsonl").read_text().splitlines()]
     assert [r["name"] for r in lines] == ["base", "full"] and {r["steps"] for r in lines} == {3}
     assert 3.5 < lines[1]["gflop_per_step"] / lines[0]["gflop_per_step"] < 4.5  # full resolution: 4x
     assert {"all o(0.5)", "solvable o(5)"} <= set(lines[0]["validation"])
-    capsys.readouterr()
-    assert main(["--report", str(tmp_path / "screens")]) == 0
-    report = capsys.readouterr().out
-    assert "| base | as the config | 3 |" in report and "model.stride=1, model.lines=90" in report
+    done = screen("--report", str(tmp_path / "screens"))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "| base | as the config | 3 |" in done.stdout and "model.stride=1, model.lines=90" in done.stdout

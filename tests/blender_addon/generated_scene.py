@@ -7,7 +7,7 @@ from pathlib import Path
 
 from dotsim.dataset import open_dataset
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.driver import generate
 
 CONFIG = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 SCENE_INDEX, BASE_SEED, SPLIT = 1, 7, "train"

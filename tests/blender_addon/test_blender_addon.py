@@ -1,7 +1,7 @@
 """The Blender add-on with real bpy: register it, drive it through bpy.ops, check what it builds and
 renders against `dotsim generate`'s own output and against independent geometry.
 
-Reference data: one tiny scene rendered by the real pipeline (`generator.pipeline.generate`, in its
+Reference data: one tiny scene rendered by the real pipeline (`generator.driver.generate`, in its
 own worker process). The add-on's work folder is that dataset, so texture paths agree too.
 The module never resets Blender's factory settings (other bpy test modules share the process);
 it removes what it made when it is done.

@@ -20,9 +20,9 @@ from capture.frames import CaptureError
 from capture.import_frames import CAPTURE_CHANNELS, PAIR_CHANNELS, import_frames
 from dotsim.dataset import open_dataset
 from dotsim.oracle import expected_pattern_image
+from dotsim.oracle_dataset import make_dataset
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
-from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")

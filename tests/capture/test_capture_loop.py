@@ -25,7 +25,7 @@ from dotsim.oracle import expected_pattern_image
 from dotsim.patterns import detect_dots, generate_dot_pattern, load_pattern
 from dotsim.rig.presets import get_preset
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.driver import generate
 
 pytest.importorskip("pyrealsense2")
 from capture.devices.realsense import RealSenseDevice  # noqa: E402

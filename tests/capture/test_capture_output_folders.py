@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from commands.cli import main
+from dotsim.oracle_dataset import make_dataset
 from dotsim.rig.files import rig_file_json
 from dotsim.rig.presets import get_preset
 from tests.output_folders import assert_one_line_error, leftovers
-from tests.trainer_fixtures import make_dataset
 
 RIG = get_preset("structure_core").scaled(0.1)  # camera 122 x 90
 

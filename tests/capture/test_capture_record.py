@@ -24,7 +24,7 @@ from dotsim.rig.files import load_rig_file, rig_file_json
 from dotsim.rig.geometry import Intrinsics
 from dotsim.rig.presets import get_preset
 from generator.config import load_config
-from generator.pipeline import generate
+from generator.driver import generate
 
 rs = pytest.importorskip("pyrealsense2")
 from capture.devices.realsense import RealSenseDevice, open_realsense  # noqa: E402

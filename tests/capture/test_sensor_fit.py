@@ -13,26 +13,27 @@ import cv2
 import numpy as np
 import pytest
 
-from bench import sensor_fit as bench
+from capture import still_scenes
 from commands.cli import main
 from dotsim import dataset
 from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorModel
 from dotsim.sensor.settings import SensorSpec
 from generator.config import config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
 
 TINY = load_config(Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml")
 SCALE = 0.2  # 243 x 179: enough isolated dots in 4 scenes
-# bench.sensor_fit's sensor, with blur and grain in full-resolution px that are 1 and 2 px here
-KNOWN = {**bench.KNOWN, "blur_sigma": 5.0, "speckle_grain": 10.0}
+# the known sensor of capture/still_scenes.py (bench.sensor_fit's), with blur and grain in
+# full-resolution px that are 1 and 2 px here
+KNOWN = {**still_scenes.KNOWN, "blur_sigma": 5.0, "speckle_grain": 10.0}
 
 
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
-    """bench.sensor_fit's still scenes at scale 0.2: a 'capture' with the KNOWN sensor and a rendering
-    of the default sensor to compare it with."""
-    return bench.render_pair(TINY, tmp_path_factory.mktemp("still"), SCALE, 4, KNOWN)
+    """The still scenes of capture/still_scenes.py (bench.sensor_fit's) at scale 0.2: a 'capture'
+    with the KNOWN sensor and a rendering of the default sensor to compare it with."""
+    return still_scenes.render_pair(TINY, tmp_path_factory.mktemp("still"), SCALE, 4, KNOWN)
 
 
 def fit_sensor(capsys, *args) -> tuple[int, str, str]:
@@ -141,7 +142,7 @@ def test_a_recording_of_the_software_realsense(tmp_path, capsys):
     from tests.capture.realsense_software import SoftwareStereoModule, depth_z16
 
     sensor = {"exposure": "fixed", "gain": 1.0, "read_noise": 0.01, "shot_noise": 0.04, "blur_sigma": 5.0}
-    config = bench.still_config(TINY, SCALE, sensor, lighting={"extra_lights": [1, 1],
+    config = still_scenes.still_config(TINY, SCALE, sensor, lighting={"extra_lights": [1, 1],
                                                                "light_power": [3.0, 6.0]})
     generate(config, tmp_path / "rendered", "train", 2, seed=2, progress=False)
     model, rng = SensorModel(config.sensor.at_scale(config.rig.scale)), np.random.default_rng(6)

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from commands.cli import main
+from dotsim.oracle_dataset import make_dataset
 from tests.output_folders import assert_one_line_error, leftovers, read_only
-from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")

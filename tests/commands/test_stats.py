@@ -11,9 +11,9 @@ from commands.cli import main as dotsim_main
 from commands.stats import dataset_stats
 from dotsim.dataset import seal_dataset, write_scene
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
-from tests.trainer_fixtures import synthetic_frame
 
 NEAR, FAR = 0.5, 3.0
 

@@ -1,6 +1,6 @@
 """`dotsim view --save`: the recording read back with Rerun's own dataframe API, entity by entity.
 
-The scene is written with the dataset writer (oracle frames of tests/trainer_fixtures.py) at four
+The scene is written with the dataset writer (oracle frames of dotsim/oracle_dataset.py) at four
 distinct poses; predictions are files in `dotsim infer`'s format (dotsim.prediction_file.write_prediction).
 """
 
@@ -12,10 +12,10 @@ import pytest
 from commands import cli, view
 from dotsim import dataset as ds
 from dotsim.channels import rendered_channels
+from dotsim.oracle_dataset import random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.prediction_file import write_prediction
 from dotsim.rig.presets import get_preset
-from tests.trainer_fixtures import random_depth, synthetic_frame
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
 

@@ -1,5 +1,6 @@
-"""The public facade in dotsim/__init__.py: its docstring examples run (one renders a tiny scene), its
-names are the real functions, and `import dotsim` loads neither bpy nor torch."""
+"""The public facade in dotsim/__init__.py: its docstring examples run (generate's, in
+generator/driver.py, renders a tiny scene), its names are the real functions, and `import dotsim`
+loads neither bpy nor torch."""
 
 import doctest
 import subprocess
@@ -12,12 +13,14 @@ import dotsim
 import dotsim.dataset
 import dotsim.rig.geometry
 import generator.config
+import generator.driver
 
-EXAMPLES = {test.name: test for test in doctest.DocTestFinder().find(dotsim) if test.examples}
+EXAMPLES = {test.name: test for module in (dotsim, generator.driver.generate)
+            for test in doctest.DocTestFinder().find(module) if test.examples}
 
 
 def test_the_examples_are_where_the_readme_says():
-    assert sorted(EXAMPLES) == ["dotsim", "dotsim.generate"]
+    assert sorted(EXAMPLES) == ["dotsim", "generate"]
 
 
 @pytest.mark.parametrize("name", sorted(EXAMPLES))
@@ -31,6 +34,7 @@ def test_the_names_are_the_real_functions():
     assert dotsim.read_frame is dotsim.dataset.read_frame
     assert dotsim.Rig is dotsim.rig.geometry.Rig
     assert dotsim.load_config is generator.config.load_config
+    assert dotsim.generate is generator.driver.generate
     assert set(dotsim.__all__) <= set(dir(dotsim))
     with pytest.raises(AttributeError, match="no attribute 'generat'"):
         dotsim.generat  # noqa: B018

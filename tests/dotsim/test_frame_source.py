@@ -12,10 +12,10 @@ import pytest
 from dotsim import frame_source
 from dotsim.dataset import open_dataset, read_frame
 from dotsim.frame_source import SourceError, open_source
+from dotsim.oracle_dataset import make_dataset
 from dotsim.patterns import load_pattern
 from dotsim.rig.geometry import Rig
 from dotsim.shards.writer import export_webdataset
-from tests.trainer_fixtures import make_dataset
 
 
 def test_doctests():

@@ -23,11 +23,11 @@ from dotsim.rig.presets import get_preset
 from dotsim.sensor.model import SensorStreams
 from generator.blender.frame_recipe import RAW_PASSES
 from generator.config import ConfigError, config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
+from generator.engines.steps import RUN_FILE, prepare_run
 from generator.post_render import make_frame
-from generator.render_scenes import LOG_DIR
+from generator.render_worker import LOG_DIR
 from generator.run_request import RunRequest
-from generator.run_steps import RUN_FILE, prepare_run
 from generator.sample_scene import SceneResources, sample_scene_spec
 from generator.scene_spec import camera_views
 
@@ -295,7 +295,7 @@ def test_render_scenes_in_a_fresh_process_as_another_front_end_would(rendered, t
     out = tmp_path / "front_end"
     job = prepare_run(RunRequest(load_config(TINY), out, "train", 2, seed=3))
     (tmp_path / "job.pickle").write_bytes(pickle.dumps(job))
-    task = ("import pickle, sys; from generator.render_scenes import render_scenes; "
+    task = ("import pickle, sys; from generator.render_worker import render_scenes; "
             "job = pickle.load(open(sys.argv[1], 'rb')); "
             "print([(r.index, r.ok, r.frames) for r in render_scenes(job, [1, 0])])")
     proc = subprocess.run([sys.executable, "-c", task, str(tmp_path / "job.pickle")], cwd=REPO,

@@ -25,8 +25,8 @@ from dotsim import dataset, file_io
 from dotsim.dataset.layout import record_layout
 from dotsim.dataset.seal import seal_shard
 from generator.config import load_config
-from generator.pipeline import generate
-from generator.render_scenes import LOG_DIR
+from generator.driver import generate
+from generator.render_worker import LOG_DIR
 from generator.resources import TEXTURE_DIR
 from tests.output_folders import leftovers
 
@@ -282,7 +282,7 @@ def test_a_killed_ray_local_driver_leaves_no_ray_process(tmp_path):
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM], ids=["kill-9", "SIGTERM"])
 def test_a_stopped_train_nproc_leaves_no_rank_behind(tmp_path, signum):
-    from tests.trainer_fixtures import make_dataset
+    from dotsim.oracle_dataset import make_dataset
 
     data, run = make_dataset(tmp_path / "data", scenes=2), tmp_path / "run"
     command = ["train", "--config", str(REPO / "dotsim" / "configs" / "train_tiny.toml"), "--data", str(data),
@@ -481,9 +481,9 @@ def test_a_damaged_builtin_texture_stops_the_run_before_it_renders(sealed, tmp_p
 
 def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_scenes(asset_cache, tmp_path,
                                                                                       capsys):
-    from generator.render_scenes import _sample, render_scenes
+    from generator.engines.steps import prepare_run
+    from generator.render_worker import _sample, render_scenes
     from generator.run_request import RunRequest
-    from generator.run_steps import prepare_run
 
     cache, config = copied_cache(asset_cache, tmp_path)
     texture = sorted((cache / "test" / "textures").glob("*.png"))[0]
@@ -504,7 +504,7 @@ def test_a_damaged_cache_file_stops_the_run_and_one_changed_mid_run_fails_its_sc
 
 
 def dataset_inputs(spec) -> list[str]:
-    from generator.render_scenes import spec_inputs
+    from generator.render_worker import spec_inputs
 
     return spec_inputs(spec)
 
@@ -637,7 +637,7 @@ def test_full_disk_while_sealing(sealed, small_disk, capsys):
 def test_train_on_a_full_disk_is_one_line_and_keeps_the_last_good_checkpoint(tmp_path, capsys):
     """TensorBoard's event file, then the checkpoint, meet a full disk: each a one-line message naming
     the file, exit 1, and checkpoint.pt still the last good one (it is 15.5 MB: a 40 MB tmpfs)."""
-    from tests.trainer_fixtures import make_dataset
+    from dotsim.oracle_dataset import make_dataset
     from trainer.checkpoint import load_checkpoint
 
     data = make_dataset(tmp_path / "data", scenes=2)

@@ -1,6 +1,6 @@
 """RunRequest (generator/run_request.py): a run's values checked once, with one-line errors naming
 the option; the rig file read once per run and the pattern made once, however many scenes are
-sampled; the engine chosen by one option (generator/executor.py). Nothing here renders."""
+sampled; the engine chosen by one option (generator/run_request.py's Executor). Nothing here renders."""
 
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ import generator.run_request
 from commands.cli import build_parser
 from generator.cli import executor_from_args
 from generator.config import ConfigError, load_config
-from generator.local_pool import LocalExecutor
-from generator.ray_cluster import RayExecutor
-from generator.render_scenes import _sample
+from generator.engines.local_pool import LocalExecutor
+from generator.engines.ray_cluster import RayExecutor
+from generator.engines.slurm import SlurmExecutor
+from generator.engines.steps import prepare_run
+from generator.render_worker import _sample
 from generator.run_request import RunRequest
-from generator.run_steps import prepare_run
-from generator.slurm import SlurmExecutor
 
 TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
 

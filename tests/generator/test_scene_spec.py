@@ -25,7 +25,7 @@ from generator.scene_spec import (
     Material,
     PointLight,
     PrimitiveMesh,
-    RenderSettings,
+    SceneRenderSettings,
     SceneSpec,
     Texture,
     camera_views,
@@ -52,7 +52,7 @@ def test_json_round_trip_gives_the_same_typed_spec():
 
 
 @pytest.mark.parametrize("table, record, added", [
-    ("render", RenderSettings, {"seed"}), ("sensor", SensorSpec, {"pixel_scale"}),
+    ("render", SceneRenderSettings, {"seed"}), ("sensor", SensorSpec, {"pixel_scale"}),
     ("masks", MaskParams, set())])
 def test_the_spec_carries_the_configs_own_settings(table, record, added):
     """Bounds agree by construction: the spec's Cycles, sensor and mask records are the config's
@@ -80,7 +80,7 @@ def test_a_spec_built_in_code_is_checked_like_one_read_from_json():
         replace(spec, world_strength=-1.0)
     with pytest.raises(ConfigError, match=r"^Material.albedo = -0.5: out of range"):
         replace(spec.objects[0].material, albedo=-0.5)
-    with pytest.raises(ConfigError, match=r"^RenderSettings.samples = 5000: out of range"):
+    with pytest.raises(ConfigError, match=r"^SceneRenderSettings.samples = 5000: out of range"):
         replace(spec.render, samples=5000)
     with pytest.raises(ConfigError, match=r"^SceneSpec.poses = \(\): not a non-empty list"):
         replace(spec, poses=())

@@ -8,8 +8,9 @@ import dataclasses
 import numpy as np
 
 from dotsim.frame_source import open_source
+from dotsim.oracle_dataset import make_dataset
 from dotsim.shards.writer import export_webdataset
-from tests.trainer_fixtures import make_dataset, tiny_config
+from tests.trainer_fixtures import tiny_config
 from trainer.evaluate import evaluate, row_of, sgbm_nearest_depth
 from trainer.sgbm import num_disparities_for, stereo_sgbm_disparity
 from trainer.train import train

@@ -15,7 +15,7 @@ from dotsim.frame_source import open_source
 from dotsim.rig.geometry import Intrinsics, Rig, rotation_matrix
 from dotsim.rig.presets import get_preset
 from generator.config import config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
 from tests.trainer_fixtures import tiny_config
 from trainer.config import Config
 from trainer.model import FEASIBLE_MARGIN, build_model

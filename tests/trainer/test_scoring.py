@@ -4,7 +4,8 @@ frames with the same network they give the same o(t), over the valid and over th
 from __future__ import annotations
 
 from dotsim.frame_source import open_source
-from tests.trainer_fixtures import make_dataset, tiny_config
+from dotsim.oracle_dataset import make_dataset
+from tests.trainer_fixtures import tiny_config
 from trainer.evaluate import evaluate, row_of
 from trainer.metrics import THRESHOLDS
 from trainer.train import train

@@ -9,7 +9,7 @@ import torch
 
 from dotsim.dataset import read_frame
 from dotsim.frame_source import open_source
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate

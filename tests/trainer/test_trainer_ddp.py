@@ -14,7 +14,7 @@ from torch import nn
 
 from commands.cli import main
 from dotsim.frame_source import open_source
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict, load_config
 from trainer.distributed import Ranks, leave_process_group, run_on_ranks

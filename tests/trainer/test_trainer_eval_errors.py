@@ -9,11 +9,11 @@ import torch
 
 from commands.cli import main as dotsim_main
 from dotsim.frame_source import SourceError, open_source
+from dotsim.oracle_dataset import make_dataset, planar_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
 from tests.output_folders import assert_one_line_error, leftovers
-from tests.trainer_fixtures import make_dataset, planar_depth, synthetic_frame
 from trainer.checkpoint import load_checkpoint, upsample_half
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate

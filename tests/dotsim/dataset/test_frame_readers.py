@@ -20,7 +20,7 @@ import pytest
 
 from commands import cli
 from dotsim import dataset as ds
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 REPO = Path(__file__).resolve().parents[3]
 

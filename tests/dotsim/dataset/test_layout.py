@@ -13,9 +13,9 @@ import pytest
 
 from commands.cli import main
 from dotsim import dataset as ds
+from dotsim.oracle_dataset import make_dataset
 from dotsim.shards.writer import export_webdataset
 from tests.output_folders import assert_one_line_error
-from tests.trainer_fixtures import make_dataset
 
 
 @pytest.fixture(scope="module")

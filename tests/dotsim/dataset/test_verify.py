@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from commands.cli import main
-from tests.trainer_fixtures import make_dataset
+from dotsim.oracle_dataset import make_dataset
 
 
 def test_repair_never_seals_a_file_verify_flags_as_unlisted(tmp_path, capsys):

@@ -1,6 +1,6 @@
 """`dotsim export --format webdataset`, trainer.samples.Frames, and the trainer and eval on shards.
 
-Tiny oracle datasets (tests/trainer_fixtures.py, written with the dataset writer) are exported; the
+Tiny oracle datasets (dotsim/oracle_dataset.py, written with the dataset writer) are exported; the
 shards are read back by dotsim.shards.reader and trainer.samples.Frames (streamed and indexed), by
 the webdataset library and OpenCV (independently of dotsim's decoder), by the trainer and by eval,
 and everything is compared with the folder read through dotsim.dataset.
@@ -20,11 +20,12 @@ from commands import cli
 from dotsim import dataset as ds
 from dotsim import file_io
 from dotsim.frame_source import SourceError, open_source
+from dotsim.oracle_dataset import make_dataset
 from dotsim.shards import writer as export_module
 from dotsim.shards.reader import decode_webdataset, index_shards, read_indexed
 from dotsim.shards.writer import export_webdataset, tar_bytes_of
 from tests.output_folders import assert_one_line_error, leftovers
-from tests.trainer_fixtures import make_dataset, tiny_config
+from tests.trainer_fixtures import tiny_config
 from trainer.evaluate import evaluate
 from trainer.samples import Frames, SceneMeta
 from trainer.train import train
@@ -360,9 +361,9 @@ def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_dispari
     """ir_right as 10-bit codes and stereo_visibility as a 1-bit PNG, like their left twins;
     stereo_disparity derived on read from depth (exact export) or from the column (training export)."""
     from dotsim.channels import rendered_channels
+    from dotsim.oracle_dataset import TINY_SCALE, random_depth, synthetic_frame
     from dotsim.patterns import generate_dot_pattern
     from dotsim.rig.presets import get_preset
-    from tests.trainer_fixtures import TINY_SCALE, random_depth, synthetic_frame
 
     rig = get_preset("structure_core").scaled(TINY_SCALE)
     dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
@@ -379,7 +380,7 @@ def test_a_stereo_pair_exports_its_ir_and_mask_as_png_and_derives_stereo_dispari
     meta = {"split": "train", "seed": 0, "rig": rig.to_dict(), "poses": [np.eye(4).tolist()] * 2,
             "pattern": {"source": dots.source, "sha256": dots.sha256, "width": rig.projector.width,
                         "height": rig.projector.height, "params": dots.params},
-            "render": {"kind": "oracle (tests/trainer_fixtures.py)"}}
+            "render": {"kind": "oracle (dotsim/oracle_dataset.py)"}}
     ds.write_scene(root, 0, meta, frames, channels=rendered_channels(stereo=True))
     ds.seal_dataset(root)
     exact = export_webdataset(root, tmp_path / "exact")

@@ -16,11 +16,11 @@ import pytest
 import ray
 from ray.cluster_utils import Cluster
 
-from bench.one_node_slurm import free_port
 from dotsim import dataset
 from generator.config import ConfigError, load_config
-from generator.pipeline import generate
-from generator.ray_cluster import RayExecutor
+from generator.driver import generate
+from generator.engines.one_node_slurm import free_port
+from generator.engines.ray_cluster import RayExecutor
 from tests.generator.test_generate import TINY, run_cli
 
 SEED = 5

@@ -1,5 +1,6 @@
 """The local engine: a run's scenes rendered in W spawned worker processes on this machine
-(`dotsim generate --workers W`, the default engine; generator/executor.py).
+(`dotsim generate --workers W`, the default engine; the Executor protocol:
+generator/run_request.py).
 
 Each worker is a process of its own holding one Blender scene (bpy as a module) for every scene it
 renders, or starting `blender` per batch of scenes (`--blender`). Workers never outlive the run:
@@ -22,9 +23,9 @@ from collections.abc import Callable
 from dotsim.file_io import DiskFullError
 from dotsim.process_lifetime import die_with_parent, stop_processes
 from generator.config import ConfigError
-from generator.render_scenes import RenderJob, SceneResult, failed_batch, process_renderer, render_scenes
-from generator.run_request import RunRequest
-from generator.run_steps import RunSummary, prepare_writer, render_missing, seal_written
+from generator.engines.steps import prepare_writer, render_missing, seal_written
+from generator.render_worker import RenderJob, SceneResult, failed_batch, process_renderer, render_scenes
+from generator.run_request import RunRequest, RunSummary
 
 # Scenes per `blender` call: large enough to amortise Blender's start-up (seconds), small enough
 # that the progress bar moves and a crash loses little.

@@ -11,15 +11,15 @@ from dataclasses import replace
 
 import pytest
 
-from bench.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
 from dotsim import dataset
 from dotsim.rig.options import with_rig_options
 from generator.config import config_from_dict, load_config
-from generator.pipeline import generate
+from generator.driver import generate
+from generator.engines.one_node_slurm import SlurmUnavailable, one_node_slurm, wait_for_jobs
+from generator.engines.slurm import CONFIG_FILE, SlurmOptions, plan
+from generator.engines.steps import seal_run
 from generator.run_request import RunRequest
-from generator.run_steps import seal_run
-from generator.slurm import CONFIG_FILE, SlurmOptions, plan
-from tests.generator.test_cluster_ray import tree_bytes
+from tests.generator.engines.test_ray_cluster import tree_bytes
 from tests.generator.test_generate import TINY, run_cli
 
 SEED = 7
@@ -124,7 +124,7 @@ def test_a_node_that_cannot_see_the_output_stops_before_writing(tmp_path):
 
 @pytest.fixture(scope="module")
 def slurm(tmp_path_factory):
-    """The environment of a one-node Slurm of the test's own (bench.one_node_slurm)."""
+    """The environment of a one-node Slurm of the test's own (generator.engines.one_node_slurm)."""
     try:
         with one_node_slurm(tmp_path_factory.mktemp("slurm")) as env:
             yield env

@@ -1,5 +1,5 @@
 """The steps of a generator run on its dataset folder, the same for every engine
-(generator/executor.py): get the folder ready, render what is missing, seal.
+(the Executor protocol: generator/run_request.py): get the folder ready, render what is missing, seal.
 
   `prepare_run` (an executor's prepare; `prepare_writer` for engines that render their range
      themselves) checks the output directory's existing dataset, the pattern, the asset cache and
@@ -11,14 +11,14 @@
      worker checks before it renders a scene;
   `render_missing` (an executor's render) skips complete scenes (resume), removes damaged ones (a
      frame deleted after the fact) and has the engine render them with the others (each scene
-     through generator/render_scenes.py: sample, render, post-render, write atomically; a failing
+     through generator/render_worker.py: sample, render, post-render, write atomically; a failing
      scene is logged and the run goes on), with a progress bar and the run's summary;
   `seal_written` (an executor's seal) seals the dataset (dotsim.dataset.seal_dataset: incremental,
      so every run seals, and a run killed before its seal leaves nothing a rerun does not mend), or
      only a range's own shards; `seal_run` seals what several range runs wrote (the Slurm sealing
      job).
-The engines (generator/local_pool.py, generator/ray_cluster.py, generator/slurm.py) build on these;
-generator/pipeline.py drives a run through its engine.
+The engines beside it (generator/engines/local_pool.py, ray_cluster.py, slurm.py) build on these;
+generator/driver.py drives a run through its engine.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ import platform
 import subprocess
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -43,43 +42,11 @@ from dotsim.file_io import json_bytes, sha256_file
 from dotsim.pattern_store import pattern_entry, store_pattern
 from dotsim.version import __version__
 from generator.config import Config, ConfigError
-from generator.render_scenes import LOG_DIR, RenderJob, SceneResult
+from generator.render_worker import RenderJob, SceneResult
 from generator.resources import input_checksums, split_assets
-from generator.run_request import RunRequest
+from generator.run_request import RunRequest, RunSummary
 
 RUN_FILE = "generate.json"
-
-
-@dataclass
-class RunSummary:
-    """What a run did; `line()` is the summary printed at the end."""
-    out: Path
-    done: int = 0
-    skipped: int = 0
-    frames: int = 0
-    seconds: float = 0.0
-    worker_seconds: float = 0.0
-    failed: list[int] = field(default_factory=list)
-    redone: list[int] = field(default_factory=list)  # damaged scenes found, removed and rendered again
-    unsealed: str = ""  # why the run could not seal (other writers kept changing the dataset)
-    submitted: str = ""  # what was handed to a batch system instead (Slurm): the whole line then
-
-    def line(self) -> str:
-        if self.submitted:
-            return self.submitted
-        per_scene = (f"{self.seconds / self.done:.2f} s/scene; {self.worker_seconds / self.done:.2f} s of "
-                     "one worker's time each" if self.done else "no scene rendered")
-        scenes = "scene" if self.done == 1 else "scenes"
-        text = (f"{self.done} {scenes} rendered ({self.frames} frames), {self.skipped} already complete, "
-                f"{len(self.failed)} failed, in {self.seconds:.1f} s ({per_scene}) -> {self.out}")
-        if self.unsealed:
-            text += f"; not sealed: {self.unsealed}"
-        if self.redone:
-            text += f"; {len(self.redone)} damaged scene(s) found and redone: {self.redone[:10]}"
-        if self.failed:
-            text += f"; failed scenes {self.failed[:10]}{' ...' if len(self.failed) > 10 else ''}, " \
-                    f"tracebacks in {self.out / LOG_DIR}"
-        return text
 
 
 def _run_record(config: Config, split: str, seed: int) -> dict:

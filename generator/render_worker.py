@@ -1,13 +1,15 @@
-"""Render scenes into a dataset: `render_scenes(job, indices)`, here in this process.
+"""What every render worker does: `render_scenes(job, indices)` renders scenes into a dataset, here
+in this process.
 
-A RenderJob is everything a scene needs besides its index; `generator.run_steps.prepare_run` makes
-one (and gets the dataset folder ready). Every engine (generator/executor.py) hands out indices to
-processes that call `render_scenes` on their share: a local pool worker (generator/local_pool.py),
-a Ray task, a Slurm array task. For each index the scene is sampled (generator/sample_scene.py),
-rendered (bpy as a module: one SceneRenderer per process, reused; or with `job.blender`: `EXE
---background --python generator/blender/run_in_blender.py` per batch), post-rendered
-(generator/post_render.py) and written atomically (dotsim.dataset.write_scene). A failing scene is
-logged (DATASET/logs/scene_NNNNNNN.log, with its traceback) and reported in its SceneResult, never raised.
+A RenderJob is everything a scene needs besides its index; `generator.engines.steps.prepare_run`
+makes one (and gets the dataset folder ready). Every engine (the Executor protocol:
+generator/run_request.py) hands out indices to processes that call `render_scenes` on their share: a
+local pool worker (generator/engines/local_pool.py), a Ray task, a Slurm array task. For each index
+the scene is sampled (generator/sample_scene.py), rendered (bpy as a module: one SceneRenderer per
+process, reused; or with `job.blender`: `EXE --background --python
+generator/blender/run_in_blender.py` per batch), post-rendered (generator/post_render.py) and
+written atomically (dotsim.dataset.write_scene). A failing scene is logged
+(DATASET/logs/scene_NNNNNNN.log, with its traceback) and reported in its SceneResult, never raised.
 Scene k depends only on (config, k, base seed), so the dataset does not depend on who renders what.
 """
 

@@ -1,6 +1,6 @@
 """The Slurm engine: a job array (one array task = one range of scenes) and a job that seals the
 dataset when every task has ended (`dotsim generate --slurm`; the Executor protocol:
-generator/executor.py).
+generator/run_request.py).
 
 The driver (SlurmExecutor) checks everything and writes what all scenes share (as a local run
 does), then writes the run's config (DATASET/slurm/TAG/config.json: generator.config.config_json,
@@ -9,7 +9,7 @@ sbatch scripts beside it, and submits them: the array (its
 `render`), and the sealing job with `--dependency=afterany:ARRAY_JOB` (its `seal`). Array task i
 runs the ordinary idempotent `dotsim generate --start K --scenes R --no-seal` for its range, so a
 requeued or failed task is just rerun; the sealing job runs `dotsim generate --seal-only` over the whole range
-(generator.run_steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
+(generator.engines.steps.seal_run: dotsim.dataset.seal_dataset and a list of the scenes still missing).
 Plain sbatch scripts (not submitit): no extra package on the login node, nothing pickled, and the
 scripts are what `--slurm-dry-run` prints and what a user can read, edit and resubmit.
 """
@@ -32,9 +32,8 @@ from dotsim.option_types import integer
 from generator.config import Config, ConfigError, config_json
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.render_scenes import RenderJob
-    from generator.run_request import RunRequest
-    from generator.run_steps import RunSummary
+    from generator.render_worker import RenderJob
+    from generator.run_request import RunRequest, RunSummary
 
 SLURM_DIR = "slurm"
 CONFIG_FILE = "config.json"
@@ -235,7 +234,7 @@ class SlurmExecutor:
         self.array_id = ""
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob | None:
-        from generator.run_steps import prepare_run
+        from generator.engines.steps import prepare_run
 
         self.slurm_plan = plan(request.config, request.out, request.split, request.scenes, request.start,
                                request.seed, self.options, new_tag(), request.blender)
@@ -251,7 +250,7 @@ class SlurmExecutor:
         """Write the config, the scripts and the visibility marker and submit the array (dry run:
         nothing)."""
         from dotsim.file_io import atomic_write_bytes
-        from generator.run_steps import RunSummary
+        from generator.run_request import RunSummary
 
         if self.dry_run:
             return RunSummary(out=request.out, submitted=self.slurm_plan.dry_run_text())

@@ -1,6 +1,6 @@
 """Every engine writes the same bytes (issue 28): the same tiny scenes rendered through the local
 pool with one worker and with two, and through Ray (the one-machine cluster `--ray local` starts),
-give files of equal sha256, frames and all. Slurm's array against a local run: test_cluster_slurm.py
+give files of equal sha256, frames and all. Slurm's array against a local run: test_slurm.py
 (it needs a one-node Slurm started as root)."""
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 
 from generator.config import load_config
-from generator.local_pool import LocalExecutor
-from generator.pipeline import run
-from generator.ray_cluster import RayExecutor
+from generator.driver import run
+from generator.engines.local_pool import LocalExecutor
+from generator.engines.ray_cluster import RayExecutor
+from generator.engines.steps import RUN_FILE
 from generator.run_request import RunRequest
-from generator.run_steps import RUN_FILE
 
-TINY = Path(__file__).resolve().parents[2] / "dotsim" / "configs" / "tiny.toml"
+TINY = Path(__file__).resolve().parents[3] / "dotsim" / "configs" / "tiny.toml"
 SCENES = 3  # tiny.toml: two scenes per shard, so the run spans two shards
 SEED = 11
 

@@ -1,5 +1,6 @@
 """A one-node Slurm cluster of its own on this machine (munged, slurmctld, slurmd as root, free
-ports, a minimal slurm.conf in a folder), for the tests and the cluster benchmark.
+ports, a minimal slurm.conf in a folder): the Slurm engine (slurm.py) tried on one machine, by the
+tests and the cluster benchmark alike.
 
 Debian: `apt-get install slurm-wlm munge`. Nothing outside `folder` is touched, so it runs beside
 any other Slurm or munge on the machine.

@@ -1,10 +1,10 @@
 """The Ray engine: a generator run rendered on a Ray cluster, one Ray task per small batch of scenes
-(`dotsim generate --ray ADDRESS`; the Executor protocol: generator/executor.py).
+(`dotsim generate --ray ADDRESS`; the Executor protocol: generator/run_request.py).
 
 `RayExecutor.prepare` checks everything as for a local run, then connects to the cluster and makes
 sure every node sees the output folder (a marker file written here, read by a task on each node)
 before anything is written. Each task
-calls `generator.render_scenes.render_scenes`, which keeps one Blender scene per Ray worker
+calls `generator.render_worker.render_scenes`, which keeps one Blender scene per Ray worker
 process for all the batches it gets, as a local pool worker does, and skips scenes a dead attempt
 already wrote; scene k depends only on (config, k, seed), so the bytes equal a local run's. A task
 whose node dies is retried by Ray; a scene that raises is logged in DATASET/logs/ as in a local
@@ -33,9 +33,8 @@ from dotsim.process_lifetime import kill_tree_when_gone
 from generator.config import ConfigError
 
 if TYPE_CHECKING:  # imported when used: `dotsim` builds its parser with this module's options
-    from generator.render_scenes import RenderJob, SceneResult
-    from generator.run_request import RunRequest
-    from generator.run_steps import RunSummary
+    from generator.render_worker import RenderJob, SceneResult
+    from generator.run_request import RunRequest, RunSummary
 
 INSTALL_HINT = 'pip install "dotsim[ray]" (or `make ray`)'
 # Scenes per task: a retry after a node failure redoes at most this many (seconds each at full
@@ -80,8 +79,8 @@ def _marker_seen(path: str, token: str) -> tuple[str, bool]:
 
 
 def _render_task(job: RenderJob, indices: list[int]) -> list[SceneResult]:
-    from generator.render_scenes import render_scenes
-    from generator.run_steps import RUN_FILE
+    from generator.engines.steps import RUN_FILE
+    from generator.render_worker import render_scenes
 
     if not (job.out / RUN_FILE).is_file():  # a node that joined after start() and lacks the mount
         raise RuntimeError(f"{job.out} is not visible on {socket.gethostname()}: put --out on a "
@@ -199,7 +198,7 @@ class RayExecutor:
         self.check_visible(request.out)
 
     def prepare(self, request: RunRequest, hold: contextlib.ExitStack) -> RenderJob:
-        from generator.run_steps import prepare_writer
+        from generator.engines.steps import prepare_writer
 
         return prepare_writer(request, hold, engine_check=lambda: self._start(request))
 
@@ -211,7 +210,7 @@ class RayExecutor:
 
     def render(self, request: RunRequest, job: RenderJob) -> RunSummary:
         from dotsim import dataset
-        from generator.run_steps import render_missing
+        from generator.engines.steps import render_missing
 
         summary = render_missing(request, job, self._render_todo)
         if summary.skipped < request.scenes:
@@ -221,7 +220,7 @@ class RayExecutor:
         return summary
 
     def seal(self, request: RunRequest, job: RenderJob, summary: RunSummary) -> None:
-        from generator.run_steps import seal_written
+        from generator.engines.steps import seal_written
 
         seal_written(request, job, summary)
 
@@ -230,7 +229,7 @@ class RayExecutor:
         """Render scene indices `todo` of `job` as tasks; `on_results` gets each task's results as
         they come (a task whose retries ran out reports its scenes failed). A full disk on any
         node cancels the tasks not yet done and raises DiskFullError."""
-        from generator.render_scenes import failed_batch
+        from generator.render_worker import failed_batch
 
         ray = self.ray
         render = job.config.render

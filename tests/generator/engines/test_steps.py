@@ -1,4 +1,4 @@
-"""What makes a rerun of `dotsim generate` into a dataset a resume (generator/run_steps.py): the same
+"""What makes a rerun of `dotsim generate` into a dataset a resume (generator/engines/steps.py): the same
 config, split and seed as the dataset's generate.json, where a key a later dotsim added to the config
 counts as the same when it keeps its default (it renders as before it existed)."""
 
@@ -9,7 +9,7 @@ import json
 import pytest
 
 from generator.config import Config, ConfigError, config_from_dict
-from generator.run_steps import RUN_FILE, _check_existing_run, _run_record
+from generator.engines.steps import RUN_FILE, _check_existing_run, _run_record
 
 
 def written_before_the_new_keys(tmp_path, config: Config) -> None:
