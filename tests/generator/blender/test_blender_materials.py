@@ -125,15 +125,19 @@ def test_normals_of_a_tilted_plane_match_its_rotation(renderer, pattern, tilt):
         assert angle.max() < 1.0, (tilt, angle.max())
 
 
-def test_glass_plate_shows_the_walls_dots_and_is_the_ground_truth(renderer, pattern):
+@pytest.mark.parametrize("extra_light", [False, True])
+def test_glass_plate_shows_the_walls_dots_and_is_the_ground_truth(renderer, pattern, extra_light):
     """A 1 cm glass plate at 1 m before a wall at 2 m: depth is the plate's (the first surface), the
     transparent_or_mirror mask marks it and the visibility mask leaves it out, while the IR through it
     shows the wall's dots: the projected pattern at the wall's depth matches there, not the pattern at
-    the plate's depth."""
+    the plate's depth. With a (dark) extra light the frame takes two renders, the path-traced one of
+    which must carry the light through the glass (its transmission passes)."""
     wall_z = 2.0
     glass, lower, upper = _box("glass", (0.0, 0.0, 1.0), (0.5, 0.4, 0.01),
                                {**ds.material(1.0, 0.0, 0.5), "kind": "transparent", "ior": 1.5})
-    spec = _spec(pattern, [ds.wall(wall_z), glass], samples=8, world_strength=0.0)
+    light = {"type": "POINT", "location": [0.0, -0.5, 0.5], "power": 0.0, "radius": 0.1}
+    lights = [light] if extra_light else []
+    spec = _spec(pattern, [ds.wall(wall_z), glass], samples=8, world_strength=0.0, lights=lights)
     raw = renderer.render(spec)[0]
     frame = make_frame(raw, spec, np.random.default_rng(0))
     t_glass = _box_t(lower, upper)
