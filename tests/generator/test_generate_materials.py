@@ -83,7 +83,8 @@ def test_labels_follow_the_object_list_and_the_depth(tmp_path):
         kind_of = np.array(["opaque"] + kinds)[instance]
         classes = np.vectorize(MATERIAL_CLASSES.index)(np.where(hit, kind_of, "none"))
         np.testing.assert_array_equal(frame["material"], classes)
-        np.testing.assert_array_equal(frame["transparent_or_mirror"], np.isin(kind_of, SEE_THROUGH_KINDS) & hit)
+        see_through = np.isin(kind_of, SEE_THROUGH_KINDS) & hit
+        np.testing.assert_array_equal(frame["transparent_or_mirror"], see_through)
         assert not frame["visibility"][frame["transparent_or_mirror"].astype(bool)].any()
         normals = np.stack([frame[f"normal_{a}"].astype(np.float64) for a in "xyz"], axis=-1)
         assert np.isnan(normals[~hit]).all()
