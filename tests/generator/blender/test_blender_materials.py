@@ -191,3 +191,43 @@ def test_ir_dark_box_shows_no_dots(renderer, pattern):
     assert on_wall > 10 and on_dark < 2
     assert frame["visibility"][box].mean() < 0.02 and frame["visibility"][wall].mean() > 0.9
     assert (frame["material"][box] == MATERIAL_CLASSES.index("ir_dark")).all()
+
+
+def test_mirror_shows_the_dots_of_what_it_reflects(renderer, pattern):
+    """A mirror at 2.2 m turned 45 degrees reflects the camera's rays sideways onto a wall at x = -1 m
+    that the projector lights: on the mirror the IR shows that wall's dots where ray tracing (the ray
+    reflected off the mirror's plane, the wall point projected into the projector) puts them; depth is
+    the mirror's, and the masks mark it as not visible."""
+    centre, normal = np.array([0.0, 0.0, 2.2]), np.array([-1.0, 0.0, -1.0]) / math.sqrt(2)
+    mirror = ds.primitive("mirror", "plane", (0.5, 0.5, 0.0), centre, rotation=(0.0, -0.75 * math.pi, 0.0),
+                          mat={**ds.material(0.95, 0.0, 0.5), "kind": "metal", "ior": 1.5})
+    side = ds.primitive("side", "plane", (8.0, 8.0, 0.0), (-1.0, 0.0, 2.2),
+                        rotation=(0.0, 0.5 * math.pi, 0.0), mat=ds.material(0.8, 1.0, 0.0))
+    spec = _spec(pattern, [mirror, side], samples=4, world_strength=0.0)
+    raw = renderer.render(spec)[0]
+    frame = make_frame(raw, spec, np.random.default_rng(0))
+
+    t = (centre @ normal) / (RAYS @ normal)  # the mirror's plane along each camera ray
+    hits = RAYS * t[..., None]
+    u_axis = np.array([1.0, 0.0, -1.0]) / math.sqrt(2)
+    on_mirror = (np.abs((hits - centre) @ u_axis) < 0.25) & (np.abs(hits[..., 1]) < 0.25)
+    core = _core(on_mirror, 2)
+    assert core.sum() > 300
+    np.testing.assert_allclose(frame["depth"][core], t[core], rtol=1e-5)
+    assert frame["transparent_or_mirror"][core].all() and not frame["visibility"][core].any()
+    reflected = RAYS - 2 * (RAYS @ normal)[..., None] * normal
+    wall = hits + reflected * ((-1.0 - hits[..., :1]) / reflected[..., :1])
+    in_projector = (wall - RIG.t) @ RIG.R.T
+    proj = RIG.projector
+    map_x = (proj.fx * in_projector[..., 0] / in_projector[..., 2] + proj.cx).astype(np.float32)
+    map_y = (proj.fy * in_projector[..., 1] / in_projector[..., 2] + proj.cy).astype(np.float32)
+    expected = cv2.remap(pattern[0].image.astype(np.float32), map_x, map_y, cv2.INTER_LINEAR)
+    dots = raw["projector"] / np.maximum(raw["flood"], 1e-9)
+    lit = core & (raw["flood"] > 0.2 * np.median(raw["flood"][core]))
+    match = _ncc(dots[lit], expected[lit])
+    on_surface = expected_pattern_image(np.where(on_mirror, t, np.inf).astype(np.float32), RIG,
+                                        pattern[0].image)
+    unreflected = _ncc(dots[lit], on_surface[lit])
+    print(f"dots on the mirror vs the reflected wall's pattern: {match:.3f}, vs the pattern on the mirror's "
+          f"surface: {unreflected:.3f}, over {lit.sum()} px")
+    assert lit.sum() > 200 and match > 0.7 and unreflected < 0.3
