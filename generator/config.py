@@ -112,6 +112,30 @@ class SceneConfig(Checked):
                                            **bounds_of(Material, "roughness"))
     glossy_specular: FloatRange = setting((0.5, 1.0), "specular level of glossy objects",
                                           **bounds_of(Material, "specular"))
+    transparent_share: float = setting(0.0, "share of objects of glass or clear plastic: refraction and "
+                                       "reflection by their index of refraction, the projector's light "
+                                       "through them; never a plane (\"Materials\" above)", low=0.0, high=1.0)
+    transparent_ior: FloatRange = setting((1.48, 1.58), "index of refraction of a transparent object near "
+                                          "850 nm (PMMA 1.48, glass 1.51, polycarbonate 1.57)",
+                                          **bounds_of(Material, "ior"))
+    transparent_transmittance: FloatRange = setting((0.9, 1.0), "share of the light a transparent object "
+                                                    "lets through inside (its tint; the reflection at "
+                                                    "its surfaces comes from the index of refraction)",
+                                                    **bounds_of(Material, "albedo"))
+    metal_share: float = setting(0.0, "share of mirror-like metal objects", low=0.0, high=1.0)
+    metal_reflectance: FloatRange = setting((0.55, 0.97), "reflectance of a metal object at normal "
+                                            "incidence near 850 nm (chromium about 0.6, aluminium 0.87, "
+                                            "silver and gold 0.97)", **bounds_of(Material, "albedo"))
+    metal_roughness: FloatRange = setting((0.0, 0.1), "roughness of metal objects (0: a mirror)",
+                                          **bounds_of(Material, "roughness"))
+    ir_dark_share: float = setting(0.0, "share of IR-dark objects (black plastic or fabric dyed with "
+                                   "carbon black: dark in near infrared)", low=0.0, high=1.0)
+    ir_dark_albedo: FloatRange = setting((0.002, 0.01), "near-infrared reflectance of IR-dark objects "
+                                         "(\"Materials\" above: at 0.005 a sensor still sees dots near it)",
+                                         **bounds_of(Material, "albedo"))
+    ir_dark_specular: FloatRange = setting((0.0, 0.05), "specular level of IR-dark objects (0.5: the 4 % "
+                                           "surface reflection of plastic; flock, foam and matte black "
+                                           "paint reflect less)", **bounds_of(Material, "specular"))
 
 
 @dataclass(frozen=True)
@@ -226,6 +250,11 @@ def _check_cross_fields(config: Config) -> None:
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
                           f"must stand inside the room; allowed: [0, 0], or 0 < low <= high < the smallest "
                           f"room_size ({room[0]:g} m)")
+    shares = {key: getattr(config.scene, key)
+              for key in ("transparent_share", "metal_share", "ir_dark_share")}
+    if sum(shares.values()) > 1.0:
+        raise ConfigError(f"{src}: [scene] " + ", ".join(f"{k} = {v:g}" for k, v in shares.items())
+                          + ": add up to more than 1; allowed: shares of the objects, at most 1 together")
     if config.assets.source == "cache":
         path = config.assets.cache_dir
         if not path or not Path(path).is_dir():
@@ -352,6 +381,65 @@ def config_reference_markdown() -> str:
         "exposure are not described); with the noise off the visibility mask is every pixel the "
         "projector lights directly with a dot within 5 x 5 px, close to GigaDepth's 'any projector "
         "light'; each scene has four frames from nearby poses ([motion]).\n\n"
+        "## Materials\n\n"
+        "`[scene] transparent_share`, `metal_share` and `ir_dark_share` (0 by default: then no draw is "
+        "taken and a config's scenes are what they were, byte for byte) make that share of the objects "
+        "(never the room) glass or clear plastic, mirror-like metal, or IR-dark; the rest stay grey "
+        "opaque surfaces. What real sensors do on them, and what dotsim renders "
+        "(`generator/blender/materials.py`):\n\n"
+        "| kind | rendered as | physical values (near 850 nm, the projectors' band) |\n"
+        "|---|---|---|\n"
+        "| transparent | Cycles' Glass BSDF (smooth: Fresnel reflection and refraction); `transparent_ior` "
+        "[1.48, 1.58], `transparent_transmittance` [0.9, 1] (its tint) | PMMA n = 1.485, soda-lime / "
+        "BK7 glass n = 1.51, polycarbonate n = 1.57 at 850 nm (N. Sultanova, S. Kasarova, I. Nikolov, "
+        "Acta Physica Polonica A 116 (2009) 585, for the polymers; Schott's BK7 data sheet for the "
+        "glass); about 4 % reflected at each surface at normal incidence, ((n - 1) / (n + 1))^2 |\n"
+        "| metal | a fully metallic Principled BSDF, its reflectance `metal_reflectance` [0.55, 0.97], "
+        "`metal_roughness` [0, 0.1] (0: a mirror) | chromium about 0.6 (A. D. Rakic et al., Applied "
+        "Optics 37 (1998) 5271) and aluminium about 0.87 (A. D. Rakic, Applied Optics 34 (1995) 4755: its "
+        "interband dip sits at 825 nm), both from the published n and k; silver "
+        "and gold about 0.97-0.98 (P. B. Johnson, R. W. Christy, Physical Review B 6 (1972) 4370) |\n"
+        "| IR-dark | the grey opaque material with `ir_dark_albedo` [0.002, 0.01] and `ir_dark_specular` "
+        "[0, 0.05] | carbon black absorbs near infrared: black plastics are why NIR sorting lines fail on "
+        "them (W. Becker, K. Sachsenheimer, M. Klemenz, Polymers 9 (2017) 435); matte black flock, foam "
+        "and paints reflect about 1 % and less; a glossy black plastic still reflects its 4 % at the "
+        "surface (specular 0.5) |\n\n"
+        "What the sensor then sees, tested at 152 x 112 (tests/generator/blender/test_blender_materials.py): "
+        "through a 1 cm glass plate at 1 m the dots of the wall 1 m behind it (the IR matches the pattern "
+        "projected at the wall's depth with correlation 0.985, at the plate's -0.03); on an IR-dark box "
+        "(albedo 0.002, matte) before a white wall, dots 1.3 "
+        "noise sigmas above the gaps between them against 136 on the wall, and none in the visibility "
+        "mask. Albedo matters steeply there: at 0.005 the same box still had 39 % of its pixels "
+        "visible, and a black plastic's 4 % surface reflection (specular 0.5) made it 14 times brighter "
+        "than its albedo. A mirror at 45 degrees shows the dots of the wall it reflects where ray tracing "
+        "puts them (correlation 0.93 with the pattern projected onto that wall and seen in the mirror, "
+        "-0.06 with the pattern on the mirror's own surface). Ground truth stays the first surface "
+        "(the glass, the mirror): "
+        "Cycles writes depth and the object index from the first surface a camera ray hits. The "
+        "visibility mask is 0 "
+        "where the first surface is glass or metal, since the dots seen there lie on another surface, "
+        "and `transparent_or_mirror` marks those pixels; with the shares above 0 a scene writes the "
+        "labels (`[render] labels`) by itself, since that mask comes from the object index pass.\n\n"
+        "What is left out: a spot light is a point, and light from a point through a smooth refraction "
+        "or off a mirror onto a diffuse surface is a caustic that no path of a path tracer samples. So "
+        "glass lets the projector's light (its shadow rays) through unbent, dimmed by its transmittance "
+        "and the Fresnel loss of two surfaces at normal incidence ((1 - R0)^2, 0.92 at n = 1.5): the dots "
+        "behind a plate land where they should up to the small sideways shift of refraction (none at "
+        "normal incidence), but a thick glass object does not focus them as a lens would; and dots "
+        "that a mirror throws onto other surfaces (multipath) are not rendered. A transparent object is "
+        "never a plane (one surface would refract light into the glass and never out of it); a plane "
+        "drawn transparent stays opaque.\n\n"
+        "![A frame with glass, metal and IR-dark objects, its labels and normals](images/materials_sheet.png)"
+        "\n\n"
+        "The contact sheet above (`dotsim show FRAME --tile-width 140`, colours reduced to 128) is "
+        "frame 0 of scene 1 of `dotsim generate --seed 5` with the tiny config's keys but `[rig] scale = "
+        "0.15`, `[render] samples = 4`, `max_bounces = 4`, `normals = true`, `[scene] object_count = "
+        "[14, 14]`, "
+        "`distance = [0.6, 2.5]`, `distance_sampling = \"area\"`, `room_size = [3, 4]`, `shapes = "
+        "[\"box\", \"sphere\", \"cylinder\", \"torus\"]`, `transparent_share = 0.3`, `metal_share = 0.3`, "
+        "`ir_dark_share = 0.25` and `[lighting] extra_lights = [0, 0]`: of its 182 x 134 pixels 2863 "
+        "show glass, 2214 metal and 604 IR-dark objects first. The visibility mask is black on the glass "
+        "and metal (white in `transparent_or_mirror`), the normals are ((x, y, z) + 1) / 2 as RGB.\n\n"
         "## Laser speckle\n\n"
         "A laser projector's dots are speckled: the light a rough surface scatters interferes at the "
         "sensor, so a dot's brightness varies from dot to dot and inside a dot, in a pattern that stays "

@@ -22,6 +22,9 @@ rendered ones it stores):
   noise stream of its own; stereo_visibility, where the left camera's point is lit by the projector
   directly (flood_direct > 0) and seen by the right camera (dotsim.rig.stereo.seen_by_right, from both
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
+  With [render] labels (format 2.2): instance, material and transparent_or_mirror from the object index
+  pass (dotsim.labels), and the visibility mask 0 where the first surface is transparent or a mirror
+  (the dots seen there lie on another surface); with [render] normals: normal_x, normal_y, normal_z.
 """
 
 from __future__ import annotations
@@ -30,25 +33,30 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dotsim.channels import rendered_channels, stored_channels
+from dotsim.channels import NORMAL_CHANNELS, rendered_channels, stored_channels
+from dotsim.labels import object_labels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig.geometry import depth_to_projector_column, is_ground_truth
 from dotsim.rig.stereo import seen_by_right
 from dotsim.sensor.model import SensorModel, SensorStreams
-from generator.blender.frame_recipe import RAW_PASSES
+from generator.blender.frame_recipe import LABEL_PASSES, NORMAL_PASSES, RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
 
 
 def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
-    """The raw passes of a frame of `spec`: RAW_PASSES of each of its cameras, named with its suffix."""
-    return tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES)
+    """The raw passes of a frame of `spec`: RAW_PASSES of each of its cameras, named with its suffix, and
+    the object index and normal passes its [render] labels and normals ask for."""
+    switched = ((spec.render.labels, LABEL_PASSES), (spec.render.normals, NORMAL_PASSES))
+    data = tuple(name for on, passes in switched if on for _, name in passes)
+    return tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES + data)
 
 
 def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
     """The channels of a frame of `spec` (the writer's channel list): those of one camera, or of the
-    stereo pair when it renders the rig's second camera too."""
-    return rendered_channels(stereo=len(spec.cameras) > 1)
+    stereo pair when it renders the rig's second camera too, and those of its [render] switches."""
+    switches = tuple(name for name in ("labels", "normals") if getattr(spec.render, name))
+    return rendered_channels(stereo=len(spec.cameras) > 1, switches=switches)
 
 
 def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.ndarray]:
@@ -110,7 +118,15 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
         projector_direct, raw["flood_direct"], signal - projector_direct,
         gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
-    made = {
+    made = {}
+    if spec.render.labels:
+        made.update(object_labels(raw["object_index"], [obj.material.kind for obj in spec.objects],
+                                  [obj.name for obj in spec.objects], where))
+        visibility &= ~made["transparent_or_mirror"]
+    if spec.render.normals:
+        # nan where the depth (the first sample) hit nothing, though another sample of the pixel did
+        made.update({name: np.where(np.isfinite(depth), raw[name], np.nan) for name in NORMAL_CHANNELS})
+    made |= {
         "ir": sensor.apply(signal, streams[0].noise, gain),
         "ambient": stored_radiance(ambient),
         "flood": stored_radiance(flood),

@@ -64,7 +64,42 @@ def test_sheet_layout_and_known_pixels(tmp_path):
 
 
 def test_the_columns_are_the_declared_channels_but_a_devices_depth():
-    assert show.COLUMNS == rendered_channels(stereo=True)
+    # the normals are one column, that of normal_x
+    assert show.COLUMNS == tuple(c for c in rendered_channels(True, ("labels", "normals"))
+                                 if c not in ("normal_y", "normal_z"))
+
+
+def test_labels_get_a_colour_each_and_normals_one_rgb_tile(tmp_path):
+    """instance: 0 (the room) black, each object a colour of its own, the same in every frame;
+    material likewise; the normals (0, 0, -1) facing the camera drawn as (n + 1) / 2: RGB (128, 128, 0),
+    black where there is none."""
+    instance = np.zeros((H, W), np.int32)
+    instance[:, 20:40], instance[:, 40:] = 3, 9
+    normal_z = np.full((H, W), -1.0, np.float32)
+    normal_z[:10, :10] = np.nan
+    material = np.where(instance == 9, 3, np.minimum(instance, 1))
+    frames = [dict(constant_frame(k), instance=instance, material=material,
+                   transparent_or_mirror=instance == 9, normal_x=np.zeros((H, W)),
+                   normal_y=np.zeros((H, W)), normal_z=normal_z) for k in range(2)]
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [np.eye(4).tolist()] * 2}
+    channels = rendered_channels(False, ("labels", "normals"))
+    scene = ds.write_scene(tmp_path, 0, meta, frames, channels=channels)
+    loaded, title, labels, meanings = show.load_for_sheet(scene)
+    sheet, layout = show.contact_sheet(loaded, title, 122, labels, meanings)
+    assert [name for k, name in layout.tiles if k == 0][-4:] == ["instance", "material",
+                                                               "transparent_or_mirror", "normal_x"]
+
+    def tile(k, name):
+        x, y, w, h = layout.tiles[(k, name)]
+        return sheet[y:y + h, x:x + w].astype(int)
+
+    room, three, nine = (tile(1, "instance")[-1, 2 * c] for c in (5, 30, 50))
+    assert room.tolist() == [0, 0, 0] and three.sum() > 200 and nine.sum() > 200
+    assert (three != nine).any() and (tile(0, "instance") == tile(1, "instance")).all()
+    assert (tile(0, "material")[-1, 60] != tile(0, "material")[-1, 100]).any()  # classes 1 and 3
+    normals = tile(0, "normal_x")
+    assert normals[0, 0].tolist() == [0, 0, 0] and normals[-1, -1].tolist() == [0, 128, 128]  # BGR
 
 
 def test_a_stereo_pair_adds_its_three_columns(tmp_path):

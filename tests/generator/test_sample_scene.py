@@ -45,7 +45,8 @@ def check_contract(d: dict) -> None:
     assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")
     assert isinstance(d["seed"], int)
     r = d["render"]
-    assert set(r) == {"samples", "seed", "max_bounces", "device", "threads", "direct_light"}
+    assert set(r) == {"samples", "seed", "max_bounces", "device", "threads", "direct_light", "labels",
+                      "normals"}
     assert r["samples"] >= 1 and r["device"] in ("CPU", "GPU") and r["threads"] >= 0
     assert r["direct_light"] in ("separate", "shared")
     Rig.from_dict(d["rig"])
