@@ -24,7 +24,8 @@ SOURCES = {
     "mask": "the post-render: a 0 / 1 mask (stored as UINT, read as uint8)",
     "ground truth": "the post-render: computed from the rendered depth and the rig, stored",
     "derived": "the reader: computed from `depth` and the rig in the frame's header, never stored",
-    "device": "a real sensor's own output (dotsim capture record), never rendered",
+    "device": "a depth camera's own output, never ground truth: a real sensor's (dotsim capture record) or, "
+              "with [device_depth] on, the post-render's simulation of its chip (dotsim.device_depth)",
 }
 # How `dotsim show` (and `dotsim view`) draw a channel; None: not drawn.
 DISPLAYS = {
@@ -79,9 +80,10 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("projector_column", np.float32, "ground truth", "colour", "projector column", "ground truth",
             "projector px"),
     Channel("disparity", np.float32, "derived", "colour", "disparity", "ground truth", "camera px"),
-    # A real sensor's own depth, stored beside recordings: its estimate, never ground truth (which
-    # is "depth").
-    Channel("device_depth", np.float32, "device", None, "device depth", "the sensor's estimate", since="1.1"),
+    # A depth camera's own depth: a real sensor's beside recordings, or the simulated device's beside
+    # rendered frames ([device_depth] on): its estimate, never ground truth (which is "depth").
+    Channel("device_depth", np.float32, "device", "colour", "device depth", "the sensor's estimate", "m",
+            since="1.1"),
     # The rig's second IR camera (the right one of a rectified pair), and stereo ground truth on the
     # left image.
     Channel("ir_right", np.float16, "sensor model", "linear", "IR right", "the second camera", stereo=True,
@@ -93,16 +95,19 @@ CHANNELS: tuple[Channel, ...] = (
 )
 CHANNEL: dict[str, Channel] = {c.name: c for c in CHANNELS}
 
-# What the generator writes: every channel but a device's own, and for a stereo pair STEREO_CHANNELS too.
+# What the generator writes: every channel but a device's own, for a stereo pair STEREO_CHANNELS too, and
+# with the simulated device's depth engine on DEVICE_CHANNELS.
 RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if c.source != "device" and not c.stereo)
+DEVICE_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "device")
 STEREO_CHANNELS = tuple(c.name for c in CHANNELS if c.stereo)
 MASK_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "mask")
 DERIVED_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "derived")
 
 
-def rendered_channels(stereo: bool) -> tuple[str, ...]:
-    """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair."""
-    return RENDERED_CHANNELS + (STEREO_CHANNELS if stereo else ())
+def rendered_channels(stereo: bool, device: bool = False) -> tuple[str, ...]:
+    """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair, and
+    (device) with the simulated device's own depth."""
+    return RENDERED_CHANNELS + (STEREO_CHANNELS if stereo else ()) + (DEVICE_CHANNELS if device else ())
 
 
 def stored_channels(channels) -> tuple[str, ...]:

@@ -21,17 +21,25 @@ rendered ones it stores):
   noise stream of its own; stereo_visibility, where the left camera's point is lit by the projector
   directly (flood_direct > 0) and seen by the right camera (dotsim.stereo.seen_by_right, from both
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
+  With the spec's device_depth engine on, also device_depth: the depth the simulated device's chip
+  reports (dotsim.device_depth; docs/DEVICE_DEPTH.md), NaN where it reports none: the stereo engine
+  matches ir against ir_right, the structured-light engine ir against the reference image of the
+  spec's pattern.
 """
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
+from dotsim import device_depth
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
 from dotsim.rig import depth_to_projector_column
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
+from dotsim.patterns import load_pattern
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec
@@ -46,7 +54,7 @@ def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
 def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
     """The channels of a frame of `spec` (the writer's channel list): those of one camera, or of the
     stereo pair when it renders the rig's second camera too."""
-    return rendered_channels(stereo=len(spec.cameras) > 1)
+    return rendered_channels(stereo=len(spec.cameras) > 1, device=spec.device_depth.on)
 
 
 def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.ndarray]:
@@ -124,7 +132,34 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
         made["ir_right"] = sensor.apply(right_signal, right_rng, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
+    if spec.device_depth.on:
+        made["device_depth"] = device_depth.as_channel(simulated_device_depth(spec, made))
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
+
+
+def simulated_device_depth(spec: SceneSpec, made: dict[str, np.ndarray]) -> np.ndarray:
+    """The depth (float32 m, 0 = none) the spec's device engine reports for a frame's channels: the
+    stereo engine on ir and ir_right (the rig's second camera), the structured-light engine on ir and
+    the reference image of the spec's pattern."""
+    settings, rig = spec.device_depth, spec.rig
+    scale = spec.sensor.pixel_scale
+    ir = made["ir"].astype(np.float32)
+    if settings.engine == "stereo":
+        right = spec.cameras[1]
+        return device_depth.stereo_depth(ir, made["ir_right"].astype(np.float32), rig.camera.fx,
+                                         right.translation[0], settings, scale)
+    reference = _reference_image(spec.pattern.path, spec.pattern.sha256, rig, settings.reference_distance)
+    return device_depth.structured_light_depth(ir, reference, rig.camera.fx, rig.baseline, settings, scale)
+
+
+@functools.lru_cache(maxsize=2)
+def _reference_image(path: str, sha256: str, rig, distance: float) -> np.ndarray:
+    """The device's reference image for a pattern file (its sha256 in the key: a rewritten file is a new
+    pattern), made once per worker: every frame of a run shares it."""
+    pattern = load_pattern(path, (rig.projector.height, rig.projector.width))
+    reference = device_depth.reference_image_at(pattern.image, rig, distance)
+    reference.flags.writeable = False
+    return reference
 
 
 def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, frame: int | None):

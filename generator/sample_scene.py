@@ -349,6 +349,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         objects=tuple(objects),
         sensor=sensor_settings(config),
         masks=config.masks,
+        device_depth=config.device_depth,
     )
 
 
