@@ -14,7 +14,8 @@ Data of a stereo pair (frames storing `ir_right`, docs/FORMAT.md) get a row more
 between the left and right IR, GigaDepth's baseline on captured data (trainer.sgbm.stereo_sgbm_disparity,
 its range sized to the data with the pair's baseline). Its left-right disparity d_s = fx B_s / z is
 scored as the depth it gives, in the projector disparity's pixels: d_s B / B_s (B: the projector's
-baseline), so every row judges the same depth error alike.
+baseline), so every row judges the same depth error alike. Frames storing `device_depth` (the device's
+own depth: recordings, or renders with [device_depth] on) get a row 'device' (trainer.device_depth_row).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
 from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
+from trainer.device_depth_row import DEVICE_METHOD, device_disparity
 from trainer.metrics import (
     THRESHOLDS,
     joint_outliers,
@@ -275,6 +277,9 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
         to_projector = rig.baseline / pair_baseline  # d_s -> the projector disparity of that depth
         methods += ("sgbm-stereo",)
         channels += ("ir_right",)
+    if "device_depth" in frames[0].stored_channels():  # the device's own depth, a row of its own
+        methods += (DEVICE_METHOD,)
+        channels += ("device_depth",)
     (out_dir / "errors").mkdir(parents=True, exist_ok=True)
     pattern = dataset_pattern(data_dir, rig)
     # the rig's feasible disparities for this data: from its max_depth to the nearest depth SGBM reaches
@@ -302,6 +307,9 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
             right = f["ir_right"].astype(np.float32)
             preds["sgbm-stereo"] = stereo_sgbm_disparity(ir, right, n_stereo) * to_projector
             reachable["sgbm-stereo"] = gt / to_projector <= n_stereo - 1
+        if DEVICE_METHOD in methods:
+            preds[DEVICE_METHOD] = device_disparity(f, rig)
+            reachable[DEVICE_METHOD] = np.ones_like(valid)
         for method, pred in preds.items():
             infeasible[method] += outside_range(pred, *feasible, valid)
             for name, sel in classes.items():
