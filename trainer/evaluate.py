@@ -41,7 +41,7 @@ from dotsim.solvable import SOLVABLE_SNR, solvable_pixels
 from dotsim.stereo import stereo_baseline
 from trainer.checkpoint import check_rig, load_model, predict_disparity
 from trainer.data import DataError, FrameRef, check_held_out, dataset_pattern, list_frames, spread
-from trainer.device_depth_row import DEVICE_METHOD, device_disparity
+from trainer.device_depth_row import DEVICE_LABEL, DEVICE_METHOD, device_disparity
 from trainer.metrics import (
     THRESHOLDS,
     joint_outliers,
@@ -367,6 +367,10 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
            "P2 800, no LCN; GigaDepth's captured-data baseline), its disparity scored as the depth it "
            f"gives, in projector disparity px (x {to_projector:.3g}: the projector's baseline over the "
            "pair's).\n")
+        + ("" if DEVICE_METHOD not in methods else
+           f"{DEVICE_METHOD}: {DEVICE_LABEL} (the frames' device_depth channel: a recording's, or the "
+           "simulated device's, docs/DEVICE_DEPTH.md), scored as the disparity fx b / z of its depth; a "
+           "pixel without a reading is an outlier.\n")
         + f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     line = verdict(rows, sgbm_chosen)
     atomic_write_bytes(out_dir / "eval.md", (header + table + "\n" + line + "\n").encode())

@@ -63,8 +63,23 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     assert near[0] > near[2] and far[2] > far[0]
 
 
-def test_the_columns_are_the_declared_channels_but_a_devices_depth():
-    assert show.COLUMNS == rendered_channels(stereo=True)
+def test_the_columns_are_the_declared_channels_in_their_order():
+    assert set(show.COLUMNS) == set(rendered_channels(stereo=True, device=True))
+    assert show.COLUMNS.index("depth") < show.COLUMNS.index("device_depth") < show.COLUMNS.index("ir_right")
+
+
+def test_a_devices_depth_is_colour_mapped_black_where_it_gave_none():
+    """The device's depth (a recording's, or a render's with [device_depth] on): metres on the turbo
+    map, black where it reported none (NaN), like ground truth where nothing is hit."""
+    frames = []
+    for k in range(3):
+        device = np.full((H, W), 2.0 + k, np.float32)
+        device[:, :12] = np.nan  # a left band without depth
+        frames.append(dict(constant_frame(k), device_depth=device))
+    drawn, layout = show.contact_sheet(frames, "device", 122)
+    x, y, w, h = layout.tiles[(0, "device_depth")]
+    tile = drawn[y:y + h, x:x + w].astype(int)
+    assert (tile[:, :20] == 0).all() and (tile[:, 30:].sum(axis=2) > 0).all()
 
 
 def test_a_stereo_pair_adds_its_three_columns(tmp_path):

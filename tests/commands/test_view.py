@@ -147,7 +147,7 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
 
 
 def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
-    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "device_depth", "ir_right",
                            "stereo_visibility")
 
 
