@@ -75,9 +75,11 @@ class DeviceDepthConfig(Checked):
                                        "over the block, 8-bit levels of the IR image (the D4xx's texture "
                                        "threshold; 0: off)", low=0.0, high=255.0)
     score_threshold: float = setting(0.25, "largest residual of the block after the subpixel refinement, as "
-                                     "a share of the block's variance (the D4xx's score threshold; 1: "
-                                     "off): drops blocks the other image does not repeat (noise, "
-                                     "occlusion, foreshortening)", low=0.0, high=1.0, low_open=True)
+                                     "a share of the two blocks' variances, about 1 - their normalised "
+                                     "correlation (0: a perfect match, 1: unrelated blocks, 2: off; the "
+                                     "D4xx's score threshold): drops blocks the other image does not "
+                                     "repeat (noise, occlusion, foreshortening)", low=0.0, high=2.0,
+                                     low_open=True)
     subpixel_step: float = setting(1 / 32, "disparity step the device reports, px (D4xx 1/32, Kinect v1 "
                                    "1/8)", low=0.0, high=1.0, low_open=True)
     depth_unit: float = setting(0.001, "depth unit of the device's 16-bit output, m (1 mm)", low=1e-6,
@@ -201,8 +203,9 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                      steps: int = REFINE_STEPS) -> tuple[np.ndarray, np.ndarray]:
     """Subpixel refinement of a disparity map (float32, nan where none): windowed Lucas-Kanade steps
     on two images that agree up to the shift, left(u) = right(u - d). Returns the refined disparity
-    and each block's residual share: the squared difference left over between the left image and the
-    right one moved by the refined disparities, over the left block's variance (0: a perfect match).
+    and each block's residual share: the squared difference left over between the left block and the
+    right one moved by the refined disparities, over the sum of the two blocks' variances (0: a perfect
+    match, 1: blocks that have nothing in common; about 1 - their normalised correlation).
 
     Each step linearises right(u - d) about the current disparities of the block's pixels and takes,
     for each pixel, the d that minimises the block's squared residual (weights g^2, g the slope of the
@@ -229,8 +232,8 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.where((valid > 0) & (weight > 1e-12), total / weight, 0.0).astype(np.float32)
     warped, _ = spline_row_sample(coefficients, columns - d)
-    mean = cv2.boxFilter(left, -1, window)
-    signal = cv2.boxFilter((left - mean) ** 2 * valid, -1, window, normalize=False)
+    signal = sum(cv2.boxFilter((image - cv2.boxFilter(image, -1, window)) ** 2 * valid, -1, window,
+                               normalize=False) for image in (left, warped))
     left_over = cv2.boxFilter((left - warped) ** 2 * valid, -1, window, normalize=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         share = np.where(signal > 0, left_over / signal, np.inf).astype(np.float32)
