@@ -6,15 +6,17 @@ reference image; the reference is made once per run and timed apart).
 
     python -m bench.device_depth_cost [--scale 1.0] [--repeats 3] [--out out/device_depth_cost]
 
-Renders one test scene of each config at `--scale` with [device_depth] off (resumed if already
-there), then times each engine on the scene's four frames, `--repeats` times, with the config's
-[device_depth] settings (structure_core: its own with engine = "structured_light"). Run it on a quiet
-machine; `--scale 0.1` checks that it runs.
+Renders one test scene of each config at `--scale` with [device_depth] off into a fresh --out (the
+render's seconds per frame: the run's wall time over its four frames, scene building, Cycles,
+post-render and writing together), then times each engine on the scene's four frames, `--repeats`
+times each (median), with the config's [device_depth] settings (structure_core: its own with
+engine = "structured_light"). Run it on a quiet machine; `--scale 0.1` checks that it runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -41,8 +43,18 @@ def case_config(name: str, scale: float):
     return config_from_dict(data, f"{path} (scale {scale}, device depth off)", base_dir=relative_base(path))
 
 
+def _stereo(frame: dict, rig, settings, scale: float) -> np.ndarray:
+    return stereo_depth(frame["ir"], frame["ir_right"], rig.camera.fx, rig.second_camera_translation[0],
+                        settings, scale)
+
+
+def _structured_light(frame: dict, reference: np.ndarray, rig, settings, scale: float) -> np.ndarray:
+    return structured_light_depth(frame["ir"], reference, rig.camera.fx, rig.baseline, settings, scale)
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scale", type=float, default=1.0, help="render scale (1.0: the devices' full size)")
     parser.add_argument("--repeats", type=int, default=3, help="timings of the engine per frame (median)")
     parser.add_argument("--out", type=Path, default=Path("out/device_depth_cost"))
@@ -61,16 +73,15 @@ def main(argv=None) -> int:
         settings = replace(config.device_depth, engine=engine)
         extra = ""
         if engine == "stereo":
-            second = rig.second_camera_translation[0]
-            run = lambda f: stereo_depth(f["ir"], f["ir_right"], rig.camera.fx, second, settings, args.scale)
             channels = ("ir", "ir_right")
+            run = functools.partial(_stereo, rig=rig, settings=settings, scale=args.scale)
         else:
             began = time.perf_counter()
             reference = reference_image_at(dataset_pattern(out, rig), rig, settings.reference_distance)
             extra = f" (+ {time.perf_counter() - began:.2f} s once for the reference image)"
-            run = lambda f: structured_light_depth(f["ir"], reference, rig.camera.fx, rig.baseline, settings,
-                                                   args.scale)
             channels = ("ir",)
+            run = functools.partial(_structured_light, reference=reference, rig=rig, settings=settings,
+                                    scale=args.scale)
         times = []
         for ref in frames:
             frame = {k: v.astype(np.float32) for k, v in ref.read(channels).items()}

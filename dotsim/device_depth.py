@@ -11,7 +11,8 @@ format:
   with StereoBM (block matching on normalised-response prefiltered images, which evens out the
   brightness between the scene and the reference).
 Both then: a texture threshold (too little contrast in the block: no depth), a subpixel refinement
-(windowed Lucas-Kanade steps from the matcher's 1/16 px estimate), the disparity rounded to the
+(windowed Lucas-Kanade steps from the matcher's 1/16 px estimate), a score threshold (the block must
+match after refinement), no depth within a block of the image's edges, the disparity rounded to the
 device's subpixel step, depth z = fx b / d rounded to the device's depth unit, and no depth (0) where
 the disparity search cannot reach: outside [shift, shift + N - 1] (the device's range), and the band
 of columns whose whole search would leave the second image (stereo: the left band the right camera
@@ -39,8 +40,8 @@ from dotsim.lcn import lcn
 ENGINES = ("off", "stereo", "structured_light")
 # The largest value of the 16-bit depth word a device reports (z16): depth beyond 65535 units is no depth.
 Z16_MAX = 65535
-# Lucas-Kanade steps of the subpixel refinement: from the matcher's 1/16 px estimate, two steps
-# reach 0.005 px on a noise-free textured plane and a third changes nothing measurable.
+# Lucas-Kanade steps of the subpixel refinement: from the matcher's 1/16 px estimate, the median error
+# on a noise-free textured plane was 0.009 px after one step, 0.0055 px after three, no better after six.
 REFINE_STEPS = 3
 # LCN window and eps for the refinement's images (dotsim.lcn; images as fractions of full scale).
 REFINE_LCN_WINDOW = 11
@@ -192,7 +193,7 @@ def spline_row_sample(coefficients: np.ndarray, x: np.ndarray) -> tuple[np.ndarr
     slopes = (-0.5 * s * s, 1.5 * t2 - 2 * t, -1.5 * t2 + t + 0.5, 0.5 * t2)
     value = np.zeros(x.shape, np.float32)
     slope = np.zeros(x.shape, np.float32)
-    for k, (w, dw) in enumerate(zip(weights, slopes)):
+    for k, (w, dw) in enumerate(zip(weights, slopes, strict=True)):
         sample = coefficients[rows, np.clip(base + (k - 1), 0, width - 1)]
         value += w * sample
         slope += dw * sample
@@ -274,8 +275,8 @@ def engine_disparity(image: np.ndarray, second: np.ndarray, low: int, count: int
     levels = device_levels(image)
     found = _match(levels, device_levels(second), low, count, settings, semi_global)
     found[:, ~searchable_columns(image.shape[1], low, count)] = np.nan
-    # A block that does not fit inside the image gives no depth (OpenCV's block matcher does the
-    # same): on a noise-free plane 40 % of the border rows' estimates were off by more than 0.03 px.
+    # No depth within a block of the image's edges (OpenCV's block matcher leaves half a block): on a
+    # noise-free plane about a fifth of the estimates in the 4 outermost rows were > 0.03 px off.
     margin = settings.block_size
     found[:margin], found[-margin:], found[:, :margin], found[:, -margin:] = np.nan, np.nan, np.nan, np.nan
     found[~textured(levels, settings.block_size, settings.texture_threshold)] = np.nan

@@ -292,9 +292,9 @@ def _check_cross_fields(config: Config) -> None:
                               "pattern image (PNG or EXR)")
     _resolve_rig(config)
     if config.device_depth.engine == "stereo" and not config.rig.stereo:
-        raise ConfigError(f"{src}: [device_depth] engine = \"stereo\" matches the left IR against the right "
-                          f"one, which [rig] stereo = false does not render; allowed: [rig] stereo = true, or "
-                          f"engine = \"structured_light\" or \"off\"")
+        raise ConfigError(f"{src}: [device_depth] engine = \"stereo\" matches the left IR against the "
+                          f"right one, which [rig] stereo = false does not render; allowed: [rig] stereo = "
+                          f"true, or engine = \"structured_light\" or \"off\"")
     wall, room = config.scene.back_wall_distance, config.scene.room_size
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "

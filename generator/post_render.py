@@ -36,10 +36,10 @@ import numpy as np
 from dotsim import device_depth
 from dotsim.channels import rendered_channels, stored_channels
 from dotsim.masks import direct_visibility_mask, edge_mask
+from dotsim.patterns import load_pattern
 from dotsim.rig import depth_to_projector_column
 from dotsim.stereo import seen_by_right
 from generator.blender.frame_recipe import RAW_PASSES
-from dotsim.patterns import load_pattern
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.sample_scene import frame_speckle_rng
 from generator.scene_spec import SceneSpec

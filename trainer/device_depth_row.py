@@ -38,4 +38,4 @@ def device_depth_row(frames, rig: Rig) -> dict:
                                   valid_pixels(frame["visibility"], frame["disparity"]))
         pixels, counts = pixels + n, counts + np.array(wrong)
     return {"method": DEVICE_METHOD, "range": "all", "pixels": pixels,
-            **{f"o({t:g})": outlier_rate(int(c), pixels) for t, c in zip(THRESHOLDS, counts)}}
+            **{f"o({t:g})": outlier_rate(int(c), pixels) for t, c in zip(THRESHOLDS, counts, strict=True)}}

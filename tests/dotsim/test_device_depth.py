@@ -37,7 +37,7 @@ def draw(x: np.ndarray, y: np.ndarray, brightness: np.ndarray, columns: tuple[fl
     `columns` [low, high) when given (a surface's extent in this view)."""
     u = np.arange(WIDTH)[None, :]
     image = np.zeros((HEIGHT, WIDTH))
-    for cx, cy, a in zip(x, y, brightness):
+    for cx, cy, a in zip(x, y, brightness, strict=True):
         top, bottom = max(0, int(cy) - 3), min(HEIGHT, int(cy) + 5)
         if top < bottom:
             rows = np.arange(top, bottom)[:, None]
@@ -115,7 +115,8 @@ def test_a_box_before_a_wall_leaves_the_band_it_hides_from_the_right_camera_with
     # the hidden band: no depth, bar two pixels at each end where the block straddles the edges
     assert not (depth[rows, hidden_from + 2:box_left - 2] > 0).any()
     # per row, the run without depth left of the box is the hidden band's width, give or take the block
-    widths = [box_left - 1 - np.flatnonzero(row[:box_left] > 0)[-1] for row in depth[rows] if (row[:box_left] > 0).any()]
+    widths = [box_left - 1 - np.flatnonzero(row[:box_left] > 0)[-1] for row in depth[rows]
+              if (row[:box_left] > 0).any()]
     assert np.median(widths) == pytest.approx(box_d - wall_d, abs=3)
     wall = depth[rows, 60:hidden_from - 6]
     box = depth[rows, box_left + 8:box_right - 8]

@@ -195,7 +195,7 @@ def dotted_wall_passes(spec, distance: float) -> dict[str, np.ndarray]:
 
     def dots(offset: float) -> np.ndarray:
         image = np.zeros(u.shape, np.float32)
-        for cx, cy in zip(x + offset, y):
+        for cx, cy in zip(x + offset, y, strict=True):
             near = (np.abs(u - cx) < 4) & (np.abs(v - cy) < 4)
             image[near] += np.exp(-((u[near] - cx) ** 2 + (v[near] - cy) ** 2) / 1.6).astype(np.float32)
         return image
@@ -232,10 +232,11 @@ def test_a_stereo_frame_with_the_device_engine_on_carries_the_devices_depth():
     error = np.abs(fx_b / inside[np.isfinite(inside)] - fx_b / 1.2)
     # the sensor model's blur and 10-bit levels: 4 of 43200 pixels were 0.133 px off (a step + 0.008)
     assert np.median(error) < 0.07 and (error <= 0.125 + 0.005).mean() > 0.999 and error.max() < 0.2
-    encode_frame(frame, depth.shape, stored_channels(rendered_channels(stereo=True, device=True)))  # no FormatError
+    # the codec takes it: no FormatError
+    encode_frame(frame, depth.shape, stored_channels(rendered_channels(stereo=True, device=True)))
 
 
 def test_the_stereo_engine_needs_the_stereo_pair():
-    with pytest.raises(Exception, match=r"\[device_depth\] engine = \"stereo\" matches the left IR against the "
-                       r"right one, which \[rig\] stereo = false does not render"):
+    with pytest.raises(Exception, match=r"\[device_depth\] engine = \"stereo\" matches the left IR "
+                       r"against the right one, which \[rig\] stereo = false does not render"):
         config_from_dict({"rig": {"preset": "realsense_d415"}, "device_depth": {"engine": "stereo"}})
