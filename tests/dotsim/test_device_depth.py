@@ -6,9 +6,12 @@ band the disparity search cannot cover, the band a box hides from the right came
 
 from __future__ import annotations
 
+import doctest
+
 import numpy as np
 import pytest
 
+from dotsim import device_depth
 from dotsim.config_schema import ConfigError
 from dotsim.device_depth import (
     DeviceDepthConfig,
@@ -184,3 +187,8 @@ def test_settings_scale_with_the_render_and_are_checked():
     with pytest.raises(ValueError, match="left and right IR must be"):
         stereo_depth(np.zeros((4, 5)), np.zeros((4, 6)), FX, BASELINE, stereo())
     assert np.isnan(as_channel(np.zeros(3, np.float32))).all()
+
+
+def test_doctests():
+    result = doctest.testmod(device_depth)
+    assert result.attempted >= 8 and result.failed == 0

@@ -6,6 +6,7 @@ pair before planes (tests/trainer_fixtures.py's oracle) whose device_depth is th
 from __future__ import annotations
 
 import dataclasses
+import doctest
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from dotsim.device_depth import DeviceDepthConfig, as_channel, stereo_depth
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig import get_preset
 from tests.trainer_fixtures import TINY_SCALE, pair_frame, planar_depth, tiny_config
+from trainer import device_depth_row
 from trainer.data import list_frames
 from trainer.evaluate import evaluate, row_of
 from trainer.train import train
@@ -69,3 +71,8 @@ def test_eval_scores_the_devices_own_depth_as_a_row(tmp_path):
         total += int(valid.sum())
     assert device["pixels"] == total and abs(device["o(0.5)"] - over / total) < 1e-9
     assert 0 < none < over + 1  # the left band and other holes count as outliers
+
+
+def test_doctests():
+    result = doctest.testmod(device_depth_row)
+    assert result.attempted >= 3 and result.failed == 0
