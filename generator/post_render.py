@@ -53,7 +53,8 @@ def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
 
 def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
     """The channels of a frame of `spec` (the writer's channel list): those of one camera, or of the
-    stereo pair when it renders the rig's second camera too."""
+    stereo pair when it renders the rig's second camera too, and device_depth when its device depth
+    engine is on."""
     return rendered_channels(stereo=len(spec.cameras) > 1, device=spec.device_depth.on)
 
 
