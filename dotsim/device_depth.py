@@ -85,7 +85,7 @@ class DeviceDepthConfig(Checked):
                                    "1/8)", low=0.0, high=1.0, low_open=True)
     depth_unit: float = setting(0.001, "depth unit of the device's 16-bit output, m (1 mm)", low=1e-6,
                                 high=1.0)
-    reference_distance: float = setting(1.0, "distance of the plane the reference image shows, m "
+    reference_distance: float = setting(2.0, "distance of the plane the reference image shows, m "
                                         "(structured_light only)", low=0.05, high=100.0)
 
     def __post_init__(self) -> None:
