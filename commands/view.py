@@ -13,11 +13,12 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
   its Pinhole, with the frame's passes under it, so that the viewer draws them in its frustum and
   back-projects the depth into 3D: `world/camera/ir` (float values as stored), `.../ambient`,
   `.../flood` (uint8 as `dotsim show` draws them: square root of value over the frame's 99th
-  percentile), `.../depth` (a DepthImage in metres), `.../visibility`, `.../edge` (0 / 255), and of a
-  stereo pair `.../ir_right` and `.../stereo_visibility`, with labels `.../instance` and `.../material`
-  (segmentation images: a colour per label) and `.../transparent_or_mirror`, with normals
-  `.../normal_x` (the three components as one RGB image, (n + 1) / 2): the frame's channels (VIEWED,
-  those the scene has), the IR sequence over frames;
+  percentile), `.../depth` (a DepthImage in metres), `.../visibility`, `.../edge` (0 / 255), the
+  device's own depth `.../device_depth` where the scene has it (a DepthImage, 0 where the device gave
+  none, as devices report it), and of a stereo pair `.../ir_right` and `.../stereo_visibility`, with
+  labels `.../instance` and `.../material` (segmentation images: a colour per label) and
+  `.../transparent_or_mirror`, with normals `.../normal_x` (the three components as one RGB image,
+  (n + 1) / 2): the frame's channels (VIEWED, those the scene has), the IR sequence over frames;
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr, for any of the
   scene's frames): the predicted cloud `world/pose_K/prediction` beside the truth (up to the rig's
   max_depth), coloured by its disparity error, and `world/camera/error`, that error as an image

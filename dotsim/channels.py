@@ -26,7 +26,8 @@ SOURCES = {
               "read as int32)",
     "ground truth": "the post-render: computed from the rendered depth and the rig, stored",
     "derived": "the reader: computed from `depth` and the rig in the frame's header, never stored",
-    "device": "a real sensor's own output (dotsim capture record), never rendered",
+    "device": "a depth camera's own output, never ground truth: a real sensor's (dotsim capture record) or, "
+              "with [device_depth] on, the post-render's simulation of its chip (dotsim.device_depth)",
 }
 # How `dotsim show` (and `dotsim view`) draw a channel; None: not drawn.
 DISPLAYS = {
@@ -38,8 +39,13 @@ DISPLAYS = {
     "normal": "the three normal components as one colour tile, (n + 1) / 2 as red, green, blue, black "
               "where there is no surface; drawn in the column of normal_x",
 }
-# The [render] switches that add channels to a rendered frame (RenderConfig's labels and normals).
-SWITCHES = ("labels", "normals")
+# The switches of the generator's config that add channels to a rendered frame, and what turns each on.
+SWITCHES = {
+    "labels": "[render] labels = true (or a transparent or metal object in the scene)",
+    "normals": "[render] normals = true",
+    "device_depth": "[device_depth] engine other than \"off\": the simulated device's depth "
+                    "(dotsim.device_depth)",
+}
 
 
 @dataclass(frozen=True)
@@ -50,8 +56,8 @@ class Channel:
     (DISPLAYS, or None); title and meaning: the two lines `dotsim show` writes above its column;
     unit: of a colour-mapped channel; stereo: only frames rendered from the rig's stereo pair have
     it; since: the format version that added it (a frame records the oldest version that has all
-    of its channels, dotsim.dataset.frames.frame_format_version); switch: the [render] switch
-    (SWITCHES) without which the generator does not write it ("" for none).
+    of its channels, dotsim.dataset.frames.frame_format_version); switch: the switch (SWITCHES) without
+    which the generator does not write it ("" for none).
     """
 
     name: str
@@ -92,9 +98,10 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("projector_column", np.float32, "ground truth", "colour", "projector column", "ground truth",
             "projector px"),
     Channel("disparity", np.float32, "derived", "colour", "disparity", "ground truth", "camera px"),
-    # A real sensor's own depth, stored beside recordings: its estimate, never ground truth (which
-    # is "depth").
-    Channel("device_depth", np.float32, "device", None, "device depth", "the sensor's estimate", since="1.1"),
+    # A depth camera's own depth: a real sensor's beside recordings, or the simulated device's beside
+    # rendered frames ([device_depth] on): its estimate, never ground truth (which is "depth").
+    Channel("device_depth", np.float32, "device", "colour", "device depth", "the sensor's estimate", "m",
+            since="1.1", switch="device_depth"),
     # The rig's second IR camera (the right one of a rectified pair), and stereo ground truth on the
     # left image.
     Channel("ir_right", np.float16, "sensor model", "linear", "IR right", "the second camera", stereo=True,
@@ -119,9 +126,9 @@ CHANNELS: tuple[Channel, ...] = (
 )
 CHANNEL: dict[str, Channel] = {c.name: c for c in CHANNELS}
 
-# What the generator writes: every channel but a device's own, and for a stereo pair STEREO_CHANNELS too,
-# and those of each [render] switch that is on.
-RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if c.source != "device" and not c.stereo and not c.switch)
+# What the generator writes: every channel without a switch, for a stereo pair STEREO_CHANNELS too, and
+# those of each switch that is on (a device's own depth, without its switch, only real recordings have).
+RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if not c.stereo and not c.switch)
 STEREO_CHANNELS = tuple(c.name for c in CHANNELS if c.stereo)
 MASK_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "mask")
 LABEL_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "labels")
@@ -131,10 +138,12 @@ NORMAL_CHANNELS = ("normal_x", "normal_y", "normal_z")
 
 def rendered_channels(stereo: bool, switches=()) -> tuple[str, ...]:
     """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair, with
-    the [render] `switches` that are on (SWITCHES).
+    the `switches` that are on (SWITCHES: [render] labels and normals, the simulated device's depth).
 
     >>> rendered_channels(False, ("normals",))[-3:]
     ('normal_x', 'normal_y', 'normal_z')
+    >>> rendered_channels(True, ("device_depth",))[-1]
+    'device_depth'
     """
     unknown = [name for name in switches if name not in SWITCHES]
     if unknown:

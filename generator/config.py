@@ -27,6 +27,7 @@ from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
+from dotsim.device_depth import DeviceDepthConfig
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
 from dotsim.rig.config import RigConfig
 from dotsim.rig.options import checked_rig
@@ -201,6 +202,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     masks: MaskParams = field(default_factory=MaskParams)
+    device_depth: DeviceDepthConfig = field(default_factory=DeviceDepthConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     assets: AssetsConfig = field(default_factory=AssetsConfig)
     source: str = "<defaults>"
@@ -245,6 +247,10 @@ def _check_cross_fields(config: Config) -> None:
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
     config.calibrated_rig  # noqa: B018 (resolved now, so a bad rig stops the load; the Config keeps it)
+    if config.device_depth.engine == "stereo" and not config.rig.stereo:
+        raise ConfigError(f"{src}: [device_depth] engine = \"stereo\" matches the left IR against the "
+                          f"right one, which [rig] stereo = false does not render; allowed: [rig] stereo = "
+                          f"true, or engine = \"structured_light\" or \"off\"")
     wall, room = config.scene.back_wall_distance, config.scene.room_size
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "

@@ -392,5 +392,6 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         objects=tuple(objects),
         sensor=config.sensor.at_scale(config.rig.scale),
         masks=config.masks,
+        device_depth=config.device_depth,
     )
 

@@ -16,8 +16,9 @@ read by generator/config.py), its sensor record the config's [sensor] at the ren
 values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
 (config_schema.bounds_of), so the two cannot disagree on a bound.
 
-Needs only numpy, the standard library, dotsim.config_schema, dotsim.labels, dotsim.rig and
-dotsim.sensor.settings, so Blender's own Python can import it.
+Needs only numpy, the standard library, dotsim.config_schema, dotsim.labels, dotsim.rig,
+dotsim.sensor.settings and the settings of dotsim.device_depth (which imports OpenCV only where it
+matches), so Blender's own Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
 axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
@@ -32,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
+from dotsim.device_depth import DeviceDepthConfig
 from dotsim.labels import MATERIAL_KINDS, SEE_THROUGH_KINDS
 from dotsim.rig.geometry import Intrinsics, Rig
 from dotsim.sensor.settings import SensorSpec
@@ -314,9 +316,10 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "cameras", "objects", "sensor", "masks")
-# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone.
-_OPTIONAL = ("cameras",)
+              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth")
+# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone, and
+# the device's depth engine off.
+_OPTIONAL = ("cameras", "device_depth")
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -324,7 +327,8 @@ _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood
 @dataclass(frozen=True, eq=False)
 class SceneSpec(Checked):
     """Everything one scene's frames need: what to render (rig, pattern, objects, lights, poses,
-    Cycles settings) and how to turn the renders into stored frames (sensor model, masks).
+    Cycles settings) and how to turn the renders into stored frames (sensor model, masks, the simulated
+    device's depth engine).
 
     Two specs are equal when their dicts are (poses are arrays, which dataclass equality cannot
     compare)."""
@@ -346,6 +350,7 @@ class SceneSpec(Checked):
     objects: tuple[SceneObject, ...]
     sensor: SensorSpec
     masks: MaskParams
+    device_depth: DeviceDepthConfig = DeviceDepthConfig()  # the simulated device's depth engine
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -383,6 +388,7 @@ class SceneSpec(Checked):
             "objects": [obj.to_dict() for obj in self.objects],
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
+            "device_depth": self.device_depth.to_dict(),
         }
 
     @classmethod
@@ -421,5 +427,7 @@ class SceneSpec(Checked):
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
             sensor=SensorSpec.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
+            device_depth=DeviceDepthConfig.from_dict(d.get("device_depth", DeviceDepthConfig().to_dict()),
+                                                     f"{_WHERE}: device_depth"),
             **one_key,
         )

@@ -147,8 +147,9 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
 
 
 def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
-    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
-                           "stereo_visibility", "instance", "material", "transparent_or_mirror", "normal_x")
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "device_depth",
+                           "ir_right", "stereo_visibility", "instance", "material", "transparent_or_mirror",
+                           "normal_x")
 
 
 def test_a_stereo_pair_adds_the_right_ir_its_mask_and_the_right_frustum(scene, tmp_path):
