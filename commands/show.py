@@ -7,7 +7,9 @@ linear on the sensor's full scale, ambient and flood each as the square root
 of value / its own 99th percentile (ambient is often 50x darker than flood, and radiance falls as
 1 / r^2, so a linear scale shows near objects only), depth, projector column and disparity
 colour-mapped (turbo) with a colour bar in their units under the grid (and a stereo pair's stereo
-disparity), the visibility and edge masks (and a stereo pair's stereo visibility) white where set.
+disparity), the visibility and edge masks (and a stereo pair's stereo visibility) white where set;
+with labels, the instance and material labels a colour per value and the transparent_or_mirror mask;
+with normals, the three normal components as one colour tile.
 Black in a colour-mapped tile means no value there (no hit / invalid).
 numpy + OpenCV only.
 """
@@ -22,7 +24,7 @@ import cv2
 import numpy as np
 
 from dotsim import dataset as ds
-from dotsim.channels import CHANNEL, CHANNELS
+from dotsim.channels import CHANNEL, CHANNELS, NORMAL_CHANNELS
 from dotsim.command_options import add_output
 from dotsim.false_colour import (
     BACKGROUND,
@@ -30,6 +32,8 @@ from dotsim.false_colour import (
     LINE,
     TEXT_SCALE,
     colourise,
+    label_colours,
+    normal_colours,
     put_text,
     short_number,
 )
@@ -166,6 +170,10 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
         elif name in ranges:
             low, high = ranges[name]
             caption = f"{short_number(low)}..{short_number(high)} {CHANNEL[name].unit}"
+        elif CHANNEL[name].display == "labels":
+            caption = "a colour per label, black = 0"
+        elif CHANNEL[name].display == "normal":
+            caption = "RGB = (xyz + 1) / 2"
         else:
             caption = "mask 0 / 1"
         put_text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
@@ -176,11 +184,18 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
                 tile = colourise(image, *ranges[name])
             elif CHANNEL[name].display == "mask":
                 tile = _grey(image, 1.0)
+            elif CHANNEL[name].display == "labels":
+                tile = label_colours(image)
+            elif CHANNEL[name].display == "normal":
+                tile = normal_colours(*(frame[axis] for axis in NORMAL_CHANNELS))
             elif CHANNEL[name].display == "linear":
                 tile = _grey(image, scales[name])
             else:  # radiance falls off as 1 / r^2: a square root shows far walls beside near objects
                 tile = _grey(image, scales[name] or 1.0, root=True)
-            tile = cv2.resize(tile, (tile_w, tile_h), interpolation=cv2.INTER_AREA)
+            # labels and normals are not averaged across a tile's pixels (no colour of its own)
+            exact = CHANNEL[name].display in ("labels", "normal")
+            tile = cv2.resize(tile, (tile_w, tile_h),
+                              interpolation=cv2.INTER_NEAREST if exact else cv2.INTER_AREA)
             sheet[y:y + tile_h, x:x + tile_w] = tile
             tiles[(k, name)] = (x, y, tile_w, tile_h)
     for k, label in enumerate(labels):

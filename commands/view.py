@@ -13,9 +13,12 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
   its Pinhole, with the frame's passes under it, so that the viewer draws them in its frustum and
   back-projects the depth into 3D: `world/camera/ir` (float values as stored), `.../ambient`,
   `.../flood` (uint8 as `dotsim show` draws them: square root of value over the frame's 99th
-  percentile), `.../depth` (a DepthImage in metres), `.../visibility`, `.../edge` (0 / 255), and of a
-  stereo pair `.../ir_right` and `.../stereo_visibility`: the frame's channels (VIEWED, those the
-  scene has), the IR sequence over frames;
+  percentile), `.../depth` (a DepthImage in metres), `.../visibility`, `.../edge` (0 / 255), the
+  device's own depth `.../device_depth` where the scene has it (a DepthImage, 0 where the device gave
+  none, as devices report it), and of a stereo pair `.../ir_right` and `.../stereo_visibility`, with
+  labels `.../instance` and `.../material` (segmentation images: a colour per label) and
+  `.../transparent_or_mirror`, with normals `.../normal_x` (the three components as one RGB image,
+  (n + 1) / 2): the frame's channels (VIEWED, those the scene has), the IR sequence over frames;
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr, for any of the
   scene's frames): the predicted cloud `world/pose_K/prediction` beside the truth (up to the rig's
   max_depth), coloured by its disparity error, and `world/camera/error`, that error as an image
@@ -31,9 +34,9 @@ import numpy as np
 
 from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
-from dotsim.channels import CHANNEL, CHANNELS
+from dotsim.channels import CHANNEL, CHANNELS, NORMAL_CHANNELS
 from dotsim.command_options import add_output
-from dotsim.false_colour import colourise
+from dotsim.false_colour import colourise, normal_colours
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels
@@ -43,7 +46,8 @@ from dotsim.rig.geometry import Rig, is_ground_truth
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
 # as a depth image (the other colour-mapped channels are what the clouds show).
 VIEWED = tuple(c.name for c in CHANNELS
-               if c.display in ("linear", "radiance", "mask") or (c.display == "colour" and c.unit == "m"))
+               if c.display in ("linear", "radiance", "mask", "labels", "normal")
+               or (c.display == "colour" and c.unit == "m"))
 ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
 FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
 CAMERA = "world/camera"  # the current frame's camera: its Pinhole, with the frame's images under it
@@ -80,11 +84,17 @@ def _pinhole(rr, intrinsics):
                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=FRUSTUM_DEPTH)
 
 
-def viewer_image(rr, image: np.ndarray, name: str):
-    """A channel as the viewer shows it: linear ones (IR) as stored; radiance as the contact sheet
-    draws it (its automatic range would show 1 / r^2 light as a few bright objects on black); masks
-    0 / 255; metres as a depth image (0 where nothing is hit)."""
+def viewer_image(rr, frame: dict[str, np.ndarray], name: str):
+    """Channel `name` of `frame` as the viewer shows it: linear ones (IR) as stored; radiance as the
+    contact sheet draws it (its automatic range would show 1 / r^2 light as a few bright objects on
+    black); masks 0 / 255; labels as a segmentation image (the viewer gives each label a colour);
+    normals as the contact sheet's RGB; metres as a depth image (0 where nothing is hit)."""
+    image = frame[name]
     display = CHANNEL[name].display
+    if display == "labels":
+        return rr.SegmentationImage(image.astype(np.uint16))
+    if display == "normal":
+        return rr.Image(_rgb(normal_colours(*(frame[axis] for axis in NORMAL_CHANNELS))))
     if display == "linear":
         return rr.Image(image.astype(np.float32), color_model="L")
     if display == "radiance":
@@ -155,7 +165,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
         pose = _pose(meta["poses"][k])
         rec.log(CAMERA, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
         for name in (name for name in VIEWED if name in f):
-            rec.log(f"{CAMERA}/{name}", viewer_image(rr, f[name], name))
+            rec.log(f"{CAMERA}/{name}", viewer_image(rr, f, name))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
         points, colours = depth_points(f["depth"], rig.camera, grey)

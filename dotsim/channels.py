@@ -22,9 +22,12 @@ SOURCES = {
     "sensor model": "the post-render: a rendered signal through the IR sensor model",
     "render": "the post-render: a rendered pass as Cycles gave it",
     "mask": "the post-render: a 0 / 1 mask (stored as UINT, read as uint8)",
+    "labels": "the post-render: integer labels from the render's object index pass (stored as UINT, "
+              "read as int32)",
     "ground truth": "the post-render: computed from the rendered depth and the rig, stored",
     "derived": "the reader: computed from `depth` and the rig in the frame's header, never stored",
-    "device": "a real sensor's own output (dotsim capture record), never rendered",
+    "device": "a depth camera's own output, never ground truth: a real sensor's (dotsim capture record) or, "
+              "with [device_depth] on, the post-render's simulation of its chip (dotsim.device_depth)",
 }
 # How `dotsim show` (and `dotsim view`) draw a channel; None: not drawn.
 DISPLAYS = {
@@ -32,6 +35,16 @@ DISPLAYS = {
     "radiance": "grey, the square root of value / its 99th percentile (radiance falls as 1 / r^2)",
     "colour": "turbo colour map over the frames' range, in `unit`, black where there is no value",
     "mask": "white where 1",
+    "labels": "a colour of its own per label (dotsim.false_colour.label_colours), black for 0",
+    "normal": "the three normal components as one colour tile, (n + 1) / 2 as red, green, blue, black "
+              "where there is no surface; drawn in the column of normal_x",
+}
+# The switches of the generator's config that add channels to a rendered frame, and what turns each on.
+SWITCHES = {
+    "labels": "[render] labels = true (or a transparent or metal object in the scene)",
+    "normals": "[render] normals = true",
+    "device_depth": "[device_depth] engine other than \"off\": the simulated device's depth "
+                    "(dotsim.device_depth)",
 }
 
 
@@ -43,7 +56,8 @@ class Channel:
     (DISPLAYS, or None); title and meaning: the two lines `dotsim show` writes above its column;
     unit: of a colour-mapped channel; stereo: only frames rendered from the rig's stereo pair have
     it; since: the format version that added it (a frame records the oldest version that has all
-    of its channels, dotsim.dataset.frames.frame_format_version).
+    of its channels, dotsim.dataset.frames.frame_format_version); switch: the switch (SWITCHES) without
+    which the generator does not write it ("" for none).
     """
 
     name: str
@@ -55,6 +69,7 @@ class Channel:
     unit: str = ""
     stereo: bool = False
     since: str = "1.0"
+    switch: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dtype", np.dtype(self.dtype))
@@ -65,6 +80,10 @@ class Channel:
                              f"{', '.join(DISPLAYS)} or None")
         if (self.source == "mask") != (self.dtype == np.uint8):
             raise ValueError(f"channel {self.name!r}: masks, and only masks, are uint8")
+        if (self.source == "labels") != (self.dtype == np.int32):
+            raise ValueError(f"channel {self.name!r}: labels, and only labels, are int32")
+        if self.switch and self.switch not in SWITCHES:
+            raise ValueError(f"channel {self.name!r}: switch {self.switch!r}; allowed: {', '.join(SWITCHES)}")
         if (self.display == "colour") != bool(self.unit):
             raise ValueError(f"channel {self.name!r}: a colour-mapped channel, and only one, has a unit")
 
@@ -79,9 +98,10 @@ CHANNELS: tuple[Channel, ...] = (
     Channel("projector_column", np.float32, "ground truth", "colour", "projector column", "ground truth",
             "projector px"),
     Channel("disparity", np.float32, "derived", "colour", "disparity", "ground truth", "camera px"),
-    # A real sensor's own depth, stored beside recordings: its estimate, never ground truth (which
-    # is "depth").
-    Channel("device_depth", np.float32, "device", None, "device depth", "the sensor's estimate", since="1.1"),
+    # A depth camera's own depth: a real sensor's beside recordings, or the simulated device's beside
+    # rendered frames ([device_depth] on): its estimate, never ground truth (which is "depth").
+    Channel("device_depth", np.float32, "device", "colour", "device depth", "the sensor's estimate", "m",
+            since="1.1", switch="device_depth"),
     # The rig's second IR camera (the right one of a rectified pair), and stereo ground truth on the
     # left image.
     Channel("ir_right", np.float16, "sensor model", "linear", "IR right", "the second camera", stereo=True,
@@ -90,19 +110,46 @@ CHANNELS: tuple[Channel, ...] = (
             stereo=True, since="2.1"),
     Channel("stereo_disparity", np.float32, "derived", "colour", "stereo disparity", "ground truth",
             "camera px", stereo=True, since="2.1"),
+    # From the path-traced render's object index and normal passes ([render] labels, normals).
+    Channel("instance", np.int32, "labels", "labels", "instance", "object + 1, 0: room", since="2.2",
+            switch="labels"),
+    Channel("material", np.int32, "labels", "labels", "material", "class (FORMAT.md)", since="2.2",
+            switch="labels"),
+    Channel("transparent_or_mirror", np.uint8, "mask", "mask", "glass / mirror", "white: first surface",
+            since="2.2", switch="labels"),
+    Channel("normal_x", np.float16, "render", "normal", "normals", "camera frame, RGB = xyz", since="2.2",
+            switch="normals"),
+    Channel("normal_y", np.float16, "render", None, "normal y", "camera frame", since="2.2",
+            switch="normals"),
+    Channel("normal_z", np.float16, "render", None, "normal z", "camera frame", since="2.2",
+            switch="normals"),
 )
 CHANNEL: dict[str, Channel] = {c.name: c for c in CHANNELS}
 
-# What the generator writes: every channel but a device's own, and for a stereo pair STEREO_CHANNELS too.
-RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if c.source != "device" and not c.stereo)
+# What the generator writes: every channel without a switch, for a stereo pair STEREO_CHANNELS too, and
+# those of each switch that is on (a device's own depth, without its switch, only real recordings have).
+RENDERED_CHANNELS = tuple(c.name for c in CHANNELS if not c.stereo and not c.switch)
 STEREO_CHANNELS = tuple(c.name for c in CHANNELS if c.stereo)
 MASK_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "mask")
+LABEL_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "labels")
 DERIVED_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "derived")
+NORMAL_CHANNELS = ("normal_x", "normal_y", "normal_z")
 
 
-def rendered_channels(stereo: bool) -> tuple[str, ...]:
-    """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair."""
-    return RENDERED_CHANNELS + (STEREO_CHANNELS if stereo else ())
+def rendered_channels(stereo: bool, switches=()) -> tuple[str, ...]:
+    """The channels the generator writes for a frame of one camera, or (stereo) of the stereo pair, with
+    the `switches` that are on (SWITCHES: [render] labels and normals, the simulated device's depth).
+
+    >>> rendered_channels(False, ("normals",))[-3:]
+    ('normal_x', 'normal_y', 'normal_z')
+    >>> rendered_channels(True, ("device_depth",))[-1]
+    'device_depth'
+    """
+    unknown = [name for name in switches if name not in SWITCHES]
+    if unknown:
+        raise ValueError(f"switch {unknown[0]!r}; allowed: {', '.join(SWITCHES)}")
+    return (RENDERED_CHANNELS + (STEREO_CHANNELS if stereo else ())
+            + tuple(c.name for c in CHANNELS if c.switch and c.switch in switches))
 
 
 def stored_channels(channels) -> tuple[str, ...]:

@@ -13,6 +13,9 @@ text beside it is readable and never drawn over it. numpy + OpenCV only.
 (160, 480, 3)
 >>> with_legend(image, 0.0, 5.0, "px").shape[:2] == (160 + LINE + 4, 480)
 True
+>>> labels = label_colours(np.array([[0, 1, 1, 7]]))[0]  # one colour per label, 0 black
+>>> labels[0].tolist(), bool((labels[1] == labels[2]).all()), bool((labels[1] == labels[3]).all())
+([0, 0, 0], True, False)
 """
 
 from __future__ import annotations
@@ -37,6 +40,28 @@ def colourise(image: np.ndarray, low: float, high: float) -> np.ndarray:
     span = high - low if high > low else 1.0
     x = np.where(finite, (image.astype(np.float64) - low) / span, 0.0)
     bgr = cv2.applyColorMap(np.rint(np.clip(x, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    bgr[~finite] = 0
+    return bgr
+
+
+def label_colours(labels: np.ndarray) -> np.ndarray:
+    """A colour of its own per integer label (BGR uint8): hues a golden-ratio step apart, so labels
+    next to each other in number differ in colour; 0 black (no object, or the room)."""
+    values, inverse = np.unique(np.asarray(labels, np.int64), return_inverse=True)
+    hues = np.rint((values * 0.6180339887 % 1.0) * 179).astype(np.uint8)
+    saturation = np.where(values % 2, 230, 170).astype(np.uint8)
+    hsv = np.stack([hues, saturation, np.full_like(hues, 240)], axis=-1)[None]
+    palette = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0]
+    palette[values == 0] = 0
+    return palette[inverse.reshape(np.shape(labels))]
+
+
+def normal_colours(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Unit normals as colour (BGR uint8): red, green, blue = (x + 1) / 2, (y + 1) / 2, (z + 1) / 2;
+    black where there is none (nan)."""
+    rgb = np.stack([x, y, z], axis=-1).astype(np.float64)
+    finite = np.isfinite(rgb).all(axis=-1)
+    bgr = np.rint(np.clip((np.nan_to_num(rgb[..., ::-1]) + 1) / 2, 0, 1) * 255).astype(np.uint8)
     bgr[~finite] = 0
     return bgr
 

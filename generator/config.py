@@ -27,6 +27,7 @@ from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
+from dotsim.device_depth import DeviceDepthConfig
 from dotsim.file_io import WriteError, check_writable_folder, json_bytes
 from dotsim.rig.config import RigConfig
 from dotsim.rig.options import checked_rig
@@ -112,6 +113,30 @@ class SceneConfig(Checked):
                                            **bounds_of(Material, "roughness"))
     glossy_specular: FloatRange = setting((0.5, 1.0), "specular level of glossy objects",
                                           **bounds_of(Material, "specular"))
+    transparent_share: float = setting(0.0, "share of objects of glass or clear plastic: refraction and "
+                                       "reflection by their index of refraction, the projector's light "
+                                       "through them; never a plane (\"Materials\" above)", low=0.0, high=1.0)
+    transparent_ior: FloatRange = setting((1.48, 1.58), "index of refraction of a transparent object near "
+                                          "850 nm (PMMA 1.48, glass 1.51, polycarbonate 1.57)",
+                                          **bounds_of(Material, "ior"))
+    transparent_transmittance: FloatRange = setting((0.9, 1.0), "share of the light a transparent object "
+                                                    "lets through inside (its tint; the reflection at "
+                                                    "its surfaces comes from the index of refraction)",
+                                                    **bounds_of(Material, "albedo"))
+    metal_share: float = setting(0.0, "share of mirror-like metal objects", low=0.0, high=1.0)
+    metal_reflectance: FloatRange = setting((0.55, 0.97), "reflectance of a metal object at normal "
+                                            "incidence near 850 nm (chromium about 0.6, aluminium 0.87, "
+                                            "silver and gold 0.97)", **bounds_of(Material, "albedo"))
+    metal_roughness: FloatRange = setting((0.0, 0.1), "roughness of metal objects (0: a mirror)",
+                                          **bounds_of(Material, "roughness"))
+    ir_dark_share: float = setting(0.0, "share of IR-dark objects (black plastic or fabric dyed with "
+                                   "carbon black: dark in near infrared)", low=0.0, high=1.0)
+    ir_dark_albedo: FloatRange = setting((0.002, 0.01), "near-infrared reflectance of IR-dark objects "
+                                         "(\"Materials\" above: at 0.005 a sensor still sees dots near it)",
+                                         **bounds_of(Material, "albedo"))
+    ir_dark_specular: FloatRange = setting((0.0, 0.05), "specular level of IR-dark objects (0.5: the 4 % "
+                                           "surface reflection of plastic; flock, foam and matte black "
+                                           "paint reflect less)", **bounds_of(Material, "specular"))
 
 
 @dataclass(frozen=True)
@@ -177,6 +202,7 @@ class Config:
     motion: MotionConfig = field(default_factory=MotionConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     masks: MaskParams = field(default_factory=MaskParams)
+    device_depth: DeviceDepthConfig = field(default_factory=DeviceDepthConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     assets: AssetsConfig = field(default_factory=AssetsConfig)
     source: str = "<defaults>"
@@ -221,11 +247,20 @@ def _check_cross_fields(config: Config) -> None:
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
     config.calibrated_rig  # noqa: B018 (resolved now, so a bad rig stops the load; the Config keeps it)
+    if config.device_depth.engine == "stereo" and not config.rig.stereo:
+        raise ConfigError(f"{src}: [device_depth] engine = \"stereo\" matches the left IR against the "
+                          f"right one, which [rig] stereo = false does not render; allowed: [rig] stereo = "
+                          f"true, or engine = \"structured_light\" or \"off\"")
     wall, room = config.scene.back_wall_distance, config.scene.room_size
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
                           f"must stand inside the room; allowed: [0, 0], or 0 < low <= high < the smallest "
                           f"room_size ({room[0]:g} m)")
+    shares = {key: getattr(config.scene, key)
+              for key in ("transparent_share", "metal_share", "ir_dark_share")}
+    if sum(shares.values()) > 1.0:
+        raise ConfigError(f"{src}: [scene] " + ", ".join(f"{k} = {v:g}" for k, v in shares.items())
+                          + ": add up to more than 1; allowed: shares of the objects, at most 1 together")
     if config.assets.source == "cache":
         path = config.assets.cache_dir
         if not path or not Path(path).is_dir():
@@ -290,7 +325,7 @@ def config_reference_markdown() -> str:
         "built-in config's, named by `--config NAME`: the current directory). The full resolved config "
         "is stored in every scene's `scene.json` under `config`.\n\n"
         "How the keys work together (shaping the depth of the visible pixels, GigaDepth's Table 2 "
-        "conditions, laser speckle): docs/CONFIG_GUIDE.md."))
+        "conditions, materials that break sensors, laser speckle): docs/CONFIG_GUIDE.md."))
 
 
 if __name__ == "__main__":

@@ -22,33 +22,50 @@ rendered ones it stores):
   noise stream of its own; stereo_visibility, where the left camera's point is lit by the projector
   directly (flood_direct > 0) and seen by the right camera (dotsim.rig.stereo.seen_by_right, from both
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
+  With [render] labels (format 2.2): instance, material and transparent_or_mirror from the object index
+  pass (dotsim.labels), and the visibility mask 0 where the first surface is transparent or a mirror
+  (the dots seen there lie on another surface); with [render] normals: normal_x, normal_y, normal_z.
+  With the spec's device_depth engine on, also device_depth: the depth the simulated device's chip
+  reports (dotsim.device_depth; docs/DEVICE_DEPTH.md), NaN where it reports none: the stereo engine
+  matches ir against ir_right, the structured-light engine ir against the reference image of the
+  spec's pattern.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
 
-from dotsim.channels import rendered_channels, stored_channels
+from dotsim import device_depth
+from dotsim.channels import NORMAL_CHANNELS, rendered_channels, stored_channels
+from dotsim.labels import object_labels
 from dotsim.masks import direct_visibility_mask, edge_mask
+from dotsim.patterns import load_pattern
 from dotsim.rig.geometry import depth_to_projector_column, is_ground_truth
 from dotsim.rig.stereo import seen_by_right
 from dotsim.sensor.model import SensorModel, SensorStreams
-from generator.blender.frame_recipe import RAW_PASSES
+from generator.blender.frame_recipe import LABEL_PASSES, NORMAL_PASSES, RAW_PASSES
 from generator.blender.geometry import NO_HIT_DEPTH
 from generator.scene_spec import SceneSpec
 
 
 def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
-    """The raw passes of a frame of `spec`: RAW_PASSES of each of its cameras, named with its suffix."""
-    return tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES)
+    """The raw passes of a frame of `spec`: RAW_PASSES of each of its cameras, named with its suffix, and
+    the object index and normal passes its [render] labels and normals ask for."""
+    switched = ((spec.render.labels, LABEL_PASSES), (spec.render.normals, NORMAL_PASSES))
+    data = tuple(name for on, passes in switched if on for _, name in passes)
+    return tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES + data)
 
 
 def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
     """The channels of a frame of `spec` (the writer's channel list): those of one camera, or of the
-    stereo pair when it renders the rig's second camera too."""
-    return rendered_channels(stereo=len(spec.cameras) > 1)
+    stereo pair when it renders the rig's second camera too, and those of its switches that are on
+    (dotsim.channels.SWITCHES: [render] labels and normals, the device depth engine)."""
+    switches = {"labels": spec.render.labels, "normals": spec.render.normals,
+                "device_depth": spec.device_depth.on}
+    return rendered_channels(len(spec.cameras) > 1, tuple(name for name, on in switches.items() if on))
 
 
 def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.ndarray]:
@@ -110,7 +127,15 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
         projector_direct, raw["flood_direct"], signal - projector_direct,
         gain, sensor, masks.visibility_margin, sensor.blur_px,
     ) & np.isfinite(depth)
-    made = {
+    made = {}
+    if spec.render.labels:
+        made.update(object_labels(raw["object_index"], [obj.material.kind for obj in spec.objects],
+                                  [obj.name for obj in spec.objects], where))
+        visibility &= ~made["transparent_or_mirror"]
+    if spec.render.normals:
+        # nan where the depth (the first sample) hit nothing, though another sample of the pixel did
+        made.update({name: np.where(np.isfinite(depth), raw[name], np.nan) for name in NORMAL_CHANNELS})
+    made |= {
         "ir": sensor.apply(signal, streams[0].noise, gain),
         "ambient": stored_radiance(ambient),
         "flood": stored_radiance(flood),
@@ -125,7 +150,34 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
         made["ir_right"] = sensor.apply(right_signal, streams[1].noise, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
+    if spec.device_depth.on:
+        made["device_depth"] = device_depth.as_channel(simulated_device_depth(spec, made))
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
+
+
+def simulated_device_depth(spec: SceneSpec, made: dict[str, np.ndarray]) -> np.ndarray:
+    """The depth (float32 m, 0 = none) the spec's device engine reports for a frame's channels: the
+    stereo engine on ir and ir_right (the rig's second camera), the structured-light engine on ir and
+    the reference image of the spec's pattern."""
+    settings, rig = spec.device_depth, spec.rig
+    scale = spec.sensor.pixel_scale
+    ir = made["ir"].astype(np.float32)
+    if settings.engine == "stereo":
+        right = spec.cameras[1]
+        return device_depth.stereo_depth(ir, made["ir_right"].astype(np.float32), rig.camera.fx,
+                                         right.translation[0], settings, scale)
+    reference = _reference_image(spec.pattern.path, spec.pattern.sha256, rig, settings.reference_distance)
+    return device_depth.structured_light_depth(ir, reference, rig.camera.fx, rig.baseline, settings, scale)
+
+
+@functools.lru_cache(maxsize=2)
+def _reference_image(path: str, sha256: str, rig, distance: float) -> np.ndarray:
+    """The device's reference image for a pattern file (its sha256 in the key: a rewritten file is a new
+    pattern), made once per worker: every frame of a run shares it."""
+    pattern = load_pattern(path, (rig.projector.height, rig.projector.width))
+    reference = device_depth.reference_image_at(pattern.image, rig, distance)
+    reference.flags.writeable = False
+    return reference
 
 
 def _speckled(raw: dict, suffix: str, sensor: SensorModel, streams: SensorStreams):

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dotsim.labels import MATERIAL_KINDS, ROOM_SURFACES
 from dotsim.rig.geometry import Rig
 from dotsim.sensor.model import SensorStreams
 from generator.config import Config
@@ -188,24 +189,37 @@ def _room_planes(size: tuple[float, float, float]) -> list[tuple[str, tuple, tup
     (z size 1: a plane has no thickness, and a zero scale would make its normals degenerate)."""
     w, d, h = size
     half_pi = math.pi / 2
-    return [
-        ("floor", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (w, d, 1.0)),
-        ("ceiling", (0.0, 0.0, h), (math.pi, 0.0, 0.0), (w, d, 1.0)),
-        ("wall_back", (0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), (w, h, 1.0)),
-        ("wall_front", (0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), (w, h, 1.0)),
-        ("wall_left", (-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), (h, d, 1.0)),
-        ("wall_right", (w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), (h, d, 1.0)),
+    places = [
+        ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (w, d, 1.0)),
+        ((0.0, 0.0, h), (math.pi, 0.0, 0.0), (w, d, 1.0)),
+        ((0.0, d / 2, h / 2), (half_pi, 0.0, 0.0), (w, h, 1.0)),
+        ((0.0, -d / 2, h / 2), (-half_pi, 0.0, 0.0), (w, h, 1.0)),
+        ((-w / 2, 0.0, h / 2), (0.0, half_pi, 0.0), (h, d, 1.0)),
+        ((w / 2, 0.0, h / 2), (0.0, -half_pi, 0.0), (h, d, 1.0)),
     ]
+    return [(name, *place) for name, place in zip(ROOM_SURFACES, places, strict=True)]
 
 
 def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureAsset, ...],
-              glossy_allowed: bool, extent: float) -> Material:
+              glossy_allowed: bool, extent: float, closed: bool = True) -> Material:
     """A surface material; `extent` (m, the object's largest size) turns the texture's physical tile
-    size into the UV scale the renderer applies (UVs span about one object)."""
+    size into the UV scale the renderer applies (UVs span about one object). Only objects (glossy
+    allowed, not the room) may be of another kind than opaque (docs/CONFIG.md "Materials"); an open
+    surface (a plane) is never transparent: light would refract into it and never out."""
     sc = config.scene
-    glossy = glossy_allowed and rng.random() < sc.glossy_share
+    kind = _material_kind(rng, config) if glossy_allowed else "opaque"
+    if kind == "transparent" and not closed:
+        kind = "opaque"
+    if kind == "transparent":
+        return Material(albedo=_uniform(rng, sc.transparent_transmittance), roughness=0.0, specular=0.5,
+                        kind=kind, ior=_uniform(rng, sc.transparent_ior))
+    if kind == "metal":
+        return Material(albedo=_uniform(rng, sc.metal_reflectance),
+                        roughness=_uniform(rng, sc.metal_roughness), specular=0.5, kind=kind)
+    glossy = glossy_allowed and kind == "opaque" and rng.random() < sc.glossy_share
     roughness = _uniform(rng, sc.glossy_roughness if glossy else sc.roughness)
-    specular = _uniform(rng, sc.glossy_specular if glossy else sc.specular)
+    specular = _uniform(rng, sc.ir_dark_specular if kind == "ir_dark" else
+                        sc.glossy_specular if glossy else sc.specular)
     texture = None
     if textures and rng.random() < sc.textured_share:
         chosen = textures[int(rng.integers(len(textures)))]
@@ -213,8 +227,22 @@ def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureA
                            else _log_uniform(rng, *sc.texture_scale))
         texture = Texture(path=chosen.path, scale=extent * tiles_per_metre,
                           contrast=_uniform(rng, sc.texture_contrast))
-    return Material(albedo=_uniform(rng, sc.albedo), roughness=roughness, specular=specular,
-                    texture=texture)
+    albedo = _uniform(rng, sc.ir_dark_albedo if kind == "ir_dark" else sc.albedo)
+    return Material(albedo=albedo, roughness=roughness, specular=specular, texture=texture, kind=kind)
+
+
+def _material_kind(rng: np.random.Generator, config: Config) -> str:
+    """An object's material kind, drawn by the [scene] shares; "opaque" without a draw when they are all
+    0, so the scenes of a config without them stay as they were."""
+    sc = config.scene
+    shares = (sc.transparent_share, sc.metal_share, sc.ir_dark_share)
+    if not any(shares):
+        return "opaque"
+    draw = rng.random()
+    for kind, bound in zip(MATERIAL_KINDS[1:], np.cumsum(shares), strict=True):
+        if draw < bound:
+            return kind
+    return "opaque"
 
 
 def _primitive_size(rng: np.random.Generator, shape: str, extent: float) -> tuple[float, float, float]:
@@ -340,7 +368,8 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         objects.append(SceneObject(
             name=f"object_{k:04d}", mesh=mesh, location=tuple(float(v) for v in location),
             rotation_euler=tuple(float(v) for v in rotation), scale=scale,
-            material=_material(rng, config, resources.textures, glossy_allowed=True, extent=extent)))
+            material=_material(rng, config, resources.textures, glossy_allowed=True, extent=extent,
+                               closed=not (isinstance(mesh, PrimitiveMesh) and mesh.shape == "plane"))))
 
     lights = tuple(
         PointLight(location=tuple(float(v) for v in rng.uniform(room_lo + 0.1, room_hi - 0.1)),
@@ -350,7 +379,8 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
     seed = scene_seed(base_seed, scene_index)
     return SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
-        render=SceneRenderSettings(**asdict(config.render), seed=seed),
+        render=SceneRenderSettings(**{**asdict(config.render), "labels": config.render.labels or any(
+            (sc.transparent_share, sc.metal_share))}, seed=seed),
         rig=rig,
         pattern=PatternRef(path=resources.pattern_path, sha256=resources.pattern_sha256),
         projector_power=projector_power,
@@ -362,5 +392,6 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         objects=tuple(objects),
         sensor=config.sensor.at_scale(config.rig.scale),
         masks=config.masks,
+        device_depth=config.device_depth,
     )
 

@@ -16,8 +16,9 @@ read by generator/config.py), its sensor record the config's [sensor] at the ren
 values (albedo, roughness, powers, [rig] scale, ...) take their bounds from the spec's fields
 (config_schema.bounds_of), so the two cannot disagree on a bound.
 
-Needs only numpy, the standard library, dotsim.config_schema, dotsim.rig and dotsim.sensor.settings,
-so Blender's own Python can import it.
+Needs only numpy, the standard library, dotsim.config_schema, dotsim.labels, dotsim.rig,
+dotsim.sensor.settings and the settings of dotsim.device_depth (which imports OpenCV only where it
+matches), so Blender's own Python can import it.
 
 World frame: Blender's, z up, metres. Poses are world_from_camera 4x4 matrices with OpenCV camera
 axes (x right, y down, z forward); the projector rides on the camera as the rig says. Rotations are
@@ -32,6 +33,8 @@ from typing import Any
 import numpy as np
 
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
+from dotsim.device_depth import DeviceDepthConfig
+from dotsim.labels import MATERIAL_KINDS, SEE_THROUGH_KINDS
 from dotsim.rig.geometry import Intrinsics, Rig
 from dotsim.sensor.settings import SensorSpec
 
@@ -44,6 +47,8 @@ DIRECT_LIGHT = ("separate", "shared")
 FRAMES_PER_SCENE = 4
 # The IR cameras of a rig a frame can be rendered from: its own camera and its second one.
 CAMERAS = ("left", "right")
+# Blender's object pass index (which carries an object's instance to the label) stops here.
+MAX_LABELLED_OBJECTS = 32767
 
 Vector3 = tuple[float, float, float]
 Vector4 = tuple[float, float, float, float]
@@ -68,17 +73,24 @@ class RenderConfig(Checked):
         "path-traced render (0.98-1.09x the time of one render without it, but dots missing where Cycles "
         "sampled an extra light instead: 13% of lit pixels, left out of the mask); docs/RENDERING.md",
         choices=DIRECT_LIGHT)
+    labels: bool = setting(False, "per-pixel labels from the render's object index pass: `instance` (the "
+                           "object's place in scene.json's objects + 1, 0 for the room), `material` (its "
+                           "class) and the `transparent_or_mirror` mask (docs/FORMAT.md); on by itself when "
+                           "[scene] transparent_share or metal_share > 0, whose mask needs it")
+    normals: bool = setting(False, "per-pixel surface normals in the camera frame from the render's normal "
+                            "pass: `normal_x`, `normal_y`, `normal_z` (docs/FORMAT.md)")
 
 
 @dataclass(frozen=True)
 class SceneRenderSettings(RenderConfig):
     """One scene's Cycles settings, SceneSpec.render: the config's [render] (RenderConfig) and the
-    scene's seed (specs from before `direct_light` read as "separate")."""
+    scene's seed (specs from before `direct_light`, `labels` or `normals` read as "separate", False,
+    False)."""
     seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SceneRenderSettings:
-        return record_from_dict(cls, d, where, optional=("direct_light",))
+        return record_from_dict(cls, d, where, optional=("direct_light", "labels", "normals"))
 
 
 @dataclass(frozen=True)
@@ -117,19 +129,33 @@ def _texture_from_dict(d: Any, where: str) -> Texture | None:
 
 @dataclass(frozen=True)
 class Material(Checked):
-    """A grey surface, optionally textured."""
-    albedo: float = setting(REQUIRED, "infrared reflectance", low=0.0, high=1.0)
+    """A grey surface, optionally textured; of a kind (MATERIAL_KINDS): opaque (the default), transparent
+    (albedo: its transmittance, refraction by `ior`), metal (albedo: its reflectance at normal
+    incidence) or IR-dark (opaque, albedo low)."""
+    albedo: float = setting(REQUIRED, "infrared reflectance (transparent: transmittance; metal: "
+                            "reflectance at normal incidence)", low=0.0, high=1.0)
     roughness: float = setting(REQUIRED, "roughness", low=0.0, high=1.0)
     specular: float = setting(REQUIRED, "specular level", low=0.0, high=1.0)
     texture: Texture | None = None
+    kind: str = setting("opaque", "what the surface is made of", choices=MATERIAL_KINDS)
+    ior: float = setting(1.5, "index of refraction of a transparent surface", low=1.0, high=3.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.texture is not None and self.kind in SEE_THROUGH_KINDS:
+            raise ConfigError(f"material: kind {self.kind!r} with a texture; allowed: a texture on opaque "
+                              f"and ir_dark surfaces only")
 
     def to_dict(self) -> dict:
-        return {"albedo": self.albedo, "texture": None if self.texture is None else self.texture.to_dict(),
-                "roughness": self.roughness, "specular": self.specular}
+        """The opaque kind's dict has no kind and ior (as specs from before them), so its scenes'
+        scene.json stays as it was."""
+        d = {"albedo": self.albedo, "texture": None if self.texture is None else self.texture.to_dict(),
+             "roughness": self.roughness, "specular": self.specular}
+        return d if self.kind == "opaque" else {**d, "kind": self.kind, "ior": self.ior}
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> Material:
-        return record_from_dict(cls, d, where, texture=_texture_from_dict)
+        return record_from_dict(cls, d, where, optional=("kind", "ior"), texture=_texture_from_dict)
 
 
 @dataclass(frozen=True)
@@ -292,9 +318,10 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "cameras", "objects", "sensor", "masks")
-# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone.
-_OPTIONAL = ("cameras",)
+              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth")
+# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone, and
+# the device's depth engine off.
+_OPTIONAL = ("cameras", "device_depth")
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -302,7 +329,8 @@ _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood
 @dataclass(frozen=True, eq=False)
 class SceneSpec(Checked):
     """Everything one scene's frames need: what to render (rig, pattern, objects, lights, poses,
-    Cycles settings) and how to turn the renders into stored frames (sensor model, masks).
+    Cycles settings) and how to turn the renders into stored frames (sensor model, masks, the simulated
+    device's depth engine).
 
     Two specs are equal when their dicts are (poses are arrays, which dataclass equality cannot
     compare)."""
@@ -324,11 +352,22 @@ class SceneSpec(Checked):
     objects: tuple[SceneObject, ...]
     sensor: SensorSpec
     masks: MaskParams
+    device_depth: DeviceDepthConfig = DeviceDepthConfig()  # the simulated device's depth engine
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "poses", _poses(self.poses, "SceneSpec.poses"))
         object.__setattr__(self, "cameras", _cameras(self.cameras, self.rig, "SceneSpec.cameras"))
+        if self.render.labels and len(self.objects) > MAX_LABELLED_OBJECTS:
+            raise ConfigError(f"SceneSpec.objects: {len(self.objects)} objects with render.labels = true; "
+                              f"allowed: at most {MAX_LABELLED_OBJECTS} (Blender's object pass index)")
+        see_through = [k for k, obj in enumerate(self.objects) if obj.material.kind in SEE_THROUGH_KINDS]
+        if see_through and not self.render.labels:
+            k = see_through[0]
+            raise ConfigError(f"SceneSpec.objects[{k}].material.kind = {self.objects[k].material.kind!r} "
+                              f"with render.labels = false; allowed: render.labels = true (the "
+                              f"transparent_or_mirror mask, and the visibility mask there, need the object "
+                              f"index pass)")
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, SceneSpec) and self.to_dict() == other.to_dict()
@@ -351,6 +390,7 @@ class SceneSpec(Checked):
             "objects": [obj.to_dict() for obj in self.objects],
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
+            "device_depth": self.device_depth.to_dict(),
         }
 
     @classmethod
@@ -389,5 +429,7 @@ class SceneSpec(Checked):
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
             sensor=SensorSpec.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
+            device_depth=DeviceDepthConfig.from_dict(d.get("device_depth", DeviceDepthConfig().to_dict()),
+                                                     f"{_WHERE}: device_depth"),
             **one_key,
         )

@@ -18,7 +18,9 @@ docs/FORMAT.md) get a row more, 'sgbm-stereo': SGBM between the left and right I
 on captured data (trainer.sgbm.stereo_sgbm_disparity, its range sized to the data with the pair's
 baseline). Its left-right disparity d_s = fx B_s / z is
 scored as the depth it gives, in the projector disparity's pixels: d_s B / B_s (B: the projector's
-baseline), so every row judges the same depth error alike.
+baseline), so every row judges the same depth error alike. Frames storing `device_depth` (the device's
+own depth: recordings, or renders with [device_depth] on) get a row 'device' (trainer.scoring's
+DeviceDepthMethod: that depth as disparity, a pixel without a reading an outlier).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from trainer.samples import DataError
 from trainer.scoring import (
     CLASSES,
     DEPTH_BINS,
+    DeviceDepthMethod,
     NetworkMethod,
     Scorer,
     SgbmMethod,
@@ -110,8 +113,9 @@ def choose_preprocessing(frames: list[FrameRef], validation: FrameSource | None,
 
 
 def eval_methods(model, data: FrameSource, nearest: float, device: str, precision: str) -> list:
-    """The network, SGBM plain and LCN (their range reaching `nearest` metres) and, on a stereo pair's
-    data, SGBM between its two IR images (its range sized with the pair's baseline)."""
+    """The network, SGBM plain and LCN (their range reaching `nearest` metres), on a stereo pair's data
+    SGBM between its two IR images (its range sized with the pair's baseline), and on data whose frames
+    store device_depth the device's own depth."""
     rig, reference = data.rig, load_reference(data)
     n_disp = num_disparities_for(rig, nearest)
     methods = [NetworkMethod(model, rig, device, precision),
@@ -120,6 +124,8 @@ def eval_methods(model, data: FrameSource, nearest: float, device: str, precisio
         pair_baseline = stereo_baseline(rig, data.name)
         methods.append(StereoSgbmMethod(num_disparities_for(rig, nearest, pair_baseline),
                                         rig.baseline / pair_baseline))  # d_s -> the projector disparity
+    if "device_depth" in data.channels:
+        methods.append(DeviceDepthMethod(rig))
     return methods
 
 
@@ -244,6 +250,7 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
     rig, chosen = data.rig, chosen_sgbm(rows)
     sgbm = next(m for m in scorer.methods if isinstance(m, SgbmMethod))
     stereo = next((m for m in scorer.methods if isinstance(m, StereoSgbmMethod)), None)
+    device = next((m for m in scorer.methods if isinstance(m, DeviceDepthMethod)), None)
     table = format_table([r for r in rows if r["range"] not in CLASSES])
     by_class = [r for r in rows if r["range"] in CLASSES]
     table += ("\nBy pixel class (the edge mask as the frames store it; solvable: the 9 x 9 window's dots "
@@ -273,5 +280,9 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
            "block 5, P1 200, P2 800, no LCN; GigaDepth's captured-data baseline), its disparity scored as "
            f"the depth it gives, in projector disparity px (x {stereo.to_projector:.3g}: the projector's "
            "baseline over the pair's).\n")
+        + ("" if device is None else
+           f"{device.name}: {device.label} (the frames' device_depth channel: a recording's, or the "
+           "simulated device's, docs/DEVICE_DEPTH.md), scored as the disparity fx b / z of its depth; a "
+           "pixel without a reading is an outlier.\n")
         + f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     return header + table + "\n" + verdict(rows, chosen) + "\n"

@@ -4,11 +4,12 @@ choice all count with it.
 A method is an object with a `name`, the frame `channels` it reads beyond the IR, `predict(frame)` (its
 full-resolution disparity in camera px, nan where it gives none) and `reachable(gt, depth)` (the pixels
 whose GT disparity lies inside the range the method can represent: its feasible range): the network
-(NetworkMethod), SGBM against the pattern (SgbmMethod) and SGBM between a stereo pair's IR images
-(StereoSgbmMethod). The Scorer runs methods over frames and counts, per method and pixel class ("all",
-each GT depth range, on / off the edge mask, solvable or not: dotsim/solvable.py), the valid pixels, those
-outside the method's range and the outliers at each threshold (trainer/metrics.py); `rows()` turns the
-counts into table rows. `error_strip` draws the one error image both eval and validation show.
+(NetworkMethod), SGBM against the pattern (SgbmMethod), SGBM between a stereo pair's IR images
+(StereoSgbmMethod) and the depth camera's own depth stored beside the frames (DeviceDepthMethod). The
+Scorer runs methods over frames and counts, per method and pixel class ("all", each GT depth range, on /
+off the edge mask, solvable or not: dotsim/solvable.py), the valid pixels, those outside the method's
+range and the outliers at each threshold (trainer/metrics.py); `rows()` turns the counts into table
+rows. `error_strip` draws the one error image both eval and validation show.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from dotsim.frame_source import FrameRef
 from dotsim.rig.geometry import Rig, depth_to_projector_column, disparity_to_depth
 from dotsim.solvable import solvable_pixels
 from trainer.checkpoint import predict_disparity
+from trainer.device_depth_row import DEVICE_LABEL, DEVICE_METHOD, device_disparity
 from trainer.metrics import (
     THRESHOLDS,
     joint_outliers,
@@ -120,6 +122,24 @@ class StereoSgbmMethod:
 
     def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
         return gt / self.to_projector <= self.num_disparities - 1
+
+
+@dataclass(frozen=True)
+class DeviceDepthMethod:
+    """The depth camera's own depth, the frames' device_depth channel (a recording's, or the simulated
+    device's: docs/DEVICE_DEPTH.md), as the projector disparity fx b / z of its depth; a pixel without a
+    reading (NaN) is an outlier. It has no range of its own to fall outside: every pixel is reachable."""
+
+    rig: Rig
+    name: str = DEVICE_METHOD
+    label: str = DEVICE_LABEL
+    channels: tuple[str, ...] = ("device_depth",)
+
+    def predict(self, frame: dict) -> np.ndarray:
+        return device_disparity(frame, self.rig)
+
+    def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        return np.ones(gt.shape, bool)
 
 
 class Scorer:

@@ -22,6 +22,7 @@ from dotsim.channels import (
     CHANNEL,
     CHANNELS,
     DERIVED_CHANNELS,
+    LABEL_CHANNELS,
     MASK_CHANNELS,
     RENDERED_CHANNELS,
     stored_channels,
@@ -44,7 +45,8 @@ RIG_ATTRIBUTE = "dotsim_rig"
 
 # Dtype per channel as read (what read_frame returns), from the one declaration of the channels
 # (dotsim.channels). Why each was chosen: docs/FORMAT.md. Masks are uint8 in memory and UINT
-# (32-bit) in the EXR: EXR has no 8-bit pixel type.
+# (32-bit) in the EXR: EXR has no 8-bit pixel type. Labels are UINT too (lossless), read as int32 (torch
+# has no uint32 arithmetic).
 FRAME_CHANNELS: dict[str, np.dtype] = {c.name: c.dtype for c in CHANNELS}
 # How far (relative) a writer's own derived channel may lie from what format 2.x computes on read
 # (DERIVED_CHANNELS): float32 rounding of depth and result.
@@ -100,6 +102,12 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
         if not np.issubdtype(a.dtype, np.integer) or not np.isin(a, (0, 1)).all():
             raise FormatError(f"{where}: mask channel {name!r} must be bool or integers 0/1, "
                               f"found dtype {a.dtype} with values outside {{0, 1}}")
+        return a.astype(np.uint32)
+    if name in LABEL_CHANNELS:
+        integers = np.issubdtype(a.dtype, np.integer)
+        if not integers or a.size and (a.min() < 0 or a.max() > np.iinfo(np.int32).max):
+            raise FormatError(f"{where}: label channel {name!r} must hold integers 0 to 2^31 - 1, found "
+                              f"dtype {a.dtype}" + (f" with values {a.min()}..{a.max()}" if a.size else ""))
         return a.astype(np.uint32)
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise FormatError(f"{where}: channel {name!r} must be numeric, found dtype {a.dtype}")
@@ -250,6 +258,12 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
             if a.max(initial=0) > 1:
                 raise FormatError(f"{path}: mask channel {name!r} has values other than 0/1")
             a = a.astype(np.uint8)
+        elif name in LABEL_CHANNELS:
+            if a.dtype != np.uint32:
+                raise FormatError(f"{path}: label channel {name!r} stored as {a.dtype}, expected UINT")
+            if a.max(initial=0) > np.iinfo(np.int32).max:
+                raise FormatError(f"{path}: label channel {name!r} has values beyond 2^31 - 1")
+            a = a.astype(np.int32)
         elif a.dtype != want:
             raise FormatError(f"{path}: channel {name!r} stored as {a.dtype}, expected {want}")
         out[name] = a

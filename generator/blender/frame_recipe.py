@@ -15,11 +15,18 @@ same spot light), B the world and the extra lights (the projector off); the Z pa
   bounces and without the extra lights gives its direct light at every pixel, added to them.
 - With extra lights and "shared": the one render above, whose direct passes then miss the spot
   where an extra light was sampled; the spot is declared SAMPLING_BOOST times brighter to Cycles.
+
+Two things of a scene add to the first (path-traced) render of its recipe, and to nothing else, so a
+scene without them renders as before, byte for byte:
+- [render] labels or normals: the object index and normal passes, which Cycles writes from the first
+  surface a camera ray hits and which change no sample, written by a File Output node to a data EXR.
+- transparent objects: light seen through glass is transmission light, which Cycles keeps in passes
+  of its own, so the light sums that make R and G (and the direct EXR) add the transmission passes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -27,7 +34,10 @@ if TYPE_CHECKING:
 
 # The view layer's diffuse and glossy light passes (Blender's names after `use_pass_`).
 LIGHT_PASSES = ("diffuse_indirect", "diffuse_color", "diffuse_direct",
-                "glossy_indirect", "glossy_color", "glossy_direct")
+                "glossy_indirect", "glossy_color", "glossy_direct",
+                "transmission_indirect", "transmission_color", "transmission_direct")
+# The view layer's data passes: the index of the first surface's object and its normal (world frame).
+DATA_PASSES = ("object_index", "normal")
 
 # Cycles samples one light per shading point, chosen by each light's energy; it cannot see that the
 # spot's node tree carries the projector, the pass that must be clean at one sample. Where an extra
@@ -50,7 +60,10 @@ class Render:
     compositing, the image is the render as is. image: (channel, raw pass) pairs read from the
     image (R, G, B; A = Z). direct_file: (channel, raw pass) pairs that a File Output node writes to
     a second EXR from the direct light (diffuse direct x diffuse colour + glossy direct x glossy
-    colour); () for none. A raw pass that two renders give is their sum.
+    colour); () for none. A raw pass that two renders give is their sum. data_file: (channel, raw
+    pass) pairs a File Output node writes to a data EXR from the object index (R) and the normal (G, B,
+    A: x, y, z in Blender's world frame) passes; () for none. transmission: the light sums add the
+    transmission passes (diffuse, glossy and transmission light x its colour).
     """
     bounces: bool
     extra_lights: bool
@@ -58,6 +71,14 @@ class Render:
     red_green: str | None
     image: tuple[tuple[str, str], ...]
     direct_file: tuple[tuple[str, str], ...] = ()
+    data_file: tuple[tuple[str, str], ...] = ()
+    transmission: bool = False
+
+    @property
+    def data_passes(self) -> frozenset[str]:
+        """The DATA_PASSES the data EXR needs switched on."""
+        return frozenset(("object_index" if name == "object_index" else "normal")
+                         for _, name in self.data_file)
 
 
 @dataclass(frozen=True)
@@ -70,12 +91,17 @@ class FrameRecipe:
     @property
     def raw_passes(self) -> tuple[str, ...]:
         """The raw passes of each frame, in the order they are first written."""
-        names = [name for render in self.renders for _, name in render.image + render.direct_file]
+        names = [name for render in self.renders
+                 for _, name in render.image + render.direct_file + render.data_file]
         return tuple(dict.fromkeys(names))
 
 
 _PASSES = (("R", "projector"), ("G", "flood"), ("B", "ambient"), ("A", "depth"))
 _DIRECT = (("R", "projector_direct"), ("G", "flood_direct"))
+# The data EXR: the object index (the object's place in the spec's objects + 1, 0 where no surface is
+# hit) and the normal.
+LABEL_PASSES = (("R", "object_index"),)
+NORMAL_PASSES = (("G", "normal_x"), ("B", "normal_y"), ("A", "normal_z"))
 
 # All light in R and G, the spot's direct light written apart: the one render of a frame.
 ALL_LIGHT_RENDER = Render(
@@ -105,8 +131,24 @@ WITHOUT_DIRECT_LIGHT = FrameRecipe(
 
 def frame_recipe(spec: SceneSpec) -> FrameRecipe:
     """How the frames of `spec` are rendered (the module docstring): by its extra lights and its
-    render.direct_light (validated with the spec)."""
+    render.direct_light (validated with the spec), its render.labels and render.normals, and whether it
+    has transparent objects."""
     if not spec.lights:
-        return FrameRecipe((ALL_LIGHT_RENDER,), 1.0)
-    return {"separate": FrameRecipe((INDIRECT_LIGHT_RENDER, DIRECT_LIGHT_RENDER), 1.0),
-            "shared": FrameRecipe((ALL_LIGHT_RENDER,), SAMPLING_BOOST)}[spec.render.direct_light]
+        recipe = FrameRecipe((ALL_LIGHT_RENDER,), 1.0)
+    else:
+        recipe = {"separate": FrameRecipe((INDIRECT_LIGHT_RENDER, DIRECT_LIGHT_RENDER), 1.0),
+                  "shared": FrameRecipe((ALL_LIGHT_RENDER,), SAMPLING_BOOST)}[spec.render.direct_light]
+    first, *rest = recipe.renders
+    data = (LABEL_PASSES if spec.render.labels else ()) + (NORMAL_PASSES if spec.render.normals else ())
+    if data:
+        first = replace(first, data_file=data)
+    if any(obj.material.kind == "transparent" for obj in spec.objects):
+        first = with_transmission(first)
+    return replace(recipe, renders=(first, *rest))
+
+
+def with_transmission(render: Render) -> Render:
+    """`render` with the transmission passes in its light sums (and switched on beside the diffuse and
+    glossy ones it has). The direct render needs none: it composites nothing."""
+    passes = {name.replace("diffuse", "transmission") for name in render.light_passes if "diffuse" in name}
+    return replace(render, transmission=True, light_passes=render.light_passes | passes)

@@ -55,6 +55,25 @@ def blender_matrix_from_opencv_pose(world_from_opencv: np.ndarray) -> np.ndarray
     return pose @ OPENCV_TO_BLENDER_AXES
 
 
+def camera_frame_normals(x: np.ndarray, y: np.ndarray, z: np.ndarray, world_from_camera: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cycles' normal pass (world frame x, y, z; with several samples per pixel their sum's mean, so
+    shorter than 1 at edges) -> unit normals in the camera's OpenCV frame (float32), nan where the pass
+    is 0 (no surface hit). world_from_camera: the camera's 4x4 pose, OpenCV axes.
+
+    >>> pose = np.eye(4); pose[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # looking along world +y
+    >>> [float(a[0, 0]) for a in camera_frame_normals(*(np.full((1, 1), v) for v in (0, -2, 0)), pose)]
+    [0.0, 0.0, -1.0]
+    """
+    rotation = np.asarray(world_from_camera, np.float64)[:3, :3]
+    world = np.stack([x, y, z], axis=-1).astype(np.float64)
+    camera = world @ rotation  # each row n -> R^T n
+    length = np.linalg.norm(camera, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        camera = np.where(length > 0, camera / length, np.nan).astype(np.float32)
+    return camera[..., 0], camera[..., 1], camera[..., 2]
+
+
 def projector_pose(
     world_from_camera: np.ndarray, rotation: np.ndarray, translation: np.ndarray
 ) -> np.ndarray:

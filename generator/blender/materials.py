@@ -9,6 +9,15 @@ carry projector, flood and ambient light in R, G and B of one render.
 Per-object values (albedo, roughness, specular, texture scale and contrast) live in object custom
 properties read by Attribute nodes, so one material per texture image serves every object and
 scene: few node trees to build, nothing to grow between scenes.
+
+Transparent and metal objects (docs/CONFIG.md "Materials") have one material each, grey too: glass
+(Cycles' Glass BSDF: Fresnel reflection and refraction by the object's index of refraction, its
+albedo the transmittance) and metal (a fully metallic Principled BSDF, its albedo the reflectance at
+normal incidence). A point light cannot shine through glass in a path tracer (a delta light behind a
+delta refraction is a caustic no path samples), so glass lets shadow rays through unbent, dimmed by
+its transmittance and the Fresnel loss of two surfaces at normal incidence: the projector's dots land
+on what lies behind it where they would without the small sideways shift of refraction (none through
+a plate at normal incidence, about t (1 - 1/n) times the angle for a plate t thick).
 """
 
 from __future__ import annotations
@@ -19,7 +28,20 @@ from pathlib import Path
 import bpy
 
 # Object custom-property names read by the shared materials.
-PROPERTIES = ("dotsim_albedo", "dotsim_roughness", "dotsim_specular", "dotsim_tex_scale", "dotsim_contrast")
+PROPERTIES = ("dotsim_albedo", "dotsim_roughness", "dotsim_specular", "dotsim_tex_scale", "dotsim_contrast",
+              "dotsim_ior", "dotsim_shadow_transmittance")
+
+
+def shadow_transmittance(transmittance: float, ior: float) -> float:
+    """The share of a shadow ray's light a transparent object lets through: its transmittance times
+    the Fresnel transmission of two surfaces at normal incidence, (1 - R0)^2 with R0 = ((n - 1) /
+    (n + 1))^2.
+
+    >>> round(shadow_transmittance(1.0, 1.5), 4)
+    0.9216
+    """
+    reflectance = ((ior - 1.0) / (ior + 1.0)) ** 2
+    return transmittance * (1.0 - reflectance) ** 2
 
 
 def _attribute(nodes, name: str):
@@ -86,6 +108,47 @@ def build_material(name: str, image: bpy.types.Image | None) -> bpy.types.Materi
     return material
 
 
+def build_glass_material(name: str) -> bpy.types.Material:
+    """Glass for camera rays (the object's dotsim_ior, its albedo the transmittance), transparent for
+    shadow rays (dotsim_shadow_transmittance): the module docstring says why."""
+    material = bpy.data.materials.new(name)
+    tree = material.node_tree
+    tree.nodes.clear()
+    glass = tree.nodes.new("ShaderNodeBsdfGlass")
+    glass.distribution = "GGX"
+    glass.inputs["Roughness"].default_value = 0.0  # a smooth surface: Cycles samples it as a delta
+    tree.links.new(_attribute(tree.nodes, "dotsim_albedo"), glass.inputs["Color"])
+    tree.links.new(_attribute(tree.nodes, "dotsim_ior"), glass.inputs["IOR"])
+    through = tree.nodes.new("ShaderNodeBsdfTransparent")
+    tree.links.new(_attribute(tree.nodes, "dotsim_shadow_transmittance"), through.inputs["Color"])
+    mix = tree.nodes.new("ShaderNodeMixShader")
+    tree.links.new(tree.nodes.new("ShaderNodeLightPath").outputs["Is Shadow Ray"], mix.inputs["Fac"])
+    tree.links.new(glass.outputs["BSDF"], mix.inputs[1])
+    tree.links.new(through.outputs["BSDF"], mix.inputs[2])
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    tree.links.new(mix.outputs["Shader"], output.inputs["Surface"])
+    return material
+
+
+def build_metal_material(name: str) -> bpy.types.Material:
+    """A fully metallic Principled BSDF: the object's albedo its reflectance at normal incidence, its
+    roughness its own."""
+    material = bpy.data.materials.new(name)
+    tree = material.node_tree
+    tree.nodes.clear()
+    bsdf = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Metallic"].default_value = 1.0
+    tree.links.new(_attribute(tree.nodes, "dotsim_albedo"), bsdf.inputs["Base Color"])
+    tree.links.new(_attribute(tree.nodes, "dotsim_roughness"), bsdf.inputs["Roughness"])
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    tree.links.new(bsdf.outputs["BSDF"], output.inputs["Surface"])
+    return material
+
+
+# The materials of the kinds that are not grey opaque surfaces (generator.scene_spec.MATERIAL_KINDS).
+SPECIAL_MATERIALS = {"transparent": build_glass_material, "metal": build_metal_material}
+
+
 class MaterialCache:
     """One material per texture path (plus one untextured), least recently used dropped beyond
     `capacity` together with its image, so memory stays bounded over many scenes."""
@@ -94,7 +157,15 @@ class MaterialCache:
         self.capacity = capacity
         self._materials: OrderedDict[str, bpy.types.Material] = OrderedDict()
 
-    def get(self, texture_path: str | None) -> bpy.types.Material:
+    def get(self, texture_path: str | None, kind: str = "opaque") -> bpy.types.Material:
+        """The material of a surface of `kind` (a SPECIAL_MATERIALS one has no texture), textured by
+        `texture_path` or not."""
+        if kind in SPECIAL_MATERIALS:
+            key = f"<{kind}>"
+            if key not in self._materials:
+                self._materials[key] = SPECIAL_MATERIALS[kind](f"dotsim_{kind}")
+            self._materials.move_to_end(key)
+            return self._materials[key]
         key = texture_path or ""
         if key in self._materials:
             self._materials.move_to_end(key)

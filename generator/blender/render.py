@@ -43,8 +43,8 @@ import numpy as np
 from generator.scene_spec import CameraView, SceneRenderSettings, SceneSpec
 
 from .exr import read_exr
-from .frame_recipe import LIGHT_PASSES, FrameRecipe, Render, frame_recipe
-from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, projector_pose
+from .frame_recipe import DATA_PASSES, LIGHT_PASSES, FrameRecipe, Render, frame_recipe
+from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, camera_frame_normals, projector_pose
 from .pattern_filter import footprint_width
 from .projector import ProjectorLight
 from .scene_builder import SceneContent
@@ -109,27 +109,66 @@ def _configure_render(scene: bpy.types.Scene) -> None:
     scene.render.use_file_extension = False
 
 
-def _light_of(tree: bpy.types.NodeTree, layers: bpy.types.Node, kind: str) -> bpy.types.NodeSocket:
-    """Diffuse `kind` x diffuse colour + glossy `kind` x glossy colour (kind "Direct" or "Indirect"):
-    how Cycles itself sums those passes into the combined image."""
-    terms = []
-    for light, colour in ((f"Diffuse {kind}", "Diffuse Color"), (f"Glossy {kind}", "Glossy Color")):
+def _light_of(tree: bpy.types.NodeTree, layers: bpy.types.Node, kind: str,
+              transmission: bool = False) -> bpy.types.NodeSocket:
+    """Diffuse `kind` x diffuse colour + glossy `kind` x glossy colour (kind "Direct" or "Indirect"),
+    and with `transmission` + transmission `kind` x transmission colour: how Cycles itself sums those
+    passes into the combined image."""
+    parts = ("Diffuse", "Glossy") + (("Transmission",) if transmission else ())
+    total = None
+    for part in parts:
         product = tree.nodes.new("ShaderNodeVectorMath")
         product.operation = "MULTIPLY"
-        tree.links.new(layers.outputs[light], product.inputs[0])
-        tree.links.new(layers.outputs[colour], product.inputs[1])
-        terms.append(product)
-    total = tree.nodes.new("ShaderNodeVectorMath")
-    total.operation = "ADD"
-    for k, term in enumerate(terms):
-        tree.links.new(term.outputs[0], total.inputs[k])
+        tree.links.new(layers.outputs[f"{part} {kind}"], product.inputs[0])
+        tree.links.new(layers.outputs[f"{part} Color"], product.inputs[1])
+        if total is None:
+            total = product
+            continue
+        added = tree.nodes.new("ShaderNodeVectorMath")
+        added.operation = "ADD"
+        tree.links.new(total.outputs[0], added.inputs[0])
+        tree.links.new(product.outputs[0], added.inputs[1])
+        total = added
     return total.outputs[0]
 
 
-def _build_compositor(indirect: bool, direct_file: Path | None) -> bpy.types.NodeTree:
+def _file_output(tree: bpy.types.NodeTree, path: Path, name: str, colour_mode: str) -> bpy.types.Node:
+    """A File Output node writing one uncompressed float EXR at `path` from its one input."""
+    node = tree.nodes.new("CompositorNodeOutputFile")
+    node.name = name
+    node.directory = str(path.parent)
+    node.file_name = path.name  # Blender appends the item's name, which is empty
+    settings = node.format
+    settings.media_type = "IMAGE"
+    settings.file_format = "OPEN_EXR"
+    settings.color_mode = colour_mode
+    settings.color_depth = "32"
+    settings.exr_codec = "NONE"
+    node.file_output_items.new("RGBA", "")
+    return node
+
+
+def _data_image(tree: bpy.types.NodeTree, layers: bpy.types.Node, data: tuple[tuple[str, str], ...]
+                ) -> bpy.types.NodeSocket:
+    """RGBA of the data passes `data` asks for: the object index in R, the normal's x, y, z in G, B, A."""
+    combine = tree.nodes.new("CompositorNodeCombineColor")
+    names = {name for _, name in data}
+    if "object_index" in names:
+        tree.links.new(layers.outputs["Object Index"], combine.inputs[0])
+    if "normal_x" in names:
+        normal = tree.nodes.new("ShaderNodeSeparateXYZ")
+        tree.links.new(layers.outputs["Normal"], normal.inputs[0])
+        for k in range(3):
+            tree.links.new(normal.outputs[k], combine.inputs[1 + k])
+    return combine.outputs[0]
+
+
+def _build_compositor(render: Render, direct_file: Path, data_file: Path) -> bpy.types.NodeTree:
     """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file.
-    indirect: R and G of that image hold only indirect light. direct_file: a File Output node also
-    writes the direct light (R, G; B is the world's) as an RGB EXR there."""
+    With render.red_green "indirect", R and G of that image hold only indirect light. With
+    render.direct_file a File Output node also writes the direct light (R, G; B is the world's) as an
+    RGB EXR at `direct_file`, with render.data_file another the data passes (_data_image) at
+    `data_file`."""
     tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     layers = tree.nodes.new("CompositorNodeRLayers")
@@ -138,22 +177,15 @@ def _build_compositor(indirect: bool, direct_file: Path | None) -> bpy.types.Nod
     combined = tree.nodes.new("CompositorNodeSeparateColor")
     tree.links.new(layers.outputs["Image"], combined.inputs[0])
     red_green = combined
-    if indirect:
+    if render.red_green == "indirect":
         red_green = tree.nodes.new("CompositorNodeSeparateColor")
-        tree.links.new(_light_of(tree, layers, "Indirect"), red_green.inputs[0])
-    if direct_file is not None:
-        direct = tree.nodes.new("CompositorNodeOutputFile")
-        direct.name = "direct"
-        direct.directory = str(direct_file.parent)
-        direct.file_name = direct_file.name  # Blender appends the item's name, which is empty
-        settings = direct.format
-        settings.media_type = "IMAGE"
-        settings.file_format = "OPEN_EXR"
-        settings.color_mode = "RGB"
-        settings.color_depth = "32"
-        settings.exr_codec = "NONE"
-        direct.file_output_items.new("RGBA", "")
-        tree.links.new(_light_of(tree, layers, "Direct"), direct.inputs[0])
+        tree.links.new(_light_of(tree, layers, "Indirect", render.transmission), red_green.inputs[0])
+    if render.direct_file:
+        direct = _file_output(tree, direct_file, "direct", "RGB")
+        tree.links.new(_light_of(tree, layers, "Direct", render.transmission), direct.inputs[0])
+    if render.data_file:
+        data = _file_output(tree, data_file, "data", "RGBA")
+        tree.links.new(_data_image(tree, layers, render.data_file), data.inputs[0])
     tree.links.new(red_green.outputs[0], combine.inputs[0])
     tree.links.new(red_green.outputs[1], combine.inputs[1])
     tree.links.new(combined.outputs[2], combine.inputs[2])
@@ -206,6 +238,7 @@ class SceneRenderer:
         self._tmp = Path(tempfile.mkdtemp(prefix="dotsim_render_", dir=shm if shm.is_dir() else None))
         self.scene.render.filepath = str(self._tmp / "frame.exr")
         self._direct_file = self._tmp / "direct.exr"
+        self._data_file = self._tmp / "data.exr"
         self._tree: bpy.types.NodeTree | None = None  # the compositor
         # The render whose passes and compositor the bpy scene holds; None after passes were off.
         self._composited: Render | None = None
@@ -224,19 +257,20 @@ class SceneRenderer:
         light was lost that way)."""
         if self._composited == render:
             return
-        self._set_light_passes(render.light_passes)
-        tree = _build_compositor(render.red_green == "indirect",
-                                 self._direct_file if render.direct_file else None)
+        self._set_light_passes(render)
+        tree = _build_compositor(render, self._direct_file, self._data_file)
         self.scene.compositing_node_group = tree
         if self._tree is not None:
             bpy.data.node_groups.remove(self._tree)
         self._tree, self._composited = tree, render
 
-    def _set_light_passes(self, passes: frozenset[str]) -> None:
-        """Switch the LIGHT_PASSES in `passes` on and the others off."""
+    def _set_light_passes(self, render: Render) -> None:
+        """Switch the LIGHT_PASSES and DATA_PASSES `render` uses on and the others off."""
         layer = self.scene.view_layers[0]
         for name in LIGHT_PASSES:
-            setattr(layer, f"use_pass_{name}", name in passes)
+            setattr(layer, f"use_pass_{name}", name in render.light_passes)
+        for name in DATA_PASSES:
+            setattr(layer, f"use_pass_{name}", name in render.data_passes)
 
     @contextlib.contextmanager
     def _set_for(self, render: Render):
@@ -251,7 +285,7 @@ class SceneRenderer:
             obj.hide_render = True
         if render.red_green is None:
             self.scene.render.use_compositing = False
-            self._set_light_passes(render.light_passes)
+            self._set_light_passes(render)
             self._composited = None
         else:
             self._use_compositor(render)
@@ -356,21 +390,28 @@ class SceneRenderer:
             for frame, pose in zip(frames, poses, strict=True):
                 for camera in self.cameras:
                     self.place_rig(pose, camera)
-                    if render.direct_file:
-                        self._direct_file.unlink(missing_ok=True)
+                    self._direct_file.unlink(missing_ok=True)
+                    self._data_file.unlink(missing_ok=True)
                     _add_passes(frame, self._render_channels(), render.image, camera.suffix)
                     if render.direct_file:
-                        if not self._direct_file.is_file():
-                            raise RuntimeError(f"Cycles' compositor wrote no direct light to "
-                                               f"{self._direct_file}")
-                        _add_passes(frame, read_exr(self._direct_file), render.direct_file, camera.suffix)
+                        direct = _read_written(self._direct_file, "direct light")
+                        _add_passes(frame, direct, render.direct_file, camera.suffix)
+                    if render.data_file:
+                        data = _read_written(self._data_file, "object index and normal passes")
+                        if "G" in {channel for channel, _ in render.data_file}:
+                            data["G"], data["B"], data["A"] = camera_frame_normals(
+                                data["G"], data["B"], data["A"], camera.pose(pose))
+                        _add_passes(frame, data, render.data_file, camera.suffix)
 
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth,
         projector_direct, flood_direct} float32 (H, W); depth is planar (metres), inf where nothing
         is hit; projector and flood hold direct + indirect light, the *_direct passes the spot's
-        direct light alone (the recipe's raw_passes: frame_recipe.WITHOUT_DIRECT_LIGHT has none); the
-        same of each further camera of the spec, named with its suffix (CameraView.suffix)."""
+        direct light alone (the recipe's raw_passes: frame_recipe.WITHOUT_DIRECT_LIGHT has none); with
+        render.labels object_index (the first surface's object's place in spec.objects + 1, 0 where
+        none is hit), with render.normals normal_x, normal_y, normal_z (its unit normal in the camera's
+        OpenCV frame, nan where none is hit); the same of each further camera of the spec, named with its
+        suffix (CameraView.suffix)."""
         return self.render_poses([world_from_camera])[0]
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
@@ -394,6 +435,13 @@ class SceneRenderer:
         self.scene.render.use_persistent_data = False  # setup() switches it on again (refresh)
         _return_freed_memory()
         return frames
+
+
+def _read_written(path: Path, what: str) -> dict[str, np.ndarray]:
+    """The channels of an EXR the compositor's File Output node wrote; RuntimeError when it wrote none."""
+    if not path.is_file():
+        raise RuntimeError(f"Cycles' compositor wrote no {what} to {path}")
+    return read_exr(path)
 
 
 def _return_freed_memory() -> None:

@@ -36,7 +36,7 @@ from .geometry import (
     load_npz_mesh,
     primitive_mesh,
 )
-from .materials import MaterialCache
+from .materials import MaterialCache, shadow_transmittance
 
 # Ambient light is rendered in blue only (projector in red, flood in green); see projector.py.
 AMBIENT_COLOUR = (0.0, 0.0, 1.0)
@@ -142,7 +142,7 @@ class SceneContent:
             self.add_light(light, f"lights[{k}]")
         in_use = {obj.mesh.path for obj in spec.objects if isinstance(obj.mesh, AssetMesh)}
         for k, obj in enumerate(spec.objects):
-            self._add_object(obj, f"objects[{k}]", in_use)
+            self._add_object(obj, f"objects[{k}]", in_use).pass_index = k + 1 if spec.render.labels else 0
 
     @functools.singledispatchmethod
     def add_light(self, light, where: str) -> None:
@@ -175,7 +175,7 @@ class SceneContent:
         except ValueError as error:
             raise ValueError(f"scene spec: {where}: {error}") from None
 
-    def _add_object(self, spec_object: SceneObject, where: str, in_use: set[str]) -> None:
+    def _add_object(self, spec_object: SceneObject, where: str, in_use: set[str]) -> bpy.types.Object:
         mesh, size = self.mesh(spec_object.mesh, f"{where}.mesh", in_use)
         obj = bpy.data.objects.new(spec_object.name, mesh)
         obj.location = spec_object.location
@@ -189,13 +189,18 @@ class SceneContent:
         if material.texture is not None:
             obj["dotsim_tex_scale"] = material.texture.scale
             obj["dotsim_contrast"] = material.texture.contrast
+        if material.kind == "transparent":
+            obj["dotsim_ior"] = material.ior
+            obj["dotsim_shadow_transmittance"] = shadow_transmittance(material.albedo, material.ior)
         try:
-            blender_material = self.materials.get(None if material.texture is None else material.texture.path)
+            blender_material = self.materials.get(None if material.texture is None else material.texture.path,
+                                                  material.kind)
         except ValueError as error:
             raise ValueError(f"scene spec: {where}.material.texture: {error}") from None
         self.collection.objects.link(obj)
         obj.material_slots[0].link = "OBJECT"
         obj.material_slots[0].material = blender_material
+        return obj
 
     def release(self) -> None:
         """Remove everything this object created (used when the renderer closes)."""

@@ -57,14 +57,17 @@ def _run_record(config: Config, split: str, seed: int) -> dict:
 
 
 def _with_added_defaults(existing: dict, record: dict) -> dict:
-    """`existing` (a dataset's generate.json) with the keys a later dotsim added to the config, where
-    `record` gives them their default: such a key at its default renders as before it existed (e.g.
-    [sensor] speckle_contrast = 0, [rig] stereo = false), so a dataset made before it resumes."""
+    """`existing` (a dataset's generate.json) with the keys and tables a later dotsim added to the
+    config, where `record` gives them their default: such a key at its default renders as before it
+    existed (e.g. [sensor] speckle_contrast = 0, [rig] stereo = false, the whole [device_depth] table
+    with its engine off), so a dataset made before it resumes."""
     defaults = Config().to_dict()
     config = {section: dict(values) if isinstance(values, dict) else values
               for section, values in existing.get("config", {}).items()}
     for section, values in record["config"].items():
-        if isinstance(values, dict) and isinstance(config.get(section), dict):
+        if section not in config and isinstance(values, dict) and values == defaults.get(section):
+            config[section] = dict(values)
+        elif isinstance(values, dict) and isinstance(config.get(section), dict):
             for key, value in values.items():
                 if key not in config[section] and value == defaults.get(section, {}).get(key, object()):
                     config[section][key] = value

@@ -6,7 +6,7 @@ import pytest
 
 from commands import cli, show
 from dotsim import dataset as ds
-from dotsim.channels import rendered_channels
+from dotsim.channels import SWITCHES, rendered_channels
 from dotsim.rig.presets import get_preset
 
 RIG = get_preset("structure_core").scaled(0.05)  # 61 x 45
@@ -63,8 +63,57 @@ def test_sheet_layout_and_known_pixels(tmp_path):
     assert near[0] > near[2] and far[2] > far[0]
 
 
-def test_the_columns_are_the_declared_channels_but_a_devices_depth():
-    assert show.COLUMNS == rendered_channels(stereo=True)
+def test_the_columns_are_the_declared_channels_in_their_order():
+    # the normals are one column, that of normal_x
+    assert set(show.COLUMNS) == set(rendered_channels(True, tuple(SWITCHES))) - {"normal_y", "normal_z"}
+    assert show.COLUMNS.index("depth") < show.COLUMNS.index("device_depth") < show.COLUMNS.index("ir_right")
+
+
+def test_labels_get_a_colour_each_and_normals_one_rgb_tile(tmp_path):
+    """instance: 0 (the room) black, each object a colour of its own, the same in every frame;
+    material likewise; the normals (0, 0, -1) facing the camera drawn as (n + 1) / 2: RGB (128, 128, 0),
+    black where there is none."""
+    instance = np.zeros((H, W), np.int32)
+    instance[:, 20:40], instance[:, 40:] = 3, 9
+    normal_z = np.full((H, W), -1.0, np.float32)
+    normal_z[:10, :10] = np.nan
+    material = np.where(instance == 9, 3, np.minimum(instance, 1))
+    frames = [dict(constant_frame(k), instance=instance, material=material,
+                   transparent_or_mirror=instance == 9, normal_x=np.zeros((H, W)),
+                   normal_y=np.zeros((H, W)), normal_z=normal_z) for k in range(2)]
+    meta = {"split": "test", "rig": RIG.to_dict(), "pattern": {"sha256": "0" * 64},
+            "poses": [np.eye(4).tolist()] * 2}
+    channels = rendered_channels(False, ("labels", "normals"))
+    scene = ds.write_scene(tmp_path, 0, meta, frames, channels=channels)
+    loaded, title, labels, meanings = show.load_for_sheet(scene)
+    sheet, layout = show.contact_sheet(loaded, title, 122, labels, meanings)
+    assert [name for k, name in layout.tiles if k == 0][-4:] == ["instance", "material",
+                                                               "transparent_or_mirror", "normal_x"]
+
+    def tile(k, name):
+        x, y, w, h = layout.tiles[(k, name)]
+        return sheet[y:y + h, x:x + w].astype(int)
+
+    room, three, nine = (tile(1, "instance")[-1, 2 * c] for c in (5, 30, 50))
+    assert room.tolist() == [0, 0, 0] and three.sum() > 200 and nine.sum() > 200
+    assert (three != nine).any() and (tile(0, "instance") == tile(1, "instance")).all()
+    assert (tile(0, "material")[-1, 60] != tile(0, "material")[-1, 100]).any()  # classes 1 and 3
+    normals = tile(0, "normal_x")
+    assert normals[0, 0].tolist() == [0, 0, 0] and normals[-1, -1].tolist() == [0, 128, 128]  # BGR
+
+
+def test_a_devices_depth_is_colour_mapped_black_where_it_gave_none():
+    """The device's depth (a recording's, or a render's with [device_depth] on): metres on the turbo
+    map, black where it reported none (NaN), like ground truth where nothing is hit."""
+    frames = []
+    for k in range(3):
+        device = np.full((H, W), 2.0 + k, np.float32)
+        device[:, :12] = np.nan  # a left band without depth
+        frames.append(dict(constant_frame(k), device_depth=device))
+    drawn, layout = show.contact_sheet(frames, "device", 122)
+    x, y, w, h = layout.tiles[(0, "device_depth")]
+    tile = drawn[y:y + h, x:x + w].astype(int)
+    assert (tile[:, :20] == 0).all() and (tile[:, 30:].sum(axis=2) > 0).all()
 
 
 def test_a_stereo_pair_adds_its_three_columns(tmp_path):

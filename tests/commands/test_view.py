@@ -147,8 +147,9 @@ def test_predictions_beside_the_truth_and_one_frame(scene, tmp_path):
 
 
 def test_the_logged_channels_are_the_declared_grey_ones_masks_and_depth():
-    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "ir_right",
-                           "stereo_visibility")
+    assert view.VIEWED == ("ir", "ambient", "flood", "depth", "visibility", "edge", "device_depth",
+                           "ir_right", "stereo_visibility", "instance", "material", "transparent_or_mirror",
+                           "normal_x")
 
 
 def test_a_stereo_pair_adds_the_right_ir_its_mask_and_the_right_frustum(scene, tmp_path):
@@ -196,3 +197,11 @@ def test_without_save_it_spawns_the_viewer(scene, monkeypatch, capsys, tmp_path)
     assert len(spawned) == 1 and "sent to the Rerun viewer" in capsys.readouterr().out
     assert not list(tmp_path.iterdir())  # nothing written
 
+
+
+def test_labels_are_segmentation_images_and_normals_one_rgb_image():
+    rr = pytest.importorskip("rerun")
+    frame = {"instance": np.array([[0, 7]], np.int32), "normal_x": np.array([[0.0, np.nan]]),
+             "normal_y": np.zeros((1, 2)), "normal_z": np.array([[-1.0, 0.0]])}
+    assert isinstance(view.viewer_image(rr, frame, "instance"), rr.SegmentationImage)
+    assert isinstance(view.viewer_image(rr, frame, "normal_x"), rr.Image)

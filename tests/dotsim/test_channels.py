@@ -21,6 +21,8 @@ def test_examples_run():
     ({"display": "rainbow"}, "display 'rainbow'; allowed: linear"),
     ({"dtype": np.uint8}, "masks, and only masks, are uint8"),
     ({"display": "colour"}, "a colour-mapped channel, and only one, has a unit"),
+    ({"source": "labels"}, "labels, and only labels, are int32"),
+    ({"switch": "colour"}, "switch 'colour'; allowed: labels, normals"),
 ])
 def test_a_bad_channel_is_refused_naming_it(kwargs, message):
     fields = {"name": "x", "dtype": np.float16, "source": "render", "display": "linear", "title": "x",
@@ -31,9 +33,13 @@ def test_a_bad_channel_is_refused_naming_it(kwargs, message):
 
 def test_the_format_follows_the_declaration():
     assert ds.FRAME_CHANNELS == {c.name: c.dtype for c in CHANNELS}
-    assert ds.MASK_CHANNELS == ("visibility", "edge", "stereo_visibility")
+    assert ds.MASK_CHANNELS == ("visibility", "edge", "stereo_visibility", "transparent_or_mirror")
     assert ds.DERIVED_CHANNELS == ("disparity", "stereo_disparity")
     assert ds.RENDERED_CHANNELS == ("ir", "ambient", "flood", "depth", "visibility", "edge",
                                     "projector_column", "disparity")
     assert channels.rendered_channels(stereo=True) == ds.RENDERED_CHANNELS + (
         "ir_right", "stereo_visibility", "stereo_disparity")
+    assert channels.rendered_channels(False, ("labels", "normals")) == ds.RENDERED_CHANNELS + (
+        "instance", "material", "transparent_or_mirror", "normal_x", "normal_y", "normal_z")
+    with pytest.raises(ValueError, match="switch 'rgb'; allowed: labels, normals"):
+        channels.rendered_channels(False, ("rgb",))

@@ -183,3 +183,61 @@ def test_radiance_beyond_float16_saturates_and_the_frame_can_be_written():
         others[3, 4] = others[5, 6] = False
         np.testing.assert_array_equal(hot[name][others], frame[name][others])
     encode_frame(hot, SHAPE, stored_channels(rendered_channels(stereo=False)))  # no FormatError
+
+
+def dotted_wall_passes(spec, distance: float) -> dict[str, np.ndarray]:
+    """Raw passes of both cameras of a wall `distance` m away lit by a dot texture: the right camera's
+    dots fx B / distance px to the left of the left camera's (a rectified pair), drawn as Gaussians."""
+    camera = spec.rig.camera
+    shift = camera.fx * spec.rig.second_camera_translation[0] / distance
+    rng = np.random.default_rng(5)
+    n = camera.width * camera.height // 12
+    x, y = rng.uniform(-40, camera.width + 40, n), rng.uniform(-3, camera.height + 3, n)
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+
+    def dots(offset: float) -> np.ndarray:
+        image = np.zeros(u.shape, np.float32)
+        for cx, cy in zip(x + offset, y, strict=True):
+            near = (np.abs(u - cx) < 4) & (np.abs(v - cy) < 4)
+            image[near] += np.exp(-((u[near] - cx) ** 2 + (v[near] - cy) ** 2) / 1.6).astype(np.float32)
+        return image
+
+    shape = u.shape
+    flat = np.ones(shape, np.float32)
+    passes = {}
+    for suffix, projector in (("", dots(shift)), ("_right", dots(0.0))):
+        passes |= {f"projector{suffix}": projector, f"flood{suffix}": flat,
+                   f"ambient{suffix}": np.full(shape, 0.02, np.float32),
+                   f"depth{suffix}": np.full(shape, distance, np.float32),
+                   f"projector_direct{suffix}": projector, f"flood_direct{suffix}": flat}
+    return passes
+
+
+def test_a_stereo_frame_with_the_device_engine_on_carries_the_devices_depth():
+    """realsense_d415 at scale 0.25 (320 x 180, fx 251 px, B 55 mm), a dotted wall at 1.2 m (11.5 px),
+    noise off: device_depth is declared and stored, NaN over the left band (128 x 0.25 = 32
+    disparities: columns 0-30), and elsewhere the wall's depth, all but a few pixels within a
+    disparity step (the depth unit adds at most 0.005 px here)."""
+    config = config_from_dict({"rig": {"preset": "realsense_d415", "scale": 0.25, "stereo": True},
+                               "sensor": {"shot_noise": 0.0, "read_noise": 0.0, "bloom_strength": 0.0},
+                               "device_depth": {"engine": "stereo", "subpixel_step": 0.125}})
+    spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
+    assert frame_channels(spec) == rendered_channels(True, ("device_depth",))
+    frame = make_frame(dotted_wall_passes(spec, 1.2), spec, frame_streams(0, spec, 0))
+    assert tuple(frame) == stored_channels(rendered_channels(True, ("device_depth",)))
+    depth = frame["device_depth"]
+    assert depth.dtype == np.float32 and np.isnan(depth[:, :31]).all()
+    inside = depth[10:-10, 40:-10]
+    assert np.isfinite(inside).mean() > 0.8
+    fx_b = spec.rig.camera.fx * 0.055
+    error = np.abs(fx_b / inside[np.isfinite(inside)] - fx_b / 1.2)
+    # the sensor model's blur and 10-bit levels: 4 of 43200 pixels were 0.133 px off (a step + 0.008)
+    assert np.median(error) < 0.07 and (error <= 0.125 + 0.005).mean() > 0.999 and error.max() < 0.2
+    # the codec takes it: no FormatError
+    encode_frame(frame, depth.shape, stored_channels(rendered_channels(True, ("device_depth",))))
+
+
+def test_the_stereo_engine_needs_the_stereo_pair():
+    with pytest.raises(Exception, match=r"\[device_depth\] engine = \"stereo\" matches the left IR "
+                       r"against the right one, which \[rig\] stereo = false does not render"):
+        config_from_dict({"rig": {"preset": "realsense_d415"}, "device_depth": {"engine": "stereo"}})

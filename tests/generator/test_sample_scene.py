@@ -41,13 +41,18 @@ def _vec(x, n=3):
 def check_contract(d: dict) -> None:
     """The JSON contract of docs/SCENE_SPEC.md, written out independently of scene_spec.py."""
     assert set(d) == {"scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood",
-                      "world", "lights", "poses", "cameras", "objects", "sensor", "masks"}
+                      "world", "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth"}
     assert isinstance(d["scene_index"], int) and d["split"] in ("train", "test")
     assert isinstance(d["seed"], int)
     r = d["render"]
-    assert set(r) == {"samples", "seed", "max_bounces", "device", "threads", "direct_light"}
+    assert set(r) == {"samples", "seed", "max_bounces", "device", "threads", "direct_light", "labels",
+                      "normals"}
     assert r["samples"] >= 1 and r["device"] in ("CPU", "GPU") and r["threads"] >= 0
     assert r["direct_light"] in ("separate", "shared")
+    assert set(d["device_depth"]) == {"engine", "num_disparities", "disparity_shift", "block_size",
+                                      "second_peak_threshold", "left_right_threshold", "texture_threshold",
+                                      "score_threshold", "subpixel_step", "depth_unit", "reference_distance"}
+    assert d["device_depth"]["engine"] in ("off", "stereo", "structured_light")
     Rig.from_dict(d["rig"])
     assert set(d["pattern"]) == {"path", "sha256"} and d["pattern"]["path"].startswith("/")
     assert set(d["projector"]) == {"power"} and d["projector"]["power"] > 0

@@ -13,6 +13,7 @@ import pytest
 
 from dotsim import config_schema
 from dotsim.config_schema import ConfigError
+from dotsim.device_depth import DeviceDepthConfig
 from dotsim.rig.config import RigConfig
 from dotsim.sensor.model import SensorStreams
 from dotsim.sensor.settings import SensorSpec
@@ -53,7 +54,7 @@ def test_json_round_trip_gives_the_same_typed_spec():
 
 @pytest.mark.parametrize("table, record, added", [
     ("render", SceneRenderSettings, {"seed"}), ("sensor", SensorSpec, {"pixel_scale"}),
-    ("masks", MaskParams, set())])
+    ("masks", MaskParams, set()), ("device_depth", DeviceDepthConfig, set())])
 def test_the_spec_carries_the_configs_own_settings(table, record, added):
     """Bounds agree by construction: the spec's Cycles, sensor and mask records are the config's
     [render], [sensor] and [masks] tables (or derive from them, adding only what the sampler adds),
@@ -103,6 +104,15 @@ def _set(path: list, value):
 
 
 _DELETE = object()
+
+
+def test_the_device_depth_engine_comes_from_the_config_and_older_specs_have_it_off():
+    spec = sampled(device_depth={"engine": "structured_light", "reference_distance": 1.5})
+    again = SceneSpec.from_dict(json.loads(json.dumps(spec.to_dict())))
+    assert again.device_depth == spec.device_depth and again.device_depth.reference_distance == 1.5
+    older = sampled().to_dict()
+    del older["device_depth"]  # a spec written before the engine existed
+    assert SceneSpec.from_dict(older).device_depth == DeviceDepthConfig() and not DeviceDepthConfig().on
 
 
 def test_direct_light_comes_from_the_config_and_older_specs_read_as_separate():

@@ -211,3 +211,36 @@ def test_threads_do_not_change_the_bytes(tmp_path):
     with pytest.raises(ds.FormatError, match=r"scene 1 frame 2: mask channel 'edge'"):
         ds.write_scene(tmp_path / "a", 1, meta(3), frames, threads=3)
     assert not ds.is_scene_complete(tmp_path / "a", 1)
+
+
+def test_label_and_normal_channels_are_format_2_2_labels_exact(tmp_path):
+    """instance and material (UINT on disk, int32 as read) come back exactly, up to Blender's largest
+    pass index and beyond float16's integers; the normals within half's rounding; the mask as a mask;
+    the frame and scene.json record 2.2. A negative or fractional label is refused naming it."""
+    rng = np.random.default_rng(5)
+    sent = frame_inputs(rng)
+    sent["instance"] = rng.integers(0, 32768, (H, W)).astype(np.int32)
+    sent["material"] = rng.integers(0, 5, (H, W))
+    sent["transparent_or_mirror"] = sent["material"] >= 2
+    normal = rng.normal(size=(H, W, 3))
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    for k, axis in enumerate("xyz"):
+        sent[f"normal_{axis}"] = normal[..., k].astype(np.float32)
+    channels = rendered_channels(False, ("labels", "normals"))
+    scene = ds.write_scene(tmp_path, 0, meta(), [sent], channels=channels)
+    got = ds.read_frame(scene / "frame_0.exr")
+    assert got["instance"].dtype == np.int32 and got["material"].dtype == np.int32
+    np.testing.assert_array_equal(got["instance"], sent["instance"])
+    np.testing.assert_array_equal(got["material"], sent["material"])
+    np.testing.assert_array_equal(got["transparent_or_mirror"],
+                                  sent["transparent_or_mirror"].astype(np.uint8))
+    for axis in "xyz":
+        error = np.abs(got[f"normal_{axis}"].astype(np.float64) - sent[f"normal_{axis}"])
+        assert (error <= half_error_bound(sent[f"normal_{axis}"])).all()
+    exr = OpenEXR.File(str(scene / "frame_0.exr"), separate_channels=True)
+    assert exr.channels()["instance"].pixels.dtype == np.uint32
+    assert exr.header()["dotsim_format_version"] == "2.2" == ds.read_scene_meta(scene)["format_version"]
+    for bad in (-1, 0.5):
+        wrong = {**sent, "instance": np.full((H, W), bad)}
+        with pytest.raises(ds.FormatError, match="label channel 'instance' must hold integers"):
+            ds.write_frame_file(tmp_path / "bad.exr", wrong, (H, W), channels, rig=RIG.to_dict())

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -147,3 +148,31 @@ def test_blender_python_can_import_it():
             "or m in ('generator.config', 'generator.scene_spec')))")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("lights", [0, 1])
+def test_labels_normals_and_glass_change_the_first_render_alone(lights):
+    """Labels and normals add the data EXR to the first (path-traced) render and nothing else; glass
+    adds the transmission passes to its light sums; a scene without them keeps its recipe exactly."""
+    base = spec(lights, "separate")
+    plain = frame_recipe(base)
+    labelled = frame_recipe(replace(base, render=replace(base.render, labels=True, normals=True)))
+    first, *rest = labelled.renders
+    assert tuple(rest) == plain.renders[1:] and labelled.sampling_boost == plain.sampling_boost
+    assert first == replace(plain.renders[0], data_file=first.data_file)
+    assert first.data_passes == {"object_index", "normal"}
+    assert set(labelled.raw_passes) == set(plain.raw_passes) | {"object_index", "normal_x", "normal_y",
+                                                                "normal_z"}
+    only_labels = frame_recipe(replace(base, render=replace(base.render, labels=True)))
+    assert only_labels.renders[0].data_passes == {"object_index"}
+
+    d = base.to_dict()
+    d["render"]["labels"] = True
+    d["objects"] = [ds.primitive("glass", "sphere", (0.2, 0.2, 0.2), (0.0, 0.0, 1.0),
+                                 mat={**ds.material(1.0, 0.0), "kind": "transparent", "ior": 1.5})]
+    with_glass = frame_recipe(SceneSpec.from_dict(d))
+    first = with_glass.renders[0]
+    assert first.transmission and tuple(with_glass.renders[1:]) == plain.renders[1:]
+    added = first.light_passes - plain.renders[0].light_passes
+    assert added == {name.replace("diffuse", "transmission") for name in plain.renders[0].light_passes
+                     if "diffuse" in name}

@@ -28,3 +28,13 @@ def test_a_dataset_from_before_a_new_key_resumes_while_the_key_keeps_its_default
         _check_existing_run(tmp_path, _run_record(speckled, "train", 0))
     with pytest.raises(ConfigError, match="different base_seed"):
         _check_existing_run(tmp_path, _run_record(Config(), "train", 1))
+
+
+def test_a_dataset_from_before_the_device_depth_table_resumes_while_the_engine_stays_off(tmp_path):
+    record = _run_record(Config(), "train", 0)
+    del record["config"]["device_depth"]  # generate.json of a dotsim without [device_depth]
+    (tmp_path / RUN_FILE).write_text(json.dumps(record))
+    _check_existing_run(tmp_path, _run_record(Config(), "train", 0))  # no error: a resume
+    with pytest.raises(ConfigError, match=r"already holds scenes generated with different \[device_depth\]"):
+        on = config_from_dict({"device_depth": {"engine": "structured_light"}})
+        _check_existing_run(tmp_path, _run_record(on, "train", 0))
