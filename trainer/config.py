@@ -101,8 +101,10 @@ class TrainConfig(Checked):
     lr_gamma: float = setting(0.5, "step decay factor", low=0.0, high=1.0, low_open=True)
     lr_final: float = setting(0.01, "cosine: the factor on lr at the run's last step", low=0.0, high=1.0)
     lr_factors: tuple[float, ...] = setting((1.0, 0.5, 0.25, 0.12, 0.01), "piecewise: the factors on lr, "
-                                            "each for an equal share of the run's steps (GigaDepth's "
-                                            "code: at epochs 2, 4, 6, 8 of 10)", low=0.0, min_items=1)
+                                            "each for an equal share of the run's steps (over 10 "
+                                            "epochs these change at epochs 2, 4, 6, 8; GigaDepth's code, "
+                                            "one epoch early: [1, .5, .5, .25, .25, .12, .12, .01, .01, "
+                                            ".01])", low=0.0, min_items=1)
     ce_weights: tuple[float, ...] = setting((1.0, 1.0, 1.0), "weight of each tree level's cross-entropy",
                                             low=0.0)
     l1_weight: float = setting(1.0, "weight of the L1 on the column in leaf units (column * leaves)",
