@@ -164,6 +164,12 @@ class AssetsConfig(Checked):
                                   "(GigaDepth's original test scenes differ from its training scenes in "
                                   "clutter density)",
                                   low=0.0, high=10.0)
+    test_assets: str = setting("test", "the assets the test split's scenes draw from: test (meshes and "
+                               "textures disjoint from training; the default) or train (the training "
+                               "assets and their clutter density: new scenes of seen meshes, as "
+                               "DepthInSpace's test scenes, for a like-for-like comparison with GigaDepth's "
+                               "Table 2; render them with another --seed than the training scenes)",
+                               choices=("test", "train"))
 
 
 @dataclass(frozen=True)
@@ -185,9 +191,14 @@ class Config:
         """JSON-safe nested dict of every resolved value (ranges as lists), as stored in scene.json."""
         return {"source": self.source, **config_schema.to_dict(self)}
 
+    def asset_split(self, split: str) -> str:
+        """The split of assets (meshes, textures, clutter density) the scenes of `split` draw from:
+        their own, except test scenes with [assets] test_assets = "train"."""
+        return self.assets.test_assets if split == "test" else split
+
     def density(self, split: str) -> float:
         """Object-count factor of a split."""
-        return self.assets.train_density if split == "train" else self.assets.test_density
+        return self.assets.train_density if self.asset_split(split) == "train" else self.assets.test_density
 
     @cached_property
     def calibrated_rig(self) -> CalibratedRig:
@@ -323,10 +334,11 @@ def config_reference_markdown() -> str:
         "stands for:\n\n"
         "| published | key | dotsim |\n"
         "|---|---|---|\n"
-        "| camera 432 px wide x 512 px tall, f 435.2 px, principal point at the image centre, baseline 2.5 cm (DepthInSpace's "
-        "data generator) | [rig] preset = \"ctd_synthetic\" (dotsim/rig/presets/ctd_synthetic.json) | as "
-        "published; the projector is not published as a pinhole of the camera's field: 1088 x 1280 at f 870.4 px "
-        "(2 pattern px per camera px, a field 25 % wider than the camera's, as dotsim's other presets); "
+        "| camera 432 px wide x 512 px tall, f 435.2 px, principal point at the image centre, baseline "
+        "2.5 cm (DepthInSpace's data generator) | [rig] preset = \"ctd_synthetic\" "
+        "(dotsim/rig/presets/ctd_synthetic.json) | as published; the projector is not published as a pinhole "
+        "of the camera's field: 1088 x 1280 at f 870.4 px (2 pattern px per camera px, a field 25 % wider "
+        "than the camera's, as dotsim's other presets); "
         "max_depth 6 m |\n"
         "| a few objects | [scene] object_count | 2-6 per scene (3-9 in the test split: the test cache's "
         "clutter_density 1.5) |\n"
