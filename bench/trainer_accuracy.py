@@ -13,10 +13,18 @@ over the solvable ones (dotsim/solvable.py), and under GigaDepth's Table 2 condi
         --workers 2 --config train_table2 --minutes 60 --threads 1 --out out/bench_table2
     python -m bench.trainer_accuracy --generate default --train-scenes 120 --test-scenes 20 \
         --workers 2 --config train_cpu --minutes 60 --threads 1 --out out/bench_cpu
+    # Table 2 like for like: the test scenes also drawn from the training meshes (as DepthInSpace's)
+    python -m bench.trainer_accuracy --generate table2 --seen-test --train-scenes 240 --test-scenes 20 \
+        --workers 2 --config train_table2 --minutes 60 --threads 1 --out out/bench_table2
 
 --generate CONFIG renders the data first (train split of the train assets, test split of the test
 assets with seed 1, into OUT/train and OUT/test; a rerun resumes) and reports the number of scenes and
-the time it took. The summary gives the resolution, frames, minutes and steps/s of the training, and
+the time it took; with --seen-test also a test split of the train assets ([assets] test_assets = "train",
+seed 3: new scenes of the training meshes, as DepthInSpace tests; seed 2 is the validation data's) into
+OUT/test_seen. --seen-test-data DIR names such a dataset rendered before. The network and SGBM are then
+evaluated on both test sets, each reported with its goals: the seen-mesh one is the figure that
+compares with GigaDepth's Table 2, the disjoint one says how far it carries to meshes never seen.
+The summary gives the resolution, frames, minutes and steps/s of the training, and
 o(0.5..5) of the three methods over all valid and over the solvable pixels, and the goals.
 
 Data: --generate, else --data (its train split) and --test-data (its test split; default --data), else
@@ -106,6 +114,11 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=Path, default=None, help="dataset whose train split is trained on")
     parser.add_argument("--test-data", type=Path, default=None,
                         help="dataset whose test split is evaluated (default: --data)")
+    parser.add_argument("--seen-test-data", type=Path, default=None,
+                        help="dataset whose test split holds new scenes of the training meshes "
+                             "(`dotsim generate --split test --test-assets train --seed 3`), evaluated too")
+    parser.add_argument("--seen-test", action="store_true",
+                        help="--generate: also render the seen-mesh test set into OUT/test_seen")
     parser.add_argument("--minutes", type=float, default=10.0, help="training wall-time budget")
     parser.add_argument("--config", default="train_tiny")
     parser.add_argument("--generate", type=Path, default=None, metavar="CONFIG",
@@ -124,11 +137,16 @@ def main(argv=None) -> int:
         if args.generate is not None:
             config = load_generator_config(args.generate)
             times = {}
-            for split, scenes, seed in (("train", args.train_scenes, 0), ("test", args.test_scenes, 1)):
-                summary = generate(config, work / split, split, scenes, workers=args.workers, seed=seed,
+            seen = replace(config, assets=replace(config.assets, test_assets="train"))
+            runs = [("train", config, "train", args.train_scenes, 0),
+                    ("test", config, "test", args.test_scenes, 1)]
+            runs += [("test_seen", seen, "test", args.test_scenes, 3)] if args.seen_test else []
+            for folder, cfg, split, scenes, seed in runs:
+                summary = generate(cfg, work / folder, split, scenes, workers=args.workers, seed=seed,
                                    progress=True)
-                times[split] = (summary.done, summary.seconds)
+                times[folder] = (summary.done, summary.seconds)
             data, test_data = work / "train", work / "test"
+            args.seen_test_data = work / "test_seen" if args.seen_test else args.seen_test_data
             rendered = "; ".join(f"{split}: {done} scene(s) rendered in {sec / 60:.1f} min "
                                  f"({args.workers} worker(s))" for split, (done, sec) in times.items())
             source = f"{args.generate}: train split of {data}, test split of {test_data}"
@@ -167,20 +185,26 @@ def main(argv=None) -> int:
         start = time.perf_counter()
         result = train(cfg, train_source, work / "run", max_seconds=args.minutes * 60 * 1.1)
         trained_s = time.perf_counter() - start
-        rows = evaluate(work / "run" / "checkpoint.pt", test_source, work / "eval", progress=False,
-                        validation=train_source)
-        eval_md = (work / "eval" / "eval.md").read_text()
+        tests = {"disjoint meshes": (test_source, "eval")}
+        if args.seen_test_data is not None:
+            tests["seen meshes"] = (open_source(args.seen_test_data, "test"), "eval_seen")
+        reports = {}
+        for label, (source_of_test, folder) in tests.items():
+            rows = evaluate(work / "run" / "checkpoint.pt", source_of_test, work / folder, progress=False,
+                            validation=train_source)
+            reports[label] = ((work / folder / "eval.md").read_text(), rows, len(source_of_test.frames),
+                              len({f.scene_index for f in source_of_test.frames}))
         train_scenes = len({f.scene_index for f in frames})
-        test_scenes = len({f.scene_index for f in test_frames})
     steps = len(result["losses"])
-    print(f"\ntrained {result['step']} steps in {trained_s / 60:.1f} min ({args.threads} thread(s)); "
-          f"test split:\n")
-    print(eval_md)
+    print(f"\ntrained {result['step']} steps in {trained_s / 60:.1f} min ({args.threads} thread(s))")
+    for label, (eval_md, _, _, _) in reports.items():
+        print(f"\ntest split, {label}:\n\n{eval_md}")
     print(f"summary: {rig.camera.width} x {rig.camera.height}; data: {train_scenes} train scenes "
-          f"({len(frames)} frames), {test_scenes} test scenes ({len(test_frames)} frames); "
-          f"render: {rendered}; "
+          f"({len(frames)} frames); render: {rendered}; "
           f"trained {trained_s / 60:.1f} min, {steps} steps, {steps / max(trained_s, 1e-9):.2f} steps/s "
-          f"(batch {base['train']['batch_size']}, {args.threads} thread(s))\n" + goals(rows))
+          f"(batch {base['train']['batch_size']}, {args.threads} thread(s))")
+    for label, (_, rows, n_frames, n_scenes) in reports.items():
+        print(f"test, {label}: {n_scenes} scenes ({n_frames} frames)\n" + goals(rows))
     return 0
 
 

@@ -10,9 +10,11 @@ Each run appends one line to OUT/results.jsonl: the variant's name and settings 
 VALUE in TOML, any number of them), the steps, the mean loss of its last tenth, the validation o(t) of
 the network over the valid and the solvable pixels (trainer.scoring.Validation, `--val-frames` frames spread
 over --val-data), GFLOP per training step (forward and backward at the config's crop and batch, torch's
-FlopCounterMode, bench.trainer_cpu_recipe.count) and the parameters. The run's length is sized as
+FlopCounterMode, bench.trainer_cpu_recipe.count) and the parameters, and the trained network's o(t) on
+the same frames by GT depth range and on / off the edge mask (`by_class`: the rows eval.md has; a
+change aimed at near surfaces or edges shows there first). The run's length is sized as
 bench.trainer_accuracy sizes it (step decay at 25, 50 and 75 % of the steps). `--report` prints the
-table of a folder's lines. Variants that ran at the same time on a shared machine still compare: the
+tables of a folder's lines. Variants that ran at the same time on a shared machine still compare: the
 steps, not the minutes, are equal.
 """
 
@@ -29,11 +31,15 @@ import torch
 
 from bench.trainer_accuracy import sized_config
 from bench.trainer_cpu_recipe import count, synthetic_batch
-from dotsim.frame_source import open_source
+from dotsim.frame_source import FrameSource, open_source
+from trainer.checkpoint import CHECKPOINT, load_model
 from trainer.config import config_from_dict, load_config, output_rows
 from trainer.metrics import THRESHOLDS
 from trainer.model import build_model
+from trainer.scoring import DEPTH_BINS, NetworkMethod, Scorer, depth_ranges
 from trainer.train import train
+
+BY_CLASS_THRESHOLDS = (0.5, 5.0)
 
 
 def with_settings(base: dict, settings: list[str]) -> dict:
@@ -62,8 +68,24 @@ def step_gflop(cfg, rig) -> float:
     return sum(count(model, synthetic_batch(cfg, output_rows(cfg.model, rig.camera.height), width, height)))
 
 
+def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource, count: int
+                   ) -> dict[str, dict[str, float]]:
+    """{class: {"o(t)": rate}} of a checkpoint's network on `count` held-out frames of `validation`, per
+    GT depth range (cut at the rig's max_depth) and on / off the edge mask (trainer.scoring's Scorer)."""
+    model, _, rig = load_model(checkpoint)
+    bins = depth_ranges(DEPTH_BINS, rig.max_depth)
+    classes = ("all", *(f"{a:g}-{b:g}" for a, b in zip(bins[:-1], bins[1:], strict=True)), "edge", "off edge")
+    scorer = Scorer([NetworkMethod(model, rig)], rig, validation.pattern, bins, classes=classes,
+                    thresholds=BY_CLASS_THRESHOLDS)
+    for ref in validation.held_out(count, data, "training"):
+        scorer.add(ref)
+    return {r["range"]: {f"o({t:g})": r[f"o({t:g})"] for t in BY_CLASS_THRESHOLDS} | {"pixels": r["pixels"]}
+            for r in scorer.rows()}
+
+
 def report(folder: Path) -> str:
-    """The markdown table of a folder's results, in the order they ran."""
+    """The markdown tables of a folder's results, in the order they ran: the validation rates, then
+    o(0.5) / o(5) by depth range and pixel class."""
     rows = [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
     keys = [f"{c} o({t:g})" for c in ("all", "solvable") for t in (0.5, 5.0)]
     lines = ["| variant | settings | steps | GFLOP/step | parameters (M) | last loss | "
@@ -73,6 +95,14 @@ def report(folder: Path) -> str:
         lines.append(f"| {r['name']} | {', '.join(r['settings']) or 'as the config'} | {r['steps']} | "
                      f"{r['gflop_per_step']:.2f} | {r['parameters'] / 1e6:.1f} | {r['last_loss']:.3f} | "
                      f"{rates} |")
+    classes = list(dict.fromkeys(c for r in rows for c in r.get("by_class", {})))
+    if classes:
+        lines += ["", "o(0.5) / o(5) by GT depth range (m) and pixel class:", "",
+                  "| variant | " + " | ".join(classes) + " |", "|" + "---|" * (1 + len(classes))]
+        for r in rows:
+            cells = [f"{c['o(0.5)']:.3f} / {c['o(5)']:.3f}" if (c := r.get("by_class", {}).get(k))
+                     and c["pixels"] else "-" for k in classes]
+            lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -114,7 +144,9 @@ def main(argv=None) -> int:
     line = {"name": args.name, "config": args.config, "settings": args.set, "steps": result["step"],
             "data": str(args.data), "val_data": str(args.val_data), "frames": len(frames),
             "last_loss": sum(last) / max(len(last), 1),
-            "validation": result["validation"], "gflop_per_step": step_gflop(cfg, rig),
+            "validation": result["validation"],
+            "by_class": rates_by_class(run / CHECKPOINT, validation, source, args.val_frames),
+            "gflop_per_step": step_gflop(cfg, rig),
             "parameters": sum(p.numel() for p in build_model(cfg, rig).parameters()),
             "seconds_on_a_shared_machine": time.perf_counter() - start, "thresholds": list(THRESHOLDS)}
     args.out.mkdir(parents=True, exist_ok=True)

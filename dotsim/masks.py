@@ -169,3 +169,29 @@ def edge_mask(depth: np.ndarray, threshold: float = 0.1, dilation: int = 2,
     # Hit/no-hit boundary on both sides: the no-hit side has no depth to compare, so no gradient.
     edges |= (_dilate(~valid, 1) & valid) | (_dilate(valid, 1) & ~valid)
     return _dilate(edges, int(dilation))
+
+
+def disparity_edge_mask(disparity: np.ndarray, threshold: float = 10.0, radius: int = 10) -> np.ndarray:
+    """GigaDepth's training edge mask: bool (H, W), where the Sobel gradient magnitude of the
+    disparity (cv2.Sobel's 3 x 3 kernel, unnormalised: a step of D px between two columns gives 4 D on
+    both sides of it) exceeds `threshold`, dilated by an ellipse of `radius` px (a disc of diameter
+    2 radius + 1). Its code uses threshold 10 (steps above 2.5 px) and radius 10. Pixels without a
+    disparity (nan) count as 0, infinitely far.
+
+    >>> disparity = np.zeros((5, 9))
+    >>> disparity[:, 5:] = 3.0  # a 3 px step between columns 4 and 5: Sobel 12 there
+    >>> disparity_edge_mask(disparity, 10.0, 0)[2].astype(int)
+    array([0, 0, 0, 0, 1, 1, 0, 0, 0])
+    >>> disparity_edge_mask(disparity, 10.0, 1)[2].astype(int)
+    array([0, 0, 0, 1, 1, 1, 1, 0, 0])
+    >>> bool(disparity_edge_mask(disparity, 12.5, 1).any())
+    False
+    """
+    filled = np.nan_to_num(np.asarray(disparity, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    gx = cv2.Sobel(filled, cv2.CV_64F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
+    gy = cv2.Sobel(filled, cv2.CV_64F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
+    edges = (np.hypot(gx, gy) > threshold).astype(np.uint8)
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        edges = cv2.dilate(edges, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return edges > 0

@@ -50,6 +50,8 @@ examples:
   dotsim generate --config default --out out/dataset --split train --scenes 4
   dotsim generate --config structure_core --out data/test --split test --scenes 200 \\
       --workers 2 --seed 1
+  dotsim generate --config table2 --out data/table2/test_seen --split test --scenes 20 \\
+      --seed 1 --test-assets train          # test scenes of the training meshes (like-for-like)
   dotsim generate --config tiny --out /tmp/tiny --split train --scenes 2 \\
       --blender /opt/blender/blender        # Blender executable instead of the bpy module
   dotsim generate --config structure_core --out /shared/train --split train \\
@@ -104,7 +106,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                              "[rig] camera_file; the projector and its pose stay the rig's")
     add_output(parser, "dataset directory (created; resumed)", metavar="DIR")
     parser.add_argument("--split", required=True, choices=SPLITS,
-                        help="asset split and clutter density to draw from")
+                        help="scene split, and the asset split and clutter density its scenes draw from "
+                             "(test scenes: see --test-assets)")
+    parser.add_argument("--test-assets", choices=("test", "train"), default=None,
+                        help="[assets] test_assets: the test split's scenes draw the test assets (disjoint "
+                             "from training) or the training ones (new scenes of seen meshes, as "
+                             "DepthInSpace's test scenes; give another --seed than the training data's)")
     parser.add_argument("--scenes", required=True, type=integer(1), metavar="N",
                         help="number of scenes")
     parser.add_argument("--start", type=integer(0), default=0, metavar="K",
@@ -152,6 +159,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.rig or args.camera_file:
         rig, _ = with_rig_options(config.rig, config.source, args.rig, args.camera_file)
         config = replace(config, rig=rig)
+    if args.test_assets:
+        config = replace(config, assets=replace(config.assets, test_assets=args.test_assets))
     request = RunRequest(config, args.out, args.split, args.scenes, args.start, args.seed, args.blender,
                          executor, progress=not args.no_progress, seal=not args.no_seal)
     print(summary_line(request.rig), flush=True)  # the rig that renders (`dotsim rig show` lists it)

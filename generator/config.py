@@ -189,6 +189,12 @@ class AssetsConfig(Checked):
                                   "(GigaDepth's original test scenes differ from its training scenes in "
                                   "clutter density)",
                                   low=0.0, high=10.0)
+    test_assets: str = setting("test", "the assets the test split's scenes draw from: test (meshes and "
+                               "textures disjoint from training; the default) or train (the training "
+                               "assets and their clutter density: new scenes of seen meshes, as "
+                               "DepthInSpace's test scenes, for a like-for-like comparison with GigaDepth's "
+                               "Table 2; render them with another --seed than the training scenes)",
+                               choices=("test", "train"))
 
 
 @dataclass(frozen=True)
@@ -211,9 +217,14 @@ class Config:
         """JSON-safe nested dict of every resolved value (ranges as lists), as stored in scene.json."""
         return {"source": self.source, **config_schema.to_dict(self)}
 
+    def asset_split(self, split: str) -> str:
+        """The split of assets (meshes, textures, clutter density) the scenes of `split` draw from:
+        their own, except test scenes with [assets] test_assets = "train"."""
+        return self.assets.test_assets if split == "test" else split
+
     def density(self, split: str) -> float:
         """Object-count factor of a split."""
-        return self.assets.train_density if split == "train" else self.assets.test_density
+        return self.assets.train_density if self.asset_split(split) == "train" else self.assets.test_density
 
     @cached_property
     def calibrated_rig(self) -> CalibratedRig:

@@ -140,9 +140,11 @@ def cached_assets(config: Config, split: str) -> SceneResources:
 
 
 def split_assets(config: Config, split: str, folder: str | os.PathLike) -> SceneResources:
-    """Meshes and textures the scenes of `split` draw from, without pattern fields: the asset cache's
+    """Meshes and textures the scenes of `split` draw from (config.asset_split: the test scenes may
+    draw the training assets), without pattern fields: the asset cache's
     when [assets] source = "cache" (nothing is written), else built-in primitives and the built-in
     textures under folder/textures. ConfigError naming the cache when it is not usable."""
+    split = config.asset_split(split)
     if config.assets.source == "cache":
         return cached_assets(config, split)
     return SceneResources("", "", textures=builtin_textures(Path(folder), split))

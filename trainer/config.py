@@ -65,14 +65,29 @@ class ModelConfig(Checked):
 
 @dataclass(frozen=True)
 class DataConfig(Checked):
-    crop_width: int = setting(0, "training crop width (even; 0 = full width)", low=0)
+    crop_width: int = setting(0, "training crop width (even; 0 = full width: with crop_height 0, batches of "
+                              "full frames, as GigaDepth trains)", low=0)
     crop_height: int = setting(0, "training crop height (even; 0 = full height); crops start on even rows "
                                "to keep half-resolution line identity", low=0)
+    near_share: float = setting(0.0, "share of the crops centred on a random valid pixel nearer than "
+                                "near_depth, where the frame has one (near surfaces are rare in few-object "
+                                "scenes); 0: every crop origin uniform", low=0.0, high=1.0)
+    near_depth: float = setting(2.0, "m: the depth below which near_share's crops look for pixels",
+                                low=0.0, low_open=True)
     vertical_jitter: int = setting(0, "image content shifted by up to this many rows against its line "
                                    "index", low=0)
     noise_std: float = setting(0.0, "std of additive Gaussian noise, in the units of the frames' ir "
                                "channel", low=0.0)
     intensity_scale: FloatRange = setting((1.0, 1.0), "uniform random gain range", low=0.0)
+    uniform_noise: float = setting(0.0, "GigaDepth's noise: each sample adds noise uniform in [0, a) per "
+                                   "pixel, a = U(0, 1) x this, in the ir channel's units (full scale 1; "
+                                   "GigaDepth: 0.3); 0: none", low=0.0)
+    edge_threshold: float = setting(0.0, "> 0: the loss's edge mask is GigaDepth's, Sobel(disparity) "
+                                    "above this (cv2's 3 x 3 kernel: a step of D px gives 4 D; GigaDepth: "
+                                    "10) dilated by an ellipse of edge_radius px, instead of the edge mask "
+                                    "the frames store", low=0.0)
+    edge_radius: int = setting(10, "px: the ellipse edge_threshold's mask is dilated by (GigaDepth: 10)",
+                               low=0)
     workers: int = setting(0, "DataLoader worker processes (0 = load in the training process)", low=0)
     cache_mb: int = setting(0, "decoded frames kept in memory, up to this many MB (0 = read every time); "
                             "needs workers = 0", low=0)
@@ -101,13 +116,22 @@ class TrainConfig(Checked):
     lr_gamma: float = setting(0.5, "step decay factor", low=0.0, high=1.0, low_open=True)
     lr_final: float = setting(0.01, "cosine: the factor on lr at the run's last step", low=0.0, high=1.0)
     lr_factors: tuple[float, ...] = setting((1.0, 0.5, 0.25, 0.12, 0.01), "piecewise: the factors on lr, "
-                                            "each for an equal share of the run's steps (GigaDepth's "
-                                            "code: at epochs 2, 4, 6, 8 of 10)", low=0.0, min_items=1)
+                                            "each for an equal share of the run's steps (over 10 "
+                                            "epochs these change at epochs 2, 4, 6, 8; GigaDepth's code, "
+                                            "one epoch early: [1, .5, .5, .25, .25, .12, .12, .01, .01, "
+                                            ".01])", low=0.0, min_items=1)
     ce_weights: tuple[float, ...] = setting((1.0, 1.0, 1.0), "weight of each tree level's cross-entropy",
                                             low=0.0)
     l1_weight: float = setting(1.0, "weight of the L1 on the column in leaf units (column * leaves)",
                                low=0.0)
+    l1_weight_end: float = setting(0.0, "> 0: the L1 weight ramps linearly from l1_weight at the first step "
+                                   "to this at the run's last (GigaDepth: 500 -> 2000 on the normalised "
+                                   "column, i.e. divided by (1 - 2 column_padding) x leaves here); 0: "
+                                   "l1_weight throughout", low=0.0)
     edge_weight: float = setting(10.0, "pixel weight 1 + edge_weight * edge", low=0.0)
+    edge_weights: tuple[float, ...] = setting((), "a ramp of edge_weight: each value for an equal share of "
+                                              "the run's steps (GigaDepth: [0, 1, 2, 2, 5]); empty: "
+                                              "edge_weight throughout", low=0.0)
     amp: str = setting("off", "mixed precision on any device: off (float32), float16 (with a gradient "
                        "scaler) or bfloat16 (no scaler needed); older configs' true / false read as float16 "
                        "/ off",

@@ -130,9 +130,9 @@ def eval_methods(model, data: FrameSource, nearest: float, device: str, precisio
 
 
 # GigaDepth's Table 2 (its supplementary material; DepthInSpace / CTD-style synthetic data: a few objects
-# before a back plane, 512 x 432; dotsim/configs/table2.toml rebuilds it): the only published figures
-# on data like ours.
-GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic DepthInSpace / CTD-style data, 512 x 432, "
+# before a back plane, 432 wide x 512 tall; dotsim/configs/table2.toml rebuilds it): the only published
+# figures on data like ours.
+GIGADEPTH_REFERENCE = ("GigaDepth's Table 2 (synthetic DepthInSpace / CTD-style data, 432 x 512, "
                        "dotsim/configs/table2.toml rebuilds it): SGM o(0.5) 10.4-12.9 %, GigaDepth o(0.5) "
                        "1.75-1.88 % (5.5-6.9x fewer outliers)")
 

@@ -6,8 +6,11 @@ A sample keeps the identity of the network's lines: crops start on full-resoluti
 multiples of the network's stride and carry their first output row (`row0`) and column (`x0`), so the
 per-line weights see the rows they are meant for. The targets are read at the full-resolution pixels
 the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated.
-Augmentations (gain, noise, vertical jitter) draw from an RNG keyed by (seed, epoch, frame index): the
-same sample comes out in any worker and after a resume.
+Augmentations (gain, noise, vertical jitter, crops around near pixels) draw from an RNG keyed by (seed,
+epoch, frame index): the same sample comes out in any worker and after a resume. GigaDepth's recipe is
+here as [data] options: full frames (crop sizes 0), its uniform noise of random amplitude, its edge
+mask (Sobel(disparity), dilated by an ellipse); [data] near_share draws a share of the crops around
+pixels nearer than near_depth.
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame of a dataset folder or of
 `dotsim export`'s shards (dotsim.shards.reader.resolve names the forms): the channels as numpy arrays
@@ -35,7 +38,8 @@ from torch.utils.data._utils.collate import default_collate_fn_map
 
 from dotsim import dataset as ds
 from dotsim.frame_source import FrameRef
-from dotsim.rig.geometry import Rig
+from dotsim.masks import disparity_edge_mask
+from dotsim.rig.geometry import Rig, disparity_to_depth
 from dotsim.shards.format import sample_key
 from dotsim.shards.reader import (
     decode_sample,
@@ -53,17 +57,33 @@ class DataError(ValueError):
     dotsim.frame_source.SourceError)."""
 
 
-def frame_targets(frame: dict[str, np.ndarray], rig: Rig) -> dict[str, np.ndarray]:
+def frame_targets(frame: dict[str, np.ndarray], rig: Rig, cfg: DataConfig | None = None
+                  ) -> dict[str, np.ndarray]:
     """Full-resolution arrays of one frame: ir (float32), column (normalised by the projector width,
-    nan where invalid), valid (pattern visible, column finite and inside the projector image), edge."""
+    nan where invalid), valid (pattern visible, column finite and inside the projector image), edge
+    (the stored mask, or with [data] edge_threshold GigaDepth's from the frame's disparity) and, with
+    [data] near_share, near (the flat indices of the valid pixels nearer than near_depth)."""
     column = frame["projector_column"].astype(np.float32) / rig.projector.width
     valid = (frame["visibility"] > 0) & np.isfinite(column) & (column >= 0) & (column <= 1)
-    return {
+    edge = frame["edge"]
+    if cfg is not None and cfg.edge_threshold > 0:
+        edge = disparity_edge_mask(frame["disparity"], cfg.edge_threshold, cfg.edge_radius)
+    targets = {
         "ir": frame["ir"].astype(np.float32),
         "column": np.where(valid, column, np.nan).astype(np.float32),
         "valid": valid,
-        "edge": frame["edge"].astype(np.float32),
+        "edge": edge.astype(np.float32),
     }
+    if cfg is not None and cfg.near_share > 0:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            depth = disparity_to_depth(frame["disparity"].astype(np.float64), rig)
+        targets["near"] = np.flatnonzero(valid & (depth < cfg.near_depth)).astype(np.int64)
+    return targets
+
+
+def needed_channels(cfg: DataConfig) -> tuple[str, ...]:
+    """The channels training reads: TRAIN_CHANNELS, and the disparity where [data] options need it."""
+    return TRAIN_CHANNELS + (("disparity",) if cfg.edge_threshold > 0 or cfg.near_share > 0 else ())
 
 
 class FrameDataset(Dataset):
@@ -89,7 +109,7 @@ class FrameDataset(Dataset):
         a 608 x 448 frame, yet reading and decoding the frame took 21 ms, a third of a CPU step."""
         if i in self._cached:
             return self._cached[i]
-        t = frame_targets(self.frames[i].read(TRAIN_CHANNELS), self.rig)
+        t = frame_targets(self.frames[i].read(needed_channels(self.cfg)), self.rig, self.cfg)
         size = sum(a.nbytes for a in t.values())
         if size <= self._cache_left:
             for a in t.values():
@@ -105,6 +125,8 @@ class FrameDataset(Dataset):
         if self.augment:
             y0 = self.stride * int(rng.integers(0, (h - self.crop_h) // self.stride + 1))
             x0 = int(rng.integers(0, w - self.crop_w + 1))
+            if self.cfg.near_share > 0 and rng.random() < self.cfg.near_share and len(t["near"]):
+                y0, x0 = self.crop_around(int(t["near"][rng.integers(len(t["near"]))]), h, w)
             j = self.cfg.vertical_jitter
             jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
         rows = slice(y0 + jitter, y0 + jitter + self.crop_h)
@@ -114,6 +136,9 @@ class FrameDataset(Dataset):
             ir = ir * rng.uniform(*self.cfg.intensity_scale)
             if self.cfg.noise_std > 0:
                 ir = ir + rng.normal(0.0, self.cfg.noise_std, ir.shape).astype(np.float32)
+            if self.cfg.uniform_noise > 0:
+                amplitude = rng.uniform() * self.cfg.uniform_noise
+                ir = ir + (rng.random(ir.shape) * amplitude).astype(np.float32)
         sample = {
             "ir": torch.from_numpy(ir.astype(np.float32, copy=False))[None],
             "row0": torch.tensor(y0 // self.stride),
@@ -125,6 +150,14 @@ class FrameDataset(Dataset):
             sample[key] = torch.from_numpy(np.array(sub))
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
+
+
+    def crop_around(self, pixel: int, h: int, w: int) -> tuple[int, int]:
+        """(y0, x0) of the crop centred on flat pixel index `pixel` of an h x w frame, moved inside the
+        frame, its first row a multiple of the stride (so the pixel may sit a row off the centre)."""
+        py, px = divmod(pixel, w)
+        y = min(max(py - self.crop_h // 2, 0), h - self.crop_h)
+        return self.stride * (y // self.stride), min(max(px - self.crop_w // 2, 0), w - self.crop_w)
 
 
 class EpochSampler(Sampler[int]):

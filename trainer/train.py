@@ -37,10 +37,11 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE_PROCESS
-               ) -> tuple[torch.Tensor, dict[str, float]]:
+def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE_PROCESS,
+               weights: tuple[float, float] | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """Weighted loss of one batch: sum_l ce_weights[l] * CE_l + l1_weight * L1, each the mean over the
     valid pixels weighted by 1 + edge_weight * edge (GigaDepth weights edges up: the column jumps there).
+    weights: (l1_weight, edge_weight) at this step (loss_weights; None: the config's constants).
 
     With several ranks each holds part of the global batch; the means are over the global batch's pixel
     weight (times the number of ranks, as DDP averages the ranks' gradients), so the ranks' mean loss and
@@ -48,12 +49,13 @@ def batch_loss(model: GigaDepthNet, batch: dict, cfg: Config, ranks: Ranks = ONE
     feat = model.features(batch["ir"])
     valid = batch["valid"] & model.in_range(batch["row0"], batch["x0"], batch["column"])
     terms = model.loss_terms(feat, batch["row0"], batch["column"], valid, batch["x0"])
-    weight = 1.0 + cfg.train.edge_weight * batch["edge"][valid]
+    l1_weight, edge_weight = weights or (cfg.train.l1_weight, cfg.train.edge_weight)
+    weight = 1.0 + edge_weight * batch["edge"][valid]
     norm = ranks.mean(weight.sum()).clamp_min(1.0 / ranks.world)
     parts = {f"ce{k + 1}": (ce * weight).sum() / norm for k, ce in enumerate(terms["ce"])}
     parts["l1"] = (terms["l1"] * weight).sum() / norm
     loss = sum(w * parts[f"ce{k + 1}"] for k, w in enumerate(cfg.train.ce_weights))
-    loss = loss + cfg.train.l1_weight * parts["l1"]
+    loss = loss + l1_weight * parts["l1"]
     return loss, {k: float(v.detach()) for k, v in parts.items()}
 
 
@@ -64,18 +66,42 @@ class TrainingLoss(torch.nn.Module):
         super().__init__()
         self.model, self.cfg, self.ranks = model, cfg, ranks
 
-    def forward(self, batch: dict) -> tuple[torch.Tensor, dict[str, float]]:
-        return batch_loss(self.model, batch, self.cfg, self.ranks)
+    def forward(self, batch: dict, weights: tuple[float, float] | None = None
+                ) -> tuple[torch.Tensor, dict[str, float]]:
+        return batch_loss(self.model, batch, self.cfg, self.ranks, weights)
+
+
+def run_share(step: int, total_steps: int) -> float:
+    """The share of a run of `total_steps` done at `step`, in [0, 1]."""
+    return min(step, total_steps) / max(total_steps, 1)
+
+
+def piece(values: tuple[float, ...], done: float) -> float:
+    """The value of `values` in force at share `done` of a run, each for an equal share of it.
+
+    >>> [piece((1.0, 0.5), done) for done in (0.0, 0.49, 0.5, 1.0)]
+    [1.0, 1.0, 0.5, 0.5]
+    """
+    return values[min(int(done * len(values)), len(values) - 1)]
 
 
 def lr_factor(cfg: Config, step: int, total_steps: int) -> float:
     """The factor on [train].lr at `step` of a run of `total_steps` (cosine and piecewise schedules; step
     decay is torch's StepLR)."""
     t = cfg.train
-    done = min(step, total_steps) / max(total_steps, 1)
+    done = run_share(step, total_steps)
     if t.lr_schedule == "cosine":
         return t.lr_final + (1 - t.lr_final) * 0.5 * (1 + math.cos(math.pi * done))
-    return t.lr_factors[min(int(done * len(t.lr_factors)), len(t.lr_factors) - 1)]
+    return piece(t.lr_factors, done)
+
+
+def loss_weights(cfg: Config, step: int, total_steps: int) -> tuple[float, float]:
+    """(l1_weight, edge_weight) for the step after `step` of a run of `total_steps`: [train] l1_weight, or
+    its linear ramp to l1_weight_end; edge_weight, or the edge_weights ramp (GigaDepth's schedules)."""
+    t = cfg.train
+    done = run_share(step, total_steps)
+    l1 = t.l1_weight + (t.l1_weight_end - t.l1_weight) * done if t.l1_weight_end > 0 else t.l1_weight
+    return l1, piece(t.edge_weights, done) if t.edge_weights else t.edge_weight
 
 
 def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int, total_steps: int = 1):
@@ -178,7 +204,8 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
         for batch in make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,
                                  ranks.world):
             batch = {k: v.to(ranks.device) for k, v in batch.items()}
-            value, parts, elapsed = optimiser_step(loss_of, state, batch, cfg, ranks, step, start)
+            weights = loss_weights(cfg, step, total_steps)
+            value, parts, elapsed = optimiser_step(loss_of, state, batch, cfg, ranks, step, start, weights)
             step += 1
             losses.append(value)
             bar.update(1)
@@ -248,11 +275,13 @@ def new_state(cfg: Config, rig: Rig, device: str, steps_per_epoch: int, total_st
 
 
 def optimiser_step(loss_of, state: TrainingState, batch: dict, cfg: Config, ranks: Ranks, step: int,
-                   start: float) -> tuple[float, dict[str, float], float]:
-    """One optimiser step on a batch: (the global batch's loss, its parts, seconds since `start`), each
-    the mean over the ranks, so all ranks stop together. FloatingPointError for a loss that is not finite."""
+                   start: float, weights: tuple[float, float] | None = None
+                   ) -> tuple[float, dict[str, float], float]:
+    """One optimiser step on a batch with the loss weights of this step (loss_weights): (the global
+    batch's loss, its parts, seconds since `start`), each the mean over the ranks, so all ranks stop
+    together. FloatingPointError for a loss that is not finite."""
     with autocast(ranks.device, cfg.train.amp):
-        loss, parts = loss_of(batch)
+        loss, parts = loss_of(batch, weights)
     values = [float(loss.detach()), *parts.values(), time.perf_counter() - start]
     value, *part_values, elapsed = ranks.mean(torch.tensor(values, dtype=torch.float64)).tolist()
     if not math.isfinite(value):

@@ -37,6 +37,18 @@ def test_two_variants_train_the_same_steps_and_are_reported(tmp_path):
     assert [r["name"] for r in lines] == ["base", "full"] and {r["steps"] for r in lines} == {3}
     assert 3.5 < lines[1]["gflop_per_step"] / lines[0]["gflop_per_step"] < 4.5  # full resolution: 4x
     assert {"all o(0.5)", "solvable o(5)"} <= set(lines[0]["validation"])
+    by_class = lines[0]["by_class"]
+    assert {"all", "0-1", "edge", "off edge"} <= set(by_class)
+    # the classes split the same valid pixels validation scores: ranges and edges each add up to all
+    ranges = [k for k in by_class if "-" in k]
+    assert sum(by_class[k]["pixels"] for k in ranges) == by_class["all"]["pixels"]
+    assert by_class["edge"]["pixels"] + by_class["off edge"]["pixels"] == by_class["all"]["pixels"]
+    all_rate = by_class["all"]["o(0.5)"] * by_class["all"]["pixels"]
+    counted = sum(by_class[k]["o(0.5)"] * by_class[k]["pixels"] for k in ranges if by_class[k]["pixels"])
+    assert abs(counted - all_rate) < 1e-6
+    assert abs(by_class["all"]["o(0.5)"] - lines[0]["validation"]["all o(0.5)"]) < 1e-12
     done = screen("--report", str(tmp_path / "screens"))
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "| base | as the config | 3 |" in done.stdout and "model.stride=1, model.lines=90" in done.stdout
+    report = done.stdout
+    assert "| base | as the config | 3 |" in report and "model.stride=1, model.lines=90" in report
+    assert "by GT depth range (m) and pixel class" in report and "| off edge |" in report

@@ -135,3 +135,11 @@ def test_direct_visibility_names_bad_input():
         direct_visibility_mask(ones, ones, ones, -1.0, sensor(0.01, 0.01))
     with pytest.raises(ValueError, match="window"):
         direct_visibility_mask(ones, ones, ones, 1.0, sensor(0.01, 0.01), window=4)
+
+
+def test_docstring_examples():
+    import doctest
+
+    from dotsim import masks
+
+    assert doctest.testmod(masks).failed == 0

@@ -569,3 +569,43 @@ def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{out}: holds scenes of a real sensor" in err, err
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_test_scenes_of_the_training_meshes_are_new_scenes(tmp_path):
+    """[assets] test_assets = "train" (`dotsim generate --test-assets train`): the test split's scenes
+    draw the training cache's meshes and clutter density (DepthInSpace's like-for-like test), and with
+    another seed they are other scenes than the training ones; the default keeps the splits disjoint."""
+    from assets_manifest.cache import build_asset_cache, load_asset_cache
+    from assets_manifest.manifest import load_manifest
+    from generator.resources import split_assets
+
+    for split, seeds in (("train", "[0, 1]"), ("test", "[5, 6]")):
+        manifest = tmp_path / f"{split}.toml"
+        manifest.write_text(CACHE_MANIFEST.replace('name = "test"', f'name = "{split}"')
+                            .replace("seeds = [0, 1]", f"seeds = {seeds}", 1))
+        build_asset_cache(load_manifest(manifest), tmp_path / "cache", split, progress=False,
+                          log=lambda *args: None)
+    mesh_paths = {split: {m.path for m in load_asset_cache(tmp_path / "cache", split).meshes}
+                  for split in ("train", "test")}
+    assert mesh_paths["train"] and not mesh_paths["train"] & mesh_paths["test"]
+    config_path = tmp_path / "cached.toml"
+    config_path.write_text(TINY.read_text() + '\n[assets]\nsource = "cache"\ncache_dir = "cache"\n')
+    disjoint = load_config(config_path)
+    seen = replace(disjoint, assets=replace(disjoint.assets, test_assets="train"))
+
+    def meshes(config, split, seed, index):
+        resources = split_assets(config, split, tmp_path).with_pattern("/data/pattern.png", "ab" * 32)
+        spec = sample_scene_spec(config, index, seed, split, resources)
+        assert spec.split == split
+        return spec, {o.mesh.path for o in spec.objects if o.name.startswith("object_")}
+
+    for index in range(3):
+        trained, train_meshes = meshes(disjoint, "train", 0, index)
+        tested, test_meshes = meshes(seen, "test", 1, index)
+        _, disjoint_meshes = meshes(disjoint, "test", 1, index)
+        assert train_meshes <= mesh_paths["train"] and test_meshes <= mesh_paths["train"]
+        assert disjoint_meshes <= mesh_paths["test"]
+        placed = lambda spec: [o.location for o in spec.objects if o.name.startswith("object_")]  # noqa: E731
+        assert placed(tested) != placed(trained)  # another scene of the same meshes
+    # the training cache's clutter density (2, as the manifest says) for both splits' scenes
+    assert split_assets(seen, "test", tmp_path).density == split_assets(seen, "train", tmp_path).density

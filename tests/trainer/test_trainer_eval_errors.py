@@ -171,6 +171,23 @@ def test_config_resolution_mismatch_is_named():
     assert "lines = 112" in resolution_mismatch(load_config("train_cpu"), 122, 90)  # 112 > 45 rows
 
 
+def test_train_table2_fits_the_table2_camera_standing_upright():
+    """--config table2 renders DepthInSpace's camera, 432 px wide and 512 px tall: train_table2's lines
+    cover its 256 half-resolution rows 4 apiece (the 54 of the camera lying on its side do not fit)."""
+    from dataclasses import replace
+
+    from generator.config import load_config as load_generator_config
+    from generator.sample_scene import build_rig
+    from trainer.config import resolution_mismatch
+
+    camera = build_rig(load_generator_config("table2")).camera
+    assert (camera.width, camera.height) == (432, 512)
+    cfg = load_config("train_table2")
+    assert cfg.model.lines * 4 == 512 // 2 and resolution_mismatch(cfg, 432, 512) is None
+    old = replace(cfg, model=replace(cfg.model, lines=54))
+    assert "lines = 54" in resolution_mismatch(old, 432, 512)
+
+
 def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
     """The SGBM variant the verdict uses is the one with the lower o(0.5) on the validation frames (here
     the train split, scored separately by a full evaluate of it), and validation frames overlapping the

@@ -63,3 +63,14 @@ def test_unknown_preset_names_the_choices():
 def test_the_docstring_example():
     result = doctest.testmod(presets)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_ctd_synthetic_is_depthinspace_camera_standing_upright():
+    """DepthInSpace's synthetic camera (its data generator's imsize (512, 432) is (height, width), K with
+    f 435.2 and principal point (216, 256) = (W/2, H/2)): 432 px wide, 512 px tall; the projector keeps
+    the presets' rule of 2 pattern px per camera px, so its image stands upright too."""
+    rig = get_preset("ctd_synthetic")
+    assert (rig.camera.width, rig.camera.height, rig.camera.fx, rig.camera.fy) == (432, 512, 435.2, 435.2)
+    assert (rig.camera.cx + 0.5, rig.camera.cy + 0.5) == (216, 256)  # DepthInSpace's K, pixel centres at +0.5
+    assert rig.projector.fx == 2 * rig.camera.fx and rig.projector.height > rig.projector.width
+    assert rig.baseline == 0.025 and rig.max_depth == 6.0

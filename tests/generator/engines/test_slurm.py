@@ -96,6 +96,15 @@ def test_dry_run_with_rig_prints_the_config_the_tasks_read(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_dry_run_with_test_assets_prints_the_config_the_tasks_read(tmp_path, capsys):
+    """--test-assets train sets [assets] test_assets in the config the array tasks render from."""
+    out = tmp_path / "d"
+    assert run_cli("--config", str(TINY), "--test-assets", "train", "--out", str(out), "--split", "test",
+                   "--scenes", "2", "--seed", "3", "--slurm-dry-run") == 0
+    text = capsys.readouterr().out
+    assert '"test_assets": "train"' in text and not out.exists()
+
+
 def test_no_sbatch_on_path_is_one_line_and_writes_nothing(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path / "empty"))
     out = tmp_path / "d"
