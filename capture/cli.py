@@ -264,7 +264,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "laser speckle; peak signal-to-noise ratio; dots per area by depth where depth is known) and the "
         "ambient light over the projector's (with projector-off frames); print them with their standard "
         "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml) and a drawing "
-        "(OUTPUT.png). At least 4 frames of the still scene (16 or more recommended); with one frame the "
+        "(OUTPUT.png). Clipped samples (at or above where the sensor saturates) are left out of every statistic, "
+        "with their count. At least 4 frames of the still scene (16 or more recommended); with one frame the "
         "noise comes from flat regions of it (spatial statistics), and it says so. With --compare, the same "
         "statistics of a rendering of your config side by side, and blur_sigma and speckle_contrast set so "
         "its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
@@ -279,17 +280,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      "its ambient frames): the ambient light, and more levels for the noise")
     fit.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value of full scale (default: the files' full scale: 255, 65535, or 1 for "
-                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
+                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs: 16-bit files whose values fit in 12 bits "
+                     "are refused without it); at least the data's maximum")
     fit.add_argument("--compare", type=Path, metavar="DATASET",
                      help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
-                     "translation = 0 and rotation = 0): its statistics beside the recording's, and "
-                     "blur_sigma and speckle_contrast fitted against it")
+                     "translation = 0 and rotation = 0) with the recording's rig, at any scale (its camera "
+                     "is checked: field of view, or aspect ratio for image files): its statistics beside "
+                     "the recording's, and blur_sigma and speckle_contrast fitted against it")
     fit.add_argument("--speckle-grain", type=number(0.0, 100.0, low_open=True),
                      help="the speckle grain assumed, full-resolution px ([sensor] speckle_grain; default: "
                      "the --compare rendering's, else 2)")
     add_output(fit, "the [sensor] table to write (.toml); the drawing goes beside it (.png)",
                metavar="SENSOR.toml", old=("--output",), dest="output", type=Path)
     fit.set_defaults(func=_fit_sensor)
+
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -508,7 +512,7 @@ def _record(args: argparse.Namespace) -> int:
 def _fit_sensor(args: argparse.Namespace) -> int:
     from capture.fit_report import draw_report, report_text, sensor_toml
     from capture.sensor_fit import fit, measure
-    from capture.static_recording import open_recording
+    from capture.static_recording import comparison_notes, open_recording
     from dotsim.config_schema import ConfigError
     from dotsim.images import write_image
 
@@ -523,7 +527,9 @@ def _fit_sensor(args: argparse.Namespace) -> int:
         rendering = open_recording([str(args.compare)]) if args.compare is not None else None
         if rendering is not None and rendering.kind != "rendered":
             raise CaptureError(f"--compare {args.compare}: a recording, not a rendering of `dotsim generate`")
+        notes = comparison_notes(recording, rendering, f"--compare {args.compare}") if rendering else []
         stats = measure(recording)
+        stats.notes.extend(notes)
         reference = measure(rendering) if rendering is not None else None
         fitted = fit(stats, reference, args.speckle_grain)
     except (CaptureError, ConfigError) as error:

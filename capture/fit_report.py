@@ -49,7 +49,8 @@ def _rows(stats: SensorStatistics) -> list[tuple[str, str]]:
     clipped = stats.black.value == 0 and stats.black.error == 0
     rows.append(("black level", "0 (the sensor clips there)" if clipped
                  else f"<= {_estimate(stats.black)} (its darkest pixels)"))
-    rows.append(("saturation", f"{stats.saturation:.4g} ({100 * stats.saturated_share:.2f}% of the samples)"
+    rows.append(("saturation (clipped, left out)", f"{stats.saturation:.4g}: {stats.saturated} samples, "
+                 f"{100 * stats.saturated_share:.2f}% of the projector-on samples"
                  if stats.saturation is not None else "not reached"))
     rows.append(("bit depth", str(stats.bit_depth) if stats.bit_depth else "more than 16 or not quantised"))
     rows.append(("99th percentile level", f"{stats.exposure_level:.3g}"))
