@@ -30,6 +30,8 @@ from dotsim.rig_files import CalibratedRig, RigFileError, composed_rig
 from dotsim.rig_report import summary_line
 from generator.config import ConfigError, OutputConfig, rig_from_options
 
+# The nearest depth SGBM's range is sized for when a rendering's config gives none, m.
+DEFAULT_NEAREST = 0.5
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
@@ -294,6 +296,42 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                metavar="SENSOR.toml", old=("--output",), dest="output", type=Path)
     fit.set_defaults(func=_fit_sensor)
 
+    compare = actions.add_parser(
+        "compare",
+        help="a realism report: a recording beside a rendering of the config for its sensor, statistic by "
+        "statistic, and a picture",
+        description="Measure a recording of a still scene and a still rendering of your config the same way "
+        "(fit-sensor's statistics, plus from one frame the ambient light over the projector's and the share "
+        "of pixels OpenCV's SGBM leaves unmatched: left against right IR for a stereo pair, against the "
+        "reference pattern for a mono sensor) and print one table: each statistic for both and their ratio, "
+        "rendering over recording, in the recording's pixels. Writes the table (OUTPUT.json) and a picture "
+        "(OUTPUT.png): crops of both frames at the same scale side by side, the noise against level, the dots' "
+        "FWHM and peak SNR histograms (docs/CAPTURE.md \"How real a rendering looks\").",
+    )
+    compare.add_argument("recording", nargs="+", metavar="RECORDING",
+                         help="as fit-sensor's: image files, folders or quoted globs of one still scene, or one "
+                         "dataset of `capture import` / `capture record`")
+    compare.add_argument("rendering", type=Path, metavar="DATASET",
+                         help="a still rendering of your config with the recording's rig, at any [rig] scale "
+                         "(`dotsim generate` with [motion] translation = 0 and rotation = 0)")
+    compare.add_argument("--off", nargs="+", metavar="IMG", default=[],
+                         help="projector-off frames of the recording's still scene (image recordings)")
+    compare.add_argument("--white-level", type=number(0.0, low_open=True),
+                         help="raw value of full scale of image recordings (as fit-sensor's)")
+    compare.add_argument("--pattern", type=Path, metavar="PNG",
+                         help="a mono recording's reference pattern in its camera's pixels (the pattern as seen "
+                         "from infinity, the frame's size) for SGBM; a dataset's is its pattern.png seen "
+                         "through its rig")
+    compare.add_argument("--right", nargs="+", metavar="IMG", default=[],
+                         help="a stereo recording's right IR frames (image recordings; a dataset's are its "
+                         "ir_right): SGBM then matches left against right")
+    compare.add_argument("--num-disparities", type=integer(16),
+                         help="SGBM's disparity range in the rendering's px, a multiple of 16 (default: what the "
+                         "rendering's nearest [scene] distance needs through its rig); the recording's is "
+                         "scaled to its pixels")
+    add_output(compare, "the report's picture (.png); the table goes beside it (.json)", metavar="REPORT.png",
+               dest="output", type=Path)
+    compare.set_defaults(func=_compare)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -542,6 +580,66 @@ def _fit_sensor(args: argparse.Namespace) -> int:
     atomic_write_bytes(args.output, sensor_toml(fitted, header).encode())
     print(report_text(stats, fitted, reference))
     print(f"wrote {args.output} and {drawing} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from capture import realism
+    from capture.sensor_fit import measure
+    from capture.static_recording import comparison_notes, open_recording
+    from dotsim.config_schema import ConfigError
+    from dotsim.images import write_image
+    from trainer.sgbm import num_disparities_for
+
+    start = time.perf_counter()
+    try:
+        if args.output.suffix.lower() != ".png":
+            raise CaptureError(f"-o {args.output}: the report's picture is written as a .png file")
+        if not args.output.parent.is_dir():
+            raise CaptureError(f"-o {args.output}: folder {args.output.parent} does not exist")
+        check_writable_folder(args.output.parent, "-o")
+        if args.num_disparities is not None and args.num_disparities % 16:
+            raise CaptureError(f"--num-disparities {args.num_disparities}: allowed: a multiple of 16")
+        recording = open_recording(args.recording, args.off, args.white_level)
+        rendering = open_recording([str(args.rendering)])
+        if rendering.kind != "rendered":
+            raise CaptureError(f"DATASET {args.rendering}: a recording, not a rendering of `dotsim generate`")
+        notes = comparison_notes(recording, rendering, f"DATASET {args.rendering}")
+        frame, reference, right, rig, nearest = realism.dataset_frames(args.rendering)
+        rendered_range = args.num_disparities or num_disparities_for(rig, nearest or DEFAULT_NEAREST)
+        ratio = recording.size[0] / rendering.size[0]
+        real_range = 16 * max(1, -(-round(rendered_range * ratio) // 16))
+        window = max(3, round(DEFAULT_DOT_WINDOW / ratio))
+        rendered_look = realism.frame_look(frame, rendered_range, reference, right, window)
+        if recording.kind == "images":
+            real_frame = np.mean(next(recording.scenes()).on, axis=0)
+            real_reference = read_image(args.pattern).relative() if args.pattern else None
+            real_right = np.mean([read_image(p).relative(args.white_level) for spec in args.right
+                                  for p in list_images(spec, what="--right")], axis=0) if args.right else None
+        else:
+            if args.pattern or args.right:
+                raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used (leave "
+                                   "--pattern and --right out)")
+            real_frame, real_reference, real_right, _, _ = realism.dataset_frames(Path(recording.name))
+        real_look = realism.frame_look(real_frame, real_range, real_reference, real_right)
+        real_stats, rendered_stats = measure(recording), measure(rendering)
+    except (CaptureError, ConfigError, FormatError) as error:
+        return _fail("compare", error)
+    table = realism.rows(real_stats, real_look, rendered_stats, rendered_look)
+    picture = write_image(args.output, realism.draw(real_stats, real_look, rendered_stats, rendered_look))
+    record = {"recording": recording.name, "rendering": str(args.rendering), "notes": notes,
+              "num_disparities": {"recording": real_range, "rendering": rendered_range},
+              "rows": [{"statistic": name, "recording": real, "rendering": rendered,
+                        "ratio": None if real in (None, 0) or rendered is None else rendered / real}
+                       for name, real, rendered in table]}
+    table_file = args.output.with_suffix(".json")
+    atomic_write_bytes(table_file, (json.dumps(record, indent=2) + "\n").encode())
+    print(f"recording: {recording.name} ({recording.size[0]} x {recording.size[1]} px); rendering: "
+          f"{args.rendering} ({rendering.size[0]} x {rendering.size[1]} px)")
+    print(realism.table_text(table))
+    for note in notes + real_stats.notes:
+        print(f"note: {note}")
+    print(f"wrote {picture} and {table_file} in {time.perf_counter() - start:.1f} s")
     return 0
 
 

@@ -234,3 +234,39 @@ def test_compare_checks_the_camera(rendered, tmp_path, capsys):
     assert status == 2 and "another field of view; render your config with the recording's rig" in err, err
     assert not output.exists()
 
+
+def test_compare_a_recording_with_a_rendering(rendered, tmp_path, capsys):
+    """`capture compare` of the rendered capture's first scene as image files (with its reference
+    pattern as a PNG in camera pixels) against the rendered capture itself: the same frames measured
+    through both paths, so every ratio is near 1 (the one-frame statistics exactly: the same mean
+    frame), and the table, the JSON and the picture are written."""
+    from capture.realism import dataset_frames
+
+    scenes = [dataset.read_scene(ref.path) for ref in dataset.open_dataset(rendered["capture"]).scenes]
+    write_frames(scenes[0].frames, tmp_path / "on")
+    reference = dataset_frames(rendered["capture"])[1]
+    cv2.imwrite(str(tmp_path / "reference.png"), np.round(reference / reference.max() * 65535).astype(np.uint16))
+    report = tmp_path / "report.png"
+    status = main(["capture", "compare", str(tmp_path / "on"), str(rendered["capture"]), "--white-level", "1023",
+                   "--pattern", str(tmp_path / "reference.png"), "-o", str(report)])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    rows = {row["statistic"].split(" (")[0]: row for row in json.loads(report.with_suffix(".json").read_text())["rows"]}
+    assert rows["ambient / projector light, one frame"]["ratio"] == pytest.approx(1, abs=1e-3)
+    unmatched = rows["SGBM unmatched share"]
+    assert 0 < unmatched["recording"] < 1 and unmatched["ratio"] == pytest.approx(1, abs=0.05)
+    for name in ("read noise", "shot noise at full scale", "dot FWHM, recording px"):
+        assert rows[name]["ratio"] == pytest.approx(1, abs=0.15), name
+    assert "statistic" in out and "ratio" in out and "SGBM unmatched share (against the reference pattern)" in out
+    picture = cv2.imread(str(report))
+    assert picture.shape[1] == 880 and picture.shape[0] > 640
+    # a recording given as the rendering, and a picture that is not a .png: one line each, nothing written
+    report.unlink()
+    for args, message in (([str(tmp_path / "on"), str(tmp_path / "zoom_missing")], "zoom_missing"),
+                          ([str(tmp_path / "on"), str(rendered["capture"]), "-o", str(tmp_path / "r.jpg")],
+                           "-o " + str(tmp_path / "r.jpg") + ": the report's picture is written as a .png file")):
+        status = main(["capture", "compare", *args, "--white-level", "1023"] + ([] if "-o" in args else
+                                                                              ["-o", str(report)]))
+        _, err = capsys.readouterr()
+        assert status == 2 and message in err and err.count("\n") == 1, err
+    assert not report.exists()
