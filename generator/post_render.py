@@ -7,6 +7,9 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   projector and flood);
   and the same of the rig's second camera, named with its suffix (projector_right, ...), when the
   spec renders the stereo pair (SceneSpec.cameras).
+With the spec's ambient_ratio ([lighting] ambient_ratio) the ambient passes are first scaled so that
+the ambient light over the projector's, averaged where the projector reaches directly, is that ratio
+(ambient_scale; the right camera's by the same factor: one room).
 Stored channels (dotsim.channels, the channels' one declaration: make_frame gives exactly the
 rendered ones it stores):
   ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered;
@@ -93,7 +96,8 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
     rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, spec, where)
     depth = _depth(raw["depth"])
-    ambient = raw["ambient"]
+    room = ambient_scale(raw["ambient"], raw["projector"], raw["flood_direct"] > 0, spec.ambient_ratio)
+    ambient = raw["ambient"] * room if room != 1.0 else raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(depth <= rig.max_depth, depth, np.nan)
     if sensor.has_speckle and (frame is None or not 0 <= frame < len(spec.poses)):
@@ -120,11 +124,27 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
             raise ValueError(f"{where}: the spec renders the stereo pair; the right camera needs a noise "
                              f"stream of its own (right_rng)")
         right = spec.cameras[1]
-        right_signal = raw["ambient_right"] + _speckled(raw, right.suffix, sensor, spec, frame)[0]
+        right_ambient = raw["ambient_right"] * room if room != 1.0 else raw["ambient_right"]
+        right_signal = right_ambient + _speckled(raw, right.suffix, sensor, spec, frame)[0]
         made["ir_right"] = sensor.apply(right_signal, right_rng, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
+
+
+def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray, ratio: float | None) -> float:
+    """The factor that brings the ambient light over the projector's light, both averaged where the
+    projector reaches, to `ratio` (fit-sensor's ambient / projector statistic, as a recording's
+    projector-off over on - off); 1 when ratio is None or either light is 0 there.
+
+    >>> ambient, projector = np.full((2, 2), 0.5), np.array([[1.0, 0.0], [1.0, 0.0]])
+    >>> ambient_scale(ambient, projector, projector > 0, 4.0)   # 4 x 1.0 / 0.5
+    8.0
+    """
+    if ratio is None or not reached.any():
+        return 1.0
+    light, room = float(projector[reached].mean()), float(ambient[reached].mean())
+    return ratio * light / room if light > 0 and room > 0 else 1.0
 
 
 def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, frame: int | None):

@@ -335,7 +335,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         for _ in range(int(rng.integers(li.extra_lights[0], li.extra_lights[1] + 1))))
     projector_power = _uniform(rng, li.projector_power)
     seed = scene_seed(base_seed, scene_index)
-    return SceneSpec(
+    spec = SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
         render=RenderSettings(**asdict(config.render), seed=seed),
         rig=rig,
@@ -350,6 +350,10 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         sensor=sensor_settings(config),
         masks=config.masks,
     )
+    # drawn last, and only when asked for, so that every other draw (and so today's scenes) stays as it was
+    if li.ambient_ratio[1] <= 0:
+        return spec
+    return replace(spec, ambient_ratio=_log_uniform(rng, *li.ambient_ratio))
 
 
 def sensor_settings(config: Config) -> SensorSettings:

@@ -336,9 +336,10 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "cameras", "objects", "sensor", "masks")
-# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone.
-_OPTIONAL = ("cameras",)
+              "lights", "poses", "cameras", "objects", "sensor", "masks", "ambient_ratio")
+# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone;
+# without ambient_ratio the ambient stays as rendered.
+_OPTIONAL = ("cameras", "ambient_ratio")
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -368,6 +369,10 @@ class SceneSpec(Checked):
     objects: tuple[SceneObject, ...]
     sensor: SensorSettings
     masks: MaskParams
+    # The ambient light over the projector's where it reaches, that the post-render scales the ambient
+    # passes to (generator.post_render); None: the ambient as rendered.
+    ambient_ratio: float | None = setting(None, "ambient over projector light where the projector reaches",
+                                          low=0.0, low_open=True, high=1e6)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -395,7 +400,7 @@ class SceneSpec(Checked):
             "objects": [obj.to_dict() for obj in self.objects],
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
-        }
+        } | ({} if self.ambient_ratio is None else {"ambient_ratio": self.ambient_ratio})
 
     @classmethod
     def from_dict(cls, d: Any) -> SceneSpec:
@@ -433,5 +438,6 @@ class SceneSpec(Checked):
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
             sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
+            ambient_ratio=check_field(cls, "ambient_ratio", d.get("ambient_ratio"), f"{_WHERE}: ambient_ratio"),
             **one_key,
         )

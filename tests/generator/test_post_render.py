@@ -181,3 +181,19 @@ def test_radiance_beyond_float16_saturates_and_the_frame_can_be_written():
         others[3, 4] = others[5, 6] = False
         np.testing.assert_array_equal(hot[name][others], frame[name][others])
     encode_frame(hot, SHAPE, stored_channels(rendered_channels(stereo=False)))  # no FormatError
+
+
+def test_the_ambient_is_scaled_to_the_target_ratio_where_the_projector_reaches():
+    """[lighting] ambient_ratio r: the ambient passes times one factor, so that the ambient light over
+    the projector's light, both averaged where the projector reaches directly, is r."""
+    raw = raw_frame(0.03, 0.1, 0.02)  # ambient 0.03, the projector 0.12, on the left half only
+    half = SHAPE[1] // 2
+    for name in ("projector", "projector_direct", "flood_direct"):
+        raw[name][:, half:] = 0.0
+    spec = spec_with()  # no noise, fixed exposure: ir = ambient + projector
+    frame = make_frame(raw, replace(spec, ambient_ratio=5.0), np.random.default_rng(0))
+    np.testing.assert_allclose(frame["ambient"], 5.0 * 0.12, rtol=1e-3)  # everywhere: one room
+    np.testing.assert_allclose(frame["ir"][:, :half], 0.6 + 0.12, rtol=1e-3)
+    np.testing.assert_allclose(frame["ir"][:, half:], 0.6, rtol=1e-3)
+    as_rendered = make_frame(raw, spec, np.random.default_rng(0))
+    np.testing.assert_allclose(as_rendered["ambient"], 0.03, rtol=1e-3)

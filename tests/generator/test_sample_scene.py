@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from dotsim.rig import Rig
-from generator.config import config_from_dict
+from generator.config import ConfigError, config_from_dict
 from generator.sample_scene import (
     SceneResources,
     TextureAsset,
@@ -253,3 +253,22 @@ def test_a_camera_facing_the_back_wall_sees_it_head_on_behind_the_objects():
         depths = camera_points(d)[:, 2]
         assert len(depths) == 20 and depths.min() > 0 and depths.max() < back_y - y
     assert len({spec_dict(overrides, index=k)["poses"][0][1][3] for k in range(5)}) == 5  # drawn per scene
+
+
+def test_ambient_ratio_is_drawn_last_and_only_when_asked_for():
+    """[lighting] ambient_ratio: each scene draws its target log-uniformly in the range, after every
+    other draw, so the rest of the scene is the one drawn without it; [0, 0] (the default) draws
+    nothing and records nothing; a range starting at 0 is refused."""
+    plain = sample_scene_spec(config_from_dict({}), 3, 0, "train", SceneResources("/p.png", "0" * 64))
+    config = config_from_dict({"lighting": {"ambient_ratio": [0.1, 20.0]}})
+    ratios = []
+    for index in range(20):
+        spec = sample_scene_spec(config, index, 0, "train", SceneResources("/p.png", "0" * 64))
+        ratios.append(spec.ambient_ratio)
+        if index == 3:
+            lit = spec.to_dict()
+            assert lit.pop("ambient_ratio") == spec.ambient_ratio and lit == plain.to_dict()
+    assert plain.ambient_ratio is None and "ambient_ratio" not in plain.to_dict()
+    assert all(0.1 <= r <= 20.0 for r in ratios) and min(ratios) < 1.0 < max(ratios)
+    with pytest.raises(ConfigError, match=r"\[lighting\] ambient_ratio = \[0, 5\]: not allowed"):
+        config_from_dict({"lighting": {"ambient_ratio": [0.0, 5.0]}})
