@@ -103,6 +103,7 @@ class SensorStatistics:
     depth_dots: np.ndarray
     depth_pixels: np.ndarray
     notes: list[str] = field(default_factory=list)
+    scene_ambient_ratios: tuple[float, ...] = ()
 
     @property
     def read_noise(self) -> Estimate:
@@ -135,10 +136,13 @@ class SensorStatistics:
 
 @dataclass(frozen=True)
 class SensorFit:
-    """[sensor] values with their standard errors, and a note on how each was found."""
+    """[sensor] values with their standard errors, and a note on how each was found; and the
+    [lighting] ambient_ratio range of the recording's scenes (lowest, highest; None without
+    projector-off frames)."""
     values: dict
     errors: dict
     notes: dict
+    ambient_ratio: tuple[float, float] | None = None
 
 
 def measure(recording: StaticRecording) -> SensorStatistics:
@@ -201,7 +205,8 @@ def measure(recording: StaticRecording) -> SensorStatistics:
         brightness_contrast(np.concatenate([d.ratio for d in dots]),
                             np.concatenate([d.ratio_noise for d in dots])),
         np.concatenate([d.snr for d in dots]), sum(d.detected for d in dots),
-        np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes)
+        np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes,
+        tuple(ratios))
 
 
 def _step(depth: int | None) -> float:
@@ -319,15 +324,18 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
     values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
     SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
-    return SensorFit(values, errors, notes)
+    ratios = stats.scene_ambient_ratios
+    ambient = (_significant(min(ratios), 3), _significant(max(ratios), 3)) if ratios else None
+    return SensorFit(values, errors, notes, ambient)
+
+
+def _significant(x: float, digits: int) -> float:
+    return 0.0 if x == 0 else round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
 
 
 def _rounded(estimate: Estimate) -> tuple[float, float]:
     """The value to 3 significant digits and its error to 2."""
-    def significant(x, digits):
-        return 0.0 if x == 0 else round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
-
-    return significant(estimate.value, 3), significant(estimate.error, 2)
+    return _significant(estimate.value, 3), _significant(estimate.error, 2)
 
 
 def _calibrated(stats: SensorStatistics, reference: SensorStatistics,

@@ -7,6 +7,7 @@ samples are left out), so the fit must still find them within 10%.
 """
 
 import shutil
+import tomllib
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from commands.cli import main
+from generator.config import config_from_dict
 from generator.scene_spec import SensorSettings
 from generator.sensor_model import SensorModel
 
@@ -55,8 +57,6 @@ def fit_sensor(capsys, *args) -> tuple[int, str, str]:
 
 
 def table(path: Path) -> dict:
-    import tomllib
-
     return tomllib.loads(path.read_text())["sensor"]
 
 
@@ -122,7 +122,15 @@ def test_dataset_folders_are_datasets(scene, tmp_path, capsys):
     assert "(capture; 1 scene(s), 8 projector-on frame(s), 243 x 179 px)" in out
     assert table(output)["read_noise"] == pytest.approx(READ, rel=0.1)
     assert table(output)["shot_noise"] == pytest.approx(SHOT, rel=0.1)
-    assert "ambient / projector light" in out
+    # its projector-off frames give the [lighting] ambient_ratio of its one scene, which pastes into a config
+    ambient = float(out.split("ambient / projector light")[1].split()[0])
+    lighting = tomllib.loads(output.read_text())["lighting"]
+    assert lighting["ambient_ratio"] == [pytest.approx(ambient, rel=0.01)] * 2
+    assert config_from_dict({"lighting": lighting}).lighting.ambient_ratio == tuple(lighting["ambient_ratio"])
+    # the ambient over the dots' light: the ramp's mean over the dots' where they are (the dots cover a
+    # few px each, so it lies between the whole frame's ratio and that at the dots' peaks)
+    on_light = scene[2]
+    assert 0.357 / 0.3 < ambient < float(on_light.mean() - 0.357) ** -1 * 0.357
     output.unlink()
     other = tmp_path / "other"
     shutil.copytree(data, other)
