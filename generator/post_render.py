@@ -132,19 +132,33 @@ def make_frame(raw: dict, spec: SceneSpec, rng: np.random.Generator, where: str 
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
 
 
-def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray, ratio: float | None) -> float:
-    """The factor that brings the ambient light over the projector's light, both averaged where the
-    projector reaches, to `ratio` (fit-sensor's ambient / projector statistic, as a recording's
-    projector-off over on - off); 1 when ratio is None or either light is 0 there.
+def ambient_projector_ratio(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray) -> float | None:
+    """Mean ambient light over mean projector light, both where the projector reaches (fit-sensor's
+    ambient / projector statistic: a recording's projector-off over on - off); None where that is
+    undefined (the projector reaches nothing, or adds no light there).
 
     >>> ambient, projector = np.full((2, 2), 0.5), np.array([[1.0, 0.0], [1.0, 0.0]])
-    >>> ambient_scale(ambient, projector, projector > 0, 4.0)   # 4 x 1.0 / 0.5
+    >>> ambient_projector_ratio(ambient, projector, projector > 0)
+    0.5
+    """
+    if not reached.any():
+        return None
+    light = float(projector[reached].mean())
+    return float(ambient[reached].mean()) / light if light > 0 else None
+
+
+def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray, ratio: float | None) -> float:
+    """The factor that brings ambient_projector_ratio to `ratio`; 1 when ratio is None or the frame's
+    own ratio is undefined or 0 (no ambient light to scale).
+
+    >>> ambient, projector = np.full((2, 2), 0.5), np.array([[1.0, 0.0], [1.0, 0.0]])
+    >>> ambient_scale(ambient, projector, projector > 0, 4.0)   # 4 / 0.5
     8.0
     """
-    if ratio is None or not reached.any():
+    if ratio is None:
         return 1.0
-    light, room = float(projector[reached].mean()), float(ambient[reached].mean())
-    return ratio * light / room if light > 0 and room > 0 else 1.0
+    current = ambient_projector_ratio(ambient, projector, reached)
+    return ratio / current if current else 1.0
 
 
 def _speckled(raw: dict, suffix: str, sensor: SensorModel, spec: SceneSpec, frame: int | None):
