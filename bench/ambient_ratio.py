@@ -6,9 +6,8 @@ sensor model; its median and the 10th to 90th percentile over the frames of --sc
     python -m bench.ambient_ratio [--width 64] [--scenes 4] [--configs default,kinect,...]
 
 Built-in primitives instead of an asset cache (the lighting is the config's), 1 Cycles sample, the
-configs at [rig] scale width / their camera width. Real indoor captures for comparison: a RealSense
-D415 frame about 8 (fit-sensor), the vendored Kinect v1 frame 7.8 (one-frame estimate of `dotsim
-capture compare`). [lighting] ambient_ratio, when set, scales a scene to its target after this
+configs at [rig] scale width / their camera width. For comparison: the vendored Kinect v1 frame gives
+7.8 (the one-frame estimate of `dotsim capture compare`). [lighting] ambient_ratio, when set, scales a scene to its target after this
 (docs/CAPTURE.md "Rooms lit as real rooms are"); this bench measures the configs as they are.
 """
 
