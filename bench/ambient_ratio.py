@@ -7,8 +7,9 @@ sensor model; its median and the 10th to 90th percentile over the frames of --sc
 
 Built-in primitives instead of an asset cache (the lighting is the config's), 1 Cycles sample, the
 configs at [rig] scale width / their camera width. For comparison: the vendored Kinect v1 frame gives
-7.8 (the one-frame estimate of `dotsim capture compare`). [lighting] ambient_ratio, when set, scales a scene to its target after this
-(docs/CAPTURE.md "Rooms lit as real rooms are"); this bench measures the configs as they are.
+7.8 (the one-frame estimate of `dotsim capture compare`). [lighting] ambient_ratio, when set, scales a
+scene to its target after this (docs/CAPTURE.md "Rooms lit as real rooms are"); this bench measures the
+configs as they are.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-CONFIGS = ("default", "structure_core", "kinect", "realsense_d415", "realsense_d435", "tiny", "bench_accuracy",
-           "table2")
+CONFIGS = ("default", "structure_core", "kinect", "realsense_d415", "realsense_d435", "tiny",
+           "bench_accuracy", "table2")
 
 
 def frame_ratios(name: str, width: int, scenes: int, folder: Path) -> list[float]:
@@ -56,7 +57,8 @@ def frame_ratios(name: str, width: int, scenes: int, folder: Path) -> list[float
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.ambient_ratio", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.ambient_ratio",
+                                     description=__doc__.split("\n\n")[0])
     parser.add_argument("--width", type=int, default=64, help="camera width of the renders, px (default 64)")
     parser.add_argument("--scenes", type=int, default=4, help="scenes per config (default 4)")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="built-in configs, comma-separated")

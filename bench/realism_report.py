@@ -42,9 +42,10 @@ def still_config(scale: float, samples: int, threads: int, assets: str, sensor: 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.realism_report", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scale", type=float, default=0.5, help="[rig] scale of the renderings (default 0.5: "
-                        "320 x 256)")
+    parser = argparse.ArgumentParser(prog="python -m bench.realism_report",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scale", type=float, default=0.5,
+                        help="[rig] scale of the renderings (default 0.5: 320 x 256)")
     parser.add_argument("--scenes", type=int, default=1, help="still scenes of 4 frames each (default 1)")
     parser.add_argument("--samples", type=int, default=4, help="Cycles samples (default 4)")
     parser.add_argument("--threads", type=int, default=1, help="render threads (default 1; 0: all cores)")
@@ -70,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
             if not (rendering / "index.json").is_file():
                 generate(still_config(args.scale, args.samples, args.threads, args.assets, sensor), rendering,
                          "train", args.scenes, seed=1, workers=1, progress=False)
-            print(f"\n== the Kinect config's rendering, [sensor] {'of the config' if sensor is None else 'fitted'}")
+            which = "of the config" if sensor is None else "fitted"
+            print(f"\n== the Kinect config's rendering, [sensor] {which}")
             report = folder / f"realism_{name}.png"
             status |= dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
                               str(REAL / "pattern.png"), "-o", str(report)])

@@ -267,11 +267,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "ambient light over the projector's (with projector-off frames); print them with their standard "
         "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml; with projector-off "
         "frames a [lighting] table too: the ambient_ratio range of the scenes) and a drawing "
-        "(OUTPUT.png). Clipped samples (at or above where the sensor saturates) are left out of every statistic, "
-        "with their count. At least 4 frames of the still scene (16 or more recommended); with one frame the "
-        "noise comes from flat regions of it (spatial statistics), and it says so. With --compare, the same "
-        "statistics of a rendering of your config side by side, and blur_sigma and speckle_contrast set so "
-        "its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
+        "(OUTPUT.png). Clipped samples (at or above where the sensor saturates) are left out of every "
+        "statistic, with their count. At least 4 frames of the still scene (16 or more recommended); with "
+        "one frame the noise comes from flat regions of it (spatial statistics), and it says so. With "
+        "--compare, the same statistics of a rendering of your config side by side, and blur_sigma and "
+        "speckle_contrast set so its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
     )
     fit.add_argument("recording", nargs="+", metavar="RECORDING",
                      help="projector-on frames of a still scene: image files, folders or quoted globs "
@@ -283,8 +283,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      "its ambient frames): the ambient light, and more levels for the noise")
     fit.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value of full scale (default: the files' full scale: 255, 65535, or 1 for "
-                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs: 16-bit files whose values fit in 12 bits "
-                     "are refused without it); at least the data's maximum")
+                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs: 16-bit files whose values fit in 12 "
+                     "bits are refused without it); at least the data's maximum")
     fit.add_argument("--compare", type=Path, metavar="DATASET",
                      help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
                      "translation = 0 and rotation = 0) with the recording's rig, at any scale (its camera "
@@ -306,12 +306,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "of pixels OpenCV's SGBM leaves unmatched: left against right IR for a stereo pair, against the "
         "reference pattern for a mono sensor) and print one table: each statistic for both and their ratio, "
         "rendering over recording, in the recording's pixels. Writes the table (OUTPUT.json) and a picture "
-        "(OUTPUT.png): crops of both frames at the same scale side by side, the noise against level, the dots' "
-        "FWHM and peak SNR histograms (docs/CAPTURE.md \"How real a rendering looks\").",
+        "(OUTPUT.png): crops of both frames at the same scale side by side, the noise against level, the "
+        "dots' FWHM and peak SNR histograms (docs/CAPTURE.md \"How real a rendering looks\").",
     )
     compare.add_argument("recording", nargs="+", metavar="RECORDING",
-                         help="as fit-sensor's: image files, folders or quoted globs of one still scene, or one "
-                         "dataset of `capture import` / `capture record`")
+                         help="as fit-sensor's: image files, folders or quoted globs of one still scene, or "
+                         "one dataset of `capture import` / `capture record`")
     compare.add_argument("rendering", type=Path, metavar="DATASET",
                          help="a still rendering of your config with the recording's rig, at any [rig] scale "
                          "(`dotsim generate` with [motion] translation = 0 and rotation = 0)")
@@ -320,16 +320,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     compare.add_argument("--white-level", type=number(0.0, low_open=True),
                          help="raw value of full scale of image recordings (as fit-sensor's)")
     compare.add_argument("--pattern", type=Path, metavar="PNG",
-                         help="a mono recording's reference pattern in its camera's pixels (the pattern as seen "
-                         "from infinity, the frame's size) for SGBM; a dataset's is its pattern.png seen "
-                         "through its rig")
+                         help="a mono recording's reference pattern in its camera's pixels (the pattern "
+                         "as seen from infinity, the frame's size) for SGBM; a dataset's is its pattern.png "
+                         "seen through its rig")
     compare.add_argument("--right", nargs="+", metavar="IMG", default=[],
                          help="a stereo recording's right IR frames (image recordings; a dataset's are its "
                          "ir_right): SGBM then matches left against right")
     compare.add_argument("--num-disparities", type=integer(16),
-                         help="SGBM's disparity range in the rendering's px, a multiple of 16 (default: what the "
-                         "rendering's nearest [scene] distance needs through its rig); the recording's is "
-                         "scaled to its pixels")
+                         help="SGBM's disparity range in the rendering's px, a multiple of 16 (default: what "
+                         "the rendering's nearest [scene] distance needs through its rig); the recording's "
+                         "is scaled to its pixels")
     add_output(compare, "the report's picture (.png); the table goes beside it (.json)", metavar="REPORT.png",
                dest="output", type=Path)
     compare.set_defaults(func=_compare)
@@ -619,8 +619,8 @@ def _compare(args: argparse.Namespace) -> int:
                                   for p in list_images(spec, what="--right")], axis=0) if args.right else None
         else:
             if args.pattern or args.right:
-                raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used (leave "
-                                   "--pattern and --right out)")
+                raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used "
+                                   "(leave --pattern and --right out)")
             real_frame, real_reference, real_right, _, _ = realism.dataset_frames(Path(recording.name))
         real_look = realism.frame_look(real_frame, real_range, real_reference, real_right)
         real_stats, rendered_stats = measure(recording), measure(rendering)

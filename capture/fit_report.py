@@ -112,7 +112,8 @@ def sensor_toml(fitted: SensorFit, header: str = "") -> str:
         lines.append("# blur_sigma: run with --compare DATASET (a rendering of your config) to set it")
     if fitted.ambient_ratio is not None:
         lines += ["[lighting]", f"ambient_ratio = {toml_text(list(fitted.ambient_ratio))}  # the lowest and "
-                  "highest of the recording's scenes (projector-off over on - off where the projector reaches)"]
+                  "highest of the recording's scenes (projector-off over on - off where the projector "
+                  "reaches)"]
     return "\n".join(lines) + "\n"
 
 

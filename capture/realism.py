@@ -127,6 +127,7 @@ def rows(real: SensorStatistics, real_look: FrameLook, rendered: SensorStatistic
          rendered_look: FrameLook) -> list[tuple[str, float | None, float | None]]:
     """(statistic, the recording's value, the rendering's) in the recording's pixels."""
     ratio = real.recording.size[0] / rendered.recording.size[0]  # recording px per rendering px
+    against = real_look.matched_against or rendered_look.matched_against or "no reference"
     level = float(np.median(real_look.frame))
 
     def per_area(stats: SensorStatistics, scale: float) -> float:
@@ -142,8 +143,7 @@ def rows(real: SensorStatistics, real_look: FrameLook, rendered: SensorStatistic
         ("dot peak SNR, one frame (median)", float(np.median(real.snr)), float(np.median(rendered.snr))),
         ("dots per 1000 recording px", per_area(real, 1.0), per_area(rendered, ratio)),
         ("ambient / projector light, one frame", real_look.ambient_ratio, rendered_look.ambient_ratio),
-        (f"SGBM unmatched share ({real_look.matched_against or rendered_look.matched_against or 'no reference'})",
-         real_look.unmatched, rendered_look.unmatched),
+        (f"SGBM unmatched share ({against})", real_look.unmatched, rendered_look.unmatched),
     ]
 
 
@@ -183,7 +183,7 @@ def draw(real: SensorStatistics, real_look: FrameLook, rendered: SensorStatistic
     for k, (crop, name) in enumerate(zip(crops, ("recording", "rendering"), strict=True)):
         x = 10 + k * (CROP_WIDTH + 20)
         strip[24:24 + crop.shape[0], x:x + crop.shape[1]] = crop
-        cv2.putText(strip, f"{name}: central {100 * CROP_SHARE:g}% of the view", (x, 16), cv2.FONT_HERSHEY_SIMPLEX,
-                    0.45, (235, 235, 235), 1, cv2.LINE_AA)
+        cv2.putText(strip, f"{name}: central {100 * CROP_SHARE:g}% of the view", (x, 16),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, (235, 235, 235), 1, cv2.LINE_AA)
     return np.concatenate([strip, panels], axis=0)
 

@@ -223,7 +223,8 @@ def _left_out(levels: Levels) -> str:
     """'; clipped: ...' naming the samples at or above the saturation level, or '' when none are."""
     if not levels.saturated:
         return ""
-    return (f"; clipped: {levels.saturated} of {levels.samples} projector-on samples ({100 * levels.saturated_share:.2f}%) at "
+    share = 100 * levels.saturated_share
+    return (f"; clipped: {levels.saturated} of {levels.samples} projector-on samples ({share:.2f}%) at "
             f"or above the saturation level {levels.saturation():.4g}, left out of every statistic")
 
 

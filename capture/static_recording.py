@@ -90,11 +90,12 @@ def open_recording(specs: list[str], off: list[str] = (),
             continue
         what = "--off" if spec in off and spec not in specs else "RECORDING"
         if kind == "dataset":
-            raise CaptureError(f"{what} {spec}: a dataset, read as its still scenes: give it alone, one dataset "
-                               "at a time (not with other recordings or --off)")
+            raise CaptureError(f"{what} {spec}: a dataset, read as its still scenes: give it alone, one "
+                               "dataset at a time (not with other recordings or --off)")
         if kind == "unsealed dataset":
             raise CaptureError(f"{what} {spec}: a dataset without its {INDEX_FILE} (unfinished or being "
-                               "written); let its run finish, or rerun it, then give the dataset folder alone")
+                               "written); let its run finish, or rerun it, then give the dataset folder "
+                               "alone")
         raise CaptureError(f"{what} {spec}: a {kind} of a dataset, not a folder of frames; give the dataset "
                            "folder alone (fit-sensor reads its scenes)")
     return _image_recording(specs, list(off), white_level)
@@ -153,14 +154,14 @@ def _check_white_level(images: list, white_level: float | None) -> None:
     brightest = max(images, key=lambda image: float(image.pixels.max()))
     highest = float(brightest.pixels.max())
     if white_level is not None and highest > white_level:
-        raise CaptureError(f"--white-level {white_level:g}: below the data's maximum {highest:g} ({brightest.path}); "
-                           f"allowed: at least {highest:g} (the raw value of full scale: 1023 for 10-bit data, "
-                           "4095 for 12-bit, 65535 for 16-bit)")
+        raise CaptureError(f"--white-level {white_level:g}: below the data's maximum {highest:g} "
+                           f"({brightest.path}); allowed: at least {highest:g} (the raw value of full scale: "
+                           "1023 for 10-bit data, 4095 for 12-bit, 65535 for 16-bit)")
     if white_level is None and brightest.pixels.dtype == np.uint16 and 0 < highest < 2**LOW_BITS:
         bits = max(int(highest).bit_length(), 1)
-        raise CaptureError(f"{brightest.path}: 16-bit files whose values reach only {highest:g}: {bits}-bit data "
-                           f"in the low bits of a 16-bit file? pass --white-level {2**bits - 1} (its full "
-                           "scale), or --white-level 65535 for 16-bit data of a dark scene")
+        raise CaptureError(f"{brightest.path}: 16-bit files whose values reach only {highest:g}: {bits}-bit "
+                           f"data in the low bits of a 16-bit file? pass --white-level {2**bits - 1} (its "
+                           "full scale), or --white-level 65535 for 16-bit data of a dark scene")
 
 
 def _dataset_recording(root: Path) -> StaticRecording:
@@ -225,25 +226,27 @@ def comparison_notes(recording: StaticRecording, rendering: StaticRecording, whe
     ...     return StaticRecording("x", "rendered", size, (4,), 0.0, 1.0, None, iter, camera)
     >>> comparison_notes(still((640, 480)), still((320, 240)), "--compare r")[0][:40]
     'the rendering is 320 x 240 px, the recor'
-    >>> comparison_notes(still((640, 480)), still((320, 180)), "--compare r")
+    >>> comparison_notes(still((640, 480)), still((320, 180)), "--compare r")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    capture.frames.CaptureError: --compare r: 320 x 180 px (aspect 1.778), the recording 640 x 480 px (aspect 1.333): another camera; render your config with the recording's rig (any [rig] scale)
+    capture.frames.CaptureError: --compare r: 320 x 180 px (aspect 1.778), the recording 640 x 480 px ...
     """
     (w_c, h_c), (w_r, h_r) = recording.size, rendering.size
     notes = []
     if recording.camera is not None and rendering.camera is not None:
         fov_c = recording.camera["fx"] / recording.camera["width"]
         fov_r = rendering.camera["fx"] / rendering.camera["width"]
-        if abs(fov_r / fov_c - 1) > FIELD_OF_VIEW_TOLERANCE or abs(w_r / h_r / (w_c / h_c) - 1) > FIELD_OF_VIEW_TOLERANCE:
-            raise CaptureError(f"{where}: its camera (fx {rendering.camera['fx']:.5g} px at {w_r} x {h_r} px) is not "
-                               f"the recording's (fx {recording.camera['fx']:.5g} px at {w_c} x {h_c} px): another "
-                               "field of view; render your config with the recording's rig (any [rig] scale)")
+        aspect = abs(w_r / h_r / (w_c / h_c) - 1)
+        if abs(fov_r / fov_c - 1) > FIELD_OF_VIEW_TOLERANCE or aspect > FIELD_OF_VIEW_TOLERANCE:
+            raise CaptureError(f"{where}: its camera (fx {rendering.camera['fx']:.5g} px at {w_r} x {h_r} "
+                               f"px) is not the recording's (fx {recording.camera['fx']:.5g} px at {w_c} x "
+                               f"{h_c} px): another field of view; render your config with the recording's "
+                               "rig (any [rig] scale)")
     else:
         if abs(w_r / h_r / (w_c / h_c) - 1) > FIELD_OF_VIEW_TOLERANCE:
-            raise CaptureError(f"{where}: {w_r} x {h_r} px (aspect {w_r / h_r:.3f}), the recording {w_c} x {h_c} px "
-                               f"(aspect {w_c / h_c:.3f}): another camera; render your config with the "
-                               "recording's rig (any [rig] scale)")
+            raise CaptureError(f"{where}: {w_r} x {h_r} px (aspect {w_r / h_r:.3f}), the recording {w_c} "
+                               f"x {h_c} px (aspect {w_c / h_c:.3f}): another camera; render your config "
+                               "with the recording's rig (any [rig] scale)")
         notes.append("the recording's rig is not known (image files): only the rendering's aspect ratio was "
                      "checked against it; give a dataset of `capture import` to check its field of view")
     if (w_r, h_r) != (w_c, h_c):

@@ -147,7 +147,8 @@ def ambient_projector_ratio(ambient: np.ndarray, projector: np.ndarray, reached:
     return float(ambient[reached].mean()) / light if light > 0 else None
 
 
-def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray, ratio: float | None) -> float:
+def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray,
+                  ratio: float | None) -> float:
     """The factor that brings ambient_projector_ratio to `ratio`; 1 when ratio is None or the frame's
     own ratio is undefined or 0 (no ambient light to scale).
 

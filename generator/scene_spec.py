@@ -438,6 +438,7 @@ class SceneSpec(Checked):
                           for k, obj in enumerate(_items(d["objects"], f"{_WHERE}: objects"))),
             sensor=SensorSettings.from_dict(d["sensor"], f"{_WHERE}: sensor"),
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
-            ambient_ratio=check_field(cls, "ambient_ratio", d.get("ambient_ratio"), f"{_WHERE}: ambient_ratio"),
+            ambient_ratio=check_field(cls, "ambient_ratio", d.get("ambient_ratio"),
+                                      f"{_WHERE}: ambient_ratio"),
             **one_key,
         )
