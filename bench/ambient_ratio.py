@@ -7,7 +7,7 @@ sensor model; its median and the 10th to 90th percentile over the frames of --sc
 
 Built-in primitives instead of an asset cache (the lighting is the config's), 1 Cycles sample, the
 configs at [rig] scale width / their camera width. For comparison: the vendored Kinect v1 frame gives
-7.8 (the one-frame estimate of `dotsim capture compare`). [lighting] ambient_ratio, when set, scales a
+15 (the one-frame estimate of `dotsim capture compare`). [lighting] ambient_ratio, when set, scales a
 scene to its target after this (docs/CAPTURE.md "Rooms lit as real rooms are"); this bench measures the
 configs as they are.
 """

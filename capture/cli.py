@@ -610,8 +610,12 @@ def _compare(args: argparse.Namespace) -> int:
         rendered_range = args.num_disparities or num_disparities_for(rig, nearest or DEFAULT_NEAREST)
         ratio = recording.size[0] / rendering.size[0]
         real_range = 16 * max(1, -(-round(rendered_range * ratio) // 16))
-        window = max(3, round(DEFAULT_DOT_WINDOW / ratio))
-        rendered_look = realism.frame_look(frame, rendered_range, reference, right, window)
+        real_stats, rendered_stats = measure(recording), measure(rendering)
+        # one window for both, the recording's, in each one's pixels
+        reach = realism.dot_reach(real_stats)
+        rendered_reach = max(3, round(reach / ratio))
+        rendered_look = realism.frame_look(frame, rendered_range, reference, right,
+                                           rendered_reach + 1 - rendered_reach % 2)
         if recording.kind == "images":
             real_frame = np.mean(next(recording.scenes()).on, axis=0)
             real_reference = read_image(args.pattern).relative() if args.pattern else None
@@ -622,8 +626,7 @@ def _compare(args: argparse.Namespace) -> int:
                 raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used "
                                    "(leave --pattern and --right out)")
             real_frame, real_reference, real_right, _, _ = realism.dataset_frames(Path(recording.name))
-        real_look = realism.frame_look(real_frame, real_range, real_reference, real_right)
-        real_stats, rendered_stats = measure(recording), measure(rendering)
+        real_look = realism.frame_look(real_frame, real_range, real_reference, real_right, reach)
     except (CaptureError, ConfigError, FormatError) as error:
         return _fail("compare", error)
     table = realism.rows(real_stats, real_look, rendered_stats, rendered_look)

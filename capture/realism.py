@@ -3,9 +3,11 @@
 Both are measured the same way (capture.sensor_fit.measure: noise against level, dots), plus two
 numbers of one frame that need no projector-off frame:
 
-- the ambient light over the projector's: the dark between the dots (a grey opening with a window
-  wider than a dot, smoothed) over the light the dots add above it, where the dots are
-  (frame_ambient_ratio);
+- the ambient light over the projector's: the background (a median over twice the recording's mean
+  dot spacing) over the light above it, where the projector reaches (frame_ambient_ratio). It needs
+  dots denser than the scene's own texture and edges: where they are sparse, the scene's structure
+  counts as projector light and the ratio comes out low (projector-off frames, fit-sensor's
+  on/off ratio, have no such limit);
 - the share of pixels OpenCV's SGBM leaves without a disparity (unmatched_share): between the left and
   the right IR of a stereo pair, or between the IR frame and the reference pattern (the pattern as
   seen from infinity, dotsim.rig.reference_image, or a pattern image already in camera pixels) for a
@@ -56,9 +58,11 @@ class FrameLook:
 
 
 def frame_ambient_ratio(frame: np.ndarray, window: int = DEFAULT_DOT_WINDOW) -> float:
-    """Ambient light over projector light from one frame: the background (a grey opening of `window`
-    px, which takes out anything narrower: the dots, then smoothed over the window) over the light
-    above it, both averaged where the dots' light is more than LIT_SHARE of its 99th percentile.
+    """Ambient light over projector light from one frame: the background (the median over `window` x
+    `window` px, wide enough that dots are a minority of its pixels: a few dot spacings) over the light
+    above it (signed, so the noise averages out instead of adding its positive half), both averaged
+    where the projector reaches: where that light, averaged over the window, is more than LIT_SHARE of
+    its 99th percentile (the gaps between the dots count as reached, as in a recording's on - off).
 
     >>> y, x = np.mgrid[0:60, 0:60]
     >>> dots = ((x % 6 == 3) & (y % 6 == 3)) * 0.6   # one dot in 36 px, 0.6 above the ambient
@@ -66,8 +70,8 @@ def frame_ambient_ratio(frame: np.ndarray, window: int = DEFAULT_DOT_WINDOW) -> 
     12.0
     """
     frame = np.asarray(frame, np.float64)
-    background = ndimage.uniform_filter(ndimage.grey_opening(frame, size=window), window, mode="nearest")
-    light = np.clip(frame - background, 0, None)
+    background = ndimage.median_filter(frame, size=window, mode="nearest")
+    light = frame - background
     spread = ndimage.uniform_filter(light, window, mode="nearest")
     lit = spread > LIT_SHARE * np.percentile(spread, 99)
     return float(background[lit].mean() / max(light[lit].mean(), 1e-12))
@@ -100,6 +104,14 @@ def frame_look(frame: np.ndarray, num_disparities: int, reference: np.ndarray | 
                                f"{frame.shape[1]} x {frame.shape[0]} px")
     unmatched = None if other is None else unmatched_share(frame, other, num_disparities, right is not None)
     return FrameLook(frame, frame_ambient_ratio(frame, window), unmatched, against)
+
+
+def dot_reach(stats: SensorStatistics) -> int:
+    """Twice the mean spacing of the dots fit-sensor found (px, odd, at least the dot window): the
+    window of frame_ambient_ratio."""
+    width, height = stats.recording.size
+    spacing = np.sqrt(width * height * len(stats.recording.frame_counts) / max(stats.dots_detected, 1))
+    return max(DEFAULT_DOT_WINDOW, 2 * int(round(spacing)) + 1)
 
 
 def dataset_frames(root: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, Rig, float | None]:
