@@ -32,6 +32,8 @@ from dotsim.rig.presets import DEFAULT_PRESET, PRESETS
 from dotsim.rig.report import summary_line
 from generator.config import OutputConfig
 
+# The nearest depth SGBM's range is sized for when a rendering's config gives none, m.
+DEFAULT_NEAREST = 0.5
 # Integer depth images from OpenNI2, librealsense and the Structure SDK hold millimetres.
 PNG_DEPTH_SCALE = 0.001
 
@@ -265,11 +267,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "saturation, bit depth), its dots (FWHM of isolated dots on flat regions, their brightness spread: "
         "laser speckle; peak signal-to-noise ratio; dots per area by depth where depth is known) and the "
         "ambient light over the projector's (with projector-off frames); print them with their standard "
-        "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml) and a drawing "
-        "(OUTPUT.png). At least 4 frames of the still scene (16 or more recommended); with one frame the "
-        "noise comes from flat regions of it (spatial statistics), and it says so. With --compare, the same "
-        "statistics of a rendering of your config side by side, and blur_sigma and speckle_contrast set so "
-        "its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
+        "errors and write a [sensor] table to paste into a generator config (OUTPUT.toml; with projector-off "
+        "frames a [lighting] table too: the ambient_ratio range of the scenes) and a drawing "
+        "(OUTPUT.png). Clipped samples (at or above where the sensor saturates) are left out of every "
+        "statistic, with their count. At least 4 frames of the still scene (16 or more recommended); with "
+        "one frame the noise comes from flat regions of it (spatial statistics), and it says so. With "
+        "--compare, the same statistics of a rendering of your config side by side, and blur_sigma and "
+        "speckle_contrast set so its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
     )
     fit.add_argument("recording", nargs="+", metavar="RECORDING",
                      help="projector-on frames of a still scene: image files, folders or quoted globs "
@@ -281,17 +285,56 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      "its ambient frames): the ambient light, and more levels for the noise")
     fit.add_argument("--white-level", type=number(0.0, low_open=True),
                      help="raw value of full scale (default: the files' full scale: 255, 65535, or 1 for "
-                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs)")
+                     "EXR; e.g. 1023 for 10-bit data in 16-bit PNGs: 16-bit files whose values fit in 12 "
+                     "bits are refused without it); at least the data's maximum")
     fit.add_argument("--compare", type=Path, metavar="DATASET",
                      help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
-                     "translation = 0 and rotation = 0): its statistics beside the recording's, and "
-                     "blur_sigma and speckle_contrast fitted against it")
+                     "translation = 0 and rotation = 0) with the recording's rig, at any scale (its camera "
+                     "is checked: field of view, or aspect ratio for image files): its statistics beside "
+                     "the recording's, and blur_sigma and speckle_contrast fitted against it")
     fit.add_argument("--speckle-grain", type=number(0.0, 100.0, low_open=True),
                      help="the speckle grain assumed, full-resolution px ([sensor] speckle_grain; default: "
                      "the --compare rendering's, else 2)")
     add_output(fit, "the [sensor] table to write (.toml); the drawing goes beside it (.png)",
                metavar="SENSOR.toml", old=("--output",), dest="output", type=Path)
     fit.set_defaults(func=_fit_sensor)
+
+    compare = actions.add_parser(
+        "compare",
+        help="a realism report: a recording beside a rendering of the config for its sensor, statistic by "
+        "statistic, and a picture",
+        description="Measure a recording of a still scene and a still rendering of your config the same way "
+        "(fit-sensor's statistics, plus from one frame the ambient light over the projector's and the share "
+        "of pixels OpenCV's SGBM leaves unmatched: left against right IR for a stereo pair, against the "
+        "reference pattern for a mono sensor) and print one table: each statistic for both and their ratio, "
+        "rendering over recording, in the recording's pixels. Writes the table (OUTPUT.json) and a picture "
+        "(OUTPUT.png): crops of both frames at the same scale side by side, the noise against level, the "
+        "dots' FWHM and peak SNR histograms (docs/CAPTURE.md \"How real a rendering looks\").",
+    )
+    compare.add_argument("recording", nargs="+", metavar="RECORDING",
+                         help="as fit-sensor's: image files, folders or quoted globs of one still scene, or "
+                         "one dataset of `capture import` / `capture record`")
+    compare.add_argument("rendering", type=Path, metavar="DATASET",
+                         help="a still rendering of your config with the recording's rig, at any [rig] scale "
+                         "(`dotsim generate` with [motion] translation = 0 and rotation = 0)")
+    compare.add_argument("--off", nargs="+", metavar="IMG", default=[],
+                         help="projector-off frames of the recording's still scene (image recordings)")
+    compare.add_argument("--white-level", type=number(0.0, low_open=True),
+                         help="raw value of full scale of image recordings (as fit-sensor's)")
+    compare.add_argument("--pattern", type=Path, metavar="PNG",
+                         help="a mono recording's reference pattern in its camera's pixels (the pattern "
+                         "as seen from infinity, the frame's size) for SGBM; a dataset's is its pattern.png "
+                         "seen through its rig")
+    compare.add_argument("--right", nargs="+", metavar="IMG", default=[],
+                         help="a stereo recording's right IR frames (image recordings; a dataset's are its "
+                         "ir_right): SGBM then matches left against right")
+    compare.add_argument("--num-disparities", type=integer(16),
+                         help="SGBM's disparity range in the rendering's px, a multiple of 16 (default: what "
+                         "the rendering's nearest [scene] distance needs through its rig); the recording's "
+                         "is scaled to its pixels")
+    add_output(compare, "the report's picture (.png); the table goes beside it (.json)", metavar="REPORT.png",
+               dest="output", type=Path)
+    compare.set_defaults(func=_compare)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -510,7 +553,7 @@ def _record(args: argparse.Namespace) -> int:
 def _fit_sensor(args: argparse.Namespace) -> int:
     from capture.fit_report import draw_report, report_text, sensor_toml
     from capture.sensor_fit import fit, measure
-    from capture.static_recording import open_recording
+    from capture.static_recording import comparison_notes, open_recording
     from dotsim.images import write_image
 
     start = time.perf_counter()
@@ -524,7 +567,9 @@ def _fit_sensor(args: argparse.Namespace) -> int:
         rendering = open_recording([str(args.compare)]) if args.compare is not None else None
         if rendering is not None and rendering.kind != "rendered":
             raise CaptureError(f"--compare {args.compare}: a recording, not a rendering of `dotsim generate`")
+        notes = comparison_notes(recording, rendering, f"--compare {args.compare}") if rendering else []
         stats = measure(recording)
+        stats.notes.extend(notes)
         reference = measure(rendering) if rendering is not None else None
         fitted = fit(stats, reference, args.speckle_grain)
     except (CaptureError, ConfigError) as error:
@@ -537,6 +582,68 @@ def _fit_sensor(args: argparse.Namespace) -> int:
     atomic_write_bytes(args.output, sensor_toml(fitted, header).encode())
     print(report_text(stats, fitted, reference))
     print(f"wrote {args.output} and {drawing} in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from capture import realism
+    from capture.sensor_fit import measure
+    from capture.static_recording import comparison_notes, open_recording
+    from dotsim.images import write_image
+    from trainer.sgbm import num_disparities_for
+
+    start = time.perf_counter()
+    try:
+        if args.output.suffix.lower() != ".png":
+            raise CaptureError(f"-o {args.output}: the report's picture is written as a .png file")
+        if not args.output.parent.is_dir():
+            raise CaptureError(f"-o {args.output}: folder {args.output.parent} does not exist")
+        check_writable_folder(args.output.parent, "-o")
+        if args.num_disparities is not None and args.num_disparities % 16:
+            raise CaptureError(f"--num-disparities {args.num_disparities}: allowed: a multiple of 16")
+        recording = open_recording(args.recording, args.off, args.white_level)
+        rendering = open_recording([str(args.rendering)])
+        if rendering.kind != "rendered":
+            raise CaptureError(f"DATASET {args.rendering}: a recording, not a rendering of `dotsim generate`")
+        notes = comparison_notes(recording, rendering, f"DATASET {args.rendering}")
+        frame, reference, right, rig, nearest = realism.dataset_frames(args.rendering)
+        rendered_range = args.num_disparities or num_disparities_for(rig, nearest or DEFAULT_NEAREST)
+        ratio = recording.size[0] / rendering.size[0]
+        real_range = 16 * max(1, -(-round(rendered_range * ratio) // 16))
+        real_stats, rendered_stats = measure(recording), measure(rendering)
+        # one window for both, the recording's, in each one's pixels
+        reach = realism.dot_reach(real_stats)
+        rendered_reach = max(3, round(reach / ratio))
+        rendered_look = realism.frame_look(frame, rendered_range, reference, right,
+                                           rendered_reach + 1 - rendered_reach % 2)
+        if recording.kind == "images":
+            real_frame = np.mean(next(recording.scenes()).on, axis=0)
+            real_reference = read_image(args.pattern).relative() if args.pattern else None
+            real_right = np.mean([read_image(p).relative(args.white_level) for spec in args.right
+                                  for p in list_images(spec, what="--right")], axis=0) if args.right else None
+        else:
+            if args.pattern or args.right:
+                raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used "
+                                   "(leave --pattern and --right out)")
+            real_frame, real_reference, real_right, _, _ = realism.dataset_frames(Path(recording.name))
+        real_look = realism.frame_look(real_frame, real_range, real_reference, real_right, reach)
+    except (CaptureError, ConfigError, FormatError) as error:
+        return _fail("compare", error)
+    table = realism.rows(real_stats, real_look, rendered_stats, rendered_look)
+    picture = write_image(args.output, realism.draw(real_stats, real_look, rendered_stats, rendered_look))
+    record = {"recording": recording.name, "rendering": str(args.rendering), "notes": notes,
+              "num_disparities": {"recording": real_range, "rendering": rendered_range},
+              "rows": [{"statistic": name, "recording": real, "rendering": rendered,
+                        "ratio": None if real in (None, 0) or rendered is None else rendered / real}
+                       for name, real, rendered in table]}
+    table_file = args.output.with_suffix(".json")
+    atomic_write_bytes(table_file, (json.dumps(record, indent=2) + "\n").encode())
+    print(f"recording: {recording.name} ({recording.size[0]} x {recording.size[1]} px); rendering: "
+          f"{args.rendering} ({rendering.size[0]} x {rendering.size[1]} px)")
+    print(realism.table_text(table))
+    for note in notes + real_stats.notes:
+        print(f"note: {note}")
+    print(f"wrote {picture} and {table_file} in {time.perf_counter() - start:.1f} s")
     return 0
 
 

@@ -49,7 +49,8 @@ def _rows(stats: SensorStatistics) -> list[tuple[str, str]]:
     clipped = stats.black.value == 0 and stats.black.error == 0
     rows.append(("black level", "0 (the sensor clips there)" if clipped
                  else f"<= {_estimate(stats.black)} (its darkest pixels)"))
-    rows.append(("saturation", f"{stats.saturation:.4g} ({100 * stats.saturated_share:.2f}% of the samples)"
+    rows.append(("saturation (clipped, left out)", f"{stats.saturation:.4g}: {stats.saturated} samples, "
+                 f"{100 * stats.saturated_share:.2f}% of the projector-on samples"
                  if stats.saturation is not None else "not reached"))
     rows.append(("bit depth", str(stats.bit_depth) if stats.bit_depth else "more than 16 or not quantised"))
     rows.append(("99th percentile level", f"{stats.exposure_level:.3g}"))
@@ -87,13 +88,15 @@ def report_text(stats: SensorStatistics, fitted: SensorFit, reference: SensorSta
     lines += [f"{name:{width}}" + "".join(f"{column.get(name, '-'):{cell}}" for column in columns).rstrip()
               for name in names]
     lines += [f"note: {note}" for note in stats.notes]
-    lines.append("[sensor] for your config:")
+    lines.append("for your config:")
     lines += ["  " + line for line in sensor_toml(fitted).splitlines()[1:]]
     return "\n".join(lines)
 
 
 def sensor_toml(fitted: SensorFit, header: str = "") -> str:
-    """The fitted values as a [sensor] table, each with its error and how it was found as a comment."""
+    """The fitted values as a [sensor] table, each with its error and how it was found as a comment,
+    and with projector-off frames a [lighting] table: the ambient_ratio range of the recording's scenes
+    (docs/CAPTURE.md "Rooms lit as real rooms are")."""
     lines = [f"# {line}" for line in header.splitlines()] + ["[sensor]"]
     for key in ORDER:
         if key not in fitted.values:
@@ -107,6 +110,10 @@ def sensor_toml(fitted: SensorFit, header: str = "") -> str:
         lines.append(f"{line}  # {'; '.join(comment)}" if comment else line)
     if "blur_sigma" not in fitted.values:
         lines.append("# blur_sigma: run with --compare DATASET (a rendering of your config) to set it")
+    if fitted.ambient_ratio is not None:
+        lines += ["[lighting]", f"ambient_ratio = {toml_text(list(fitted.ambient_ratio))}  # the lowest and "
+                  "highest of the recording's scenes (projector-off over on - off where the projector "
+                  "reaches)"]
     return "\n".join(lines) + "\n"
 
 

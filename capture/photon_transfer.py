@@ -45,6 +45,12 @@ MAX_MOVED_SHARE = 0.005
 # A level that this share of the samples sits at is where the sensor clips (saturation, or 0 for
 # black); the black level is otherwise read from the darkest DARK_SHARE of the pixels.
 SATURATION_PILE = 1e-4
+# A clip spread over a few codes (clip_level): each counts as clipped while it holds PILE_RATIO times
+# the median count of the PILE_WINDOW codes under it; the codes looked at start at TOP_SHARE of the
+# highest.
+PILE_RATIO = 4.0
+PILE_WINDOW = 8
+TOP_SHARE = 0.75
 DARK_SHARE = 5e-4
 DARK_WINDOW = 5
 
@@ -231,13 +237,54 @@ def spatial_noise_bins(frame: np.ndarray, saturation: float, bins: NoiseBins, it
     bins.add(means[keep], variances[keep] / kept_mean, np.zeros(int(keep.sum()), bool))
 
 
+def clip_level(values: np.ndarray, counts: np.ndarray, samples: int) -> float | None:
+    """Where a sensor clips, from the counts of its highest distinct values (ascending) among
+    `samples` samples: the highest value when at least SATURATION_PILE of the samples pile up there
+    (more than PILE_RATIO times as many as the median of the PILE_WINDOW values under it hold),
+    lowered to each next value that still holds more than PILE_RATIO times the median count of the
+    PILE_WINDOW values under it (a clip spread over a few codes, as a frame scaled down from more
+    bits shows); None when nothing piles up at the top.
+
+    >>> values = np.array([0.60, 0.61, 0.62, 0.63, 0.64, 0.65, 0.66])
+    >>> clip_level(values, np.array([10, 12, 9, 11, 10, 200, 400]), 10_000)
+    0.65
+    >>> clip_level(values, np.array([10, 12, 9, 11, 10, 9, 8]), 10_000) is None
+    True
+    """
+    def piled(index: int) -> bool:
+        below = counts[max(0, index - PILE_WINDOW):index]
+        return below.size == 0 or counts[index] > PILE_RATIO * np.median(below)
+
+    if len(values) == 0 or counts[-1] < SATURATION_PILE * samples or not piled(len(values) - 1):
+        return None
+    index = len(values) - 1
+    while index > 1 and piled(index - 1):
+        index -= 1
+    return float(values[index])
+
+
+def top_values(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct values of `frames` from TOP_SHARE of their highest up, ascending, and their counts
+    (what clip_level looks at)."""
+    frames = np.asarray(frames)
+    return np.unique(frames[frames >= TOP_SHARE * frames.max()], return_counts=True)
+
+
+def scene_clip_level(frames: np.ndarray) -> float:
+    """The level at and above which one scene's frames are clipped (clip_level of their own values);
+    their highest value when nothing piles up there (only the pixels at it are left out)."""
+    values, counts = top_values(frames)
+    level = clip_level(values, counts, np.asarray(frames).size)
+    return float(values[-1]) if level is None else level
+
+
 @dataclass
 class Levels:
-    """A recording's extremes, gathered scene by scene (add): its highest value and how many samples
-    reach it, how many are 0, and the darkest DARK_SHARE of each scene's pixel means, averaged over
-    DARK_WINDOW x DARK_WINDOW px first (the darkest of noisy means are darker than the light there)."""
-    highest: float = -math.inf
-    at_highest: int = 0
+    """A recording's extremes, gathered scene by scene (add): the counts of its highest values (where
+    it clips: saturation), how many samples are 0, and the darkest DARK_SHARE of each scene's pixel
+    means, averaged over DARK_WINDOW x DARK_WINDOW px first (the darkest of noisy means are darker
+    than the light there)."""
+    top: dict = field(default_factory=dict)
     zeros: int = 0
     samples: int = 0
     pixels: int = 0
@@ -245,11 +292,8 @@ class Levels:
 
     def add(self, frames: np.ndarray, mean: np.ndarray) -> None:
         """Frames (N, H, W) of one scene and their per-pixel mean (H, W)."""
-        top = float(frames.max())
-        if top > self.highest:
-            self.highest, self.at_highest = top, 0
-        if top == self.highest:
-            self.at_highest += int(np.count_nonzero(frames == top))
+        for value, count in zip(*top_values(frames), strict=True):
+            self.top[float(value)] = self.top.get(float(value), 0) + int(count)
         self.zeros += int(np.count_nonzero(frames <= 0))
         self.samples += frames.size
         self.pixels += mean.size
@@ -258,14 +302,24 @@ class Levels:
         self.dark_means.append(np.partition(smooth.ravel(), darkest - 1)[:darkest])
 
     @property
-    def saturated_share(self) -> float:
-        """The share of samples at the highest value (clipped, if that is the saturation level)."""
-        return self.at_highest / max(self.samples, 1)
+    def highest(self) -> float:
+        return max(self.top) if self.top else -math.inf
 
     def saturation(self) -> float | None:
-        """The saturation level: the highest value, when at least SATURATION_PILE of the samples
-        pile up there (a sensor clips at it); None when nothing reached it."""
-        return self.highest if self.saturated_share >= SATURATION_PILE else None
+        """The saturation level (clip_level over every scene's highest values); None when nothing
+        piles up at the top."""
+        values = np.array(sorted(self.top))
+        return clip_level(values, np.array([self.top[v] for v in values]), self.samples)
+
+    @property
+    def saturated(self) -> int:
+        """The samples at or above the saturation level: clipped, left out of every statistic."""
+        level = self.saturation()
+        return 0 if level is None else sum(count for value, count in self.top.items() if value >= level)
+
+    @property
+    def saturated_share(self) -> float:
+        return self.saturated / max(self.samples, 1)
 
     def black_level(self) -> Estimate:
         """The level of no light: 0 when at least SATURATION_PILE of the samples are 0 (the sensor

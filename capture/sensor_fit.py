@@ -49,6 +49,7 @@ from capture.photon_transfer import (
     bit_depth,
     check_static,
     noise_curve,
+    scene_clip_level,
     spatial_noise_bins,
     temporal_noise_bins,
 )
@@ -58,8 +59,6 @@ from dotsim.sensor.settings import SensorConfig
 
 # Frames of a static scene the photon transfer needs (one frame: flat regions instead).
 MIN_FRAMES = 4
-# A recording with more of its projector-on samples at the saturation level is refused.
-MAX_SATURATED_SHARE = 0.02
 # The percentile the sensor model's auto exposure maps to its target (SensorConfig.auto_percentile).
 EXPOSURE_PERCENTILE = 99.0
 DEPTH_EDGES = np.arange(0.0, 10.01, 0.5)
@@ -93,6 +92,7 @@ class SensorStatistics:
     black: Estimate
     saturation: float | None
     saturated_share: float
+    saturated: int
     bit_depth: int | None
     exposure_level: float
     ambient_ratio: Estimate | None
@@ -103,6 +103,7 @@ class SensorStatistics:
     depth_dots: np.ndarray
     depth_pixels: np.ndarray
     notes: list[str] = field(default_factory=list)
+    scene_ambient_ratios: tuple[float, ...] = ()
 
     @property
     def read_noise(self) -> Estimate:
@@ -135,15 +136,20 @@ class SensorStatistics:
 
 @dataclass(frozen=True)
 class SensorFit:
-    """[sensor] values with their standard errors, and a note on how each was found."""
+    """[sensor] values with their standard errors, and a note on how each was found; and the
+    [lighting] ambient_ratio range of the recording's scenes (lowest, highest; None without
+    projector-off frames)."""
     values: dict
     errors: dict
     notes: dict
+    ambient_ratio: tuple[float, float] | None = None
 
 
 def measure(recording: StaticRecording) -> SensorStatistics:
     """The statistics of a recording (module docstring); CaptureError, one line, for a recording
-    that cannot give them: too few frames, a moving scene, too much of it saturated."""
+    that cannot give them: too few frames, no signal, a moving scene, too little left to fit once
+    the clipped samples (at or above the saturation level, Levels.saturation) are left out of each
+    statistic (then the message says how many were left out)."""
     counts = set(recording.frame_counts)
     if counts == {1}:
         method = "spatial"
@@ -157,9 +163,12 @@ def measure(recording: StaticRecording) -> SensorStatistics:
     levels, exposure = Levels(), []
     depth, ratios = None, []
     for scene in recording.scenes():
+        if scene.on.max() <= 0:
+            raise CaptureError(f"{scene.where}: no signal: every projector-on sample is 0 (a covered lens, "
+                               "an exposure or gain of 0, or a sensor that sent no image?)")
         scene_depth = bit_depth(scene.on, recording.precision)
         depth = scene_depth if depth is None or scene_depth is None else max(depth, scene_depth)
-        top = scene.on.max() if scene.off is None else max(scene.on.max(), scene.off.max())
+        top = scene_clip_level(scene.on if scene.off is None else np.concatenate([scene.on, scene.off]))
         for frames in (scene.on,) if scene.off is None else (scene.on, scene.off):
             if method == "temporal":
                 check_static(frames, _step(scene_depth), scene.where)
@@ -170,34 +179,34 @@ def measure(recording: StaticRecording) -> SensorStatistics:
         levels.add(scene.on, on_mean)
         exposure.append(np.percentile(on_mean, EXPOSURE_PERCENTILE))
         if scene.off is not None:
-            ratios.append(_ambient_ratio(on_mean, scene.off.mean(axis=0), scene.where))
-    if levels.saturated_share > MAX_SATURATED_SHARE:
-        raise CaptureError(f"{recording.name}: saturated: {100 * levels.saturated_share:.1f}% of the "
-                           f"projector-on samples are at the saturation level {levels.highest:.4g} (allowed: "
-                           f"at most {100 * MAX_SATURATED_SHARE:g}%); lower the exposure, the gain or the "
-                           "laser power")
-    curve = noise_curve(bins, _step(depth), method)
+            ratios.append(_ambient_ratio(on_mean, scene.off.mean(axis=0), scene.on.max(axis=0) < top,
+                                         scene.where))
+    left_out = _left_out(levels)
+    try:
+        curve = noise_curve(bins, _step(depth), method)
+    except CaptureError as error:
+        raise CaptureError(f"{recording.name}: {error}{left_out}") from None
     black = levels.black_level()
     dots = [_scene_dots(scene, curve, levels.saturation()) for scene in recording.scenes()]
     sigma = np.concatenate([d.sigma for d in dots])
     if sigma.size < 10:
         raise CaptureError(f"{recording.name}: {sigma.size} isolated dot(s) on flat regions; allowed: 10 "
-                           "or more (record a flat wall the dots cover, in focus, not saturated)")
+                           f"or more (record a flat wall the dots cover, in focus, not saturated){left_out}")
     notes = []
     if method == "spatial":
         notes.append("one frame per scene: noise from flat regions of single frames (spatial "
                      "statistics: they count the sensor's fixed-pattern noise too); record 16 frames of a "
                      "still scene for the photon transfer over time")
-    if recording.kind == "images" and depth == 16 and levels.highest < 1 / 32:
-        notes.append(f"the highest value is {levels.highest * 65535:.0f} of 65535: data of fewer bits in "
-                     "16-bit files? pass --white-level (e.g. 1023 for 10 bits)")
+    if left_out:
+        notes.append(f"clipped{left_out[len('; clipped'):]}")
     return SensorStatistics(
-        recording, method, curve, black, levels.saturation(), levels.saturated_share, depth,
+        recording, method, curve, black, levels.saturation(), levels.saturated_share, levels.saturated, depth,
         float(np.median(exposure)), _mean_estimate(ratios) if ratios else None, sigma,
         brightness_contrast(np.concatenate([d.ratio for d in dots]),
                             np.concatenate([d.ratio_noise for d in dots])),
         np.concatenate([d.snr for d in dots]), sum(d.detected for d in dots),
-        np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes)
+        np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes,
+        tuple(ratios))
 
 
 def _step(depth: int | None) -> float:
@@ -210,9 +219,19 @@ def _mean_estimate(values: list[float]) -> Estimate:
     return Estimate(float(values.mean()), error)
 
 
-def _ambient_ratio(on: np.ndarray, off: np.ndarray, where: str) -> float:
-    """Mean projector-off level over the mean light the projector adds, where the projector reaches."""
-    reached = capture_visibility(on, off)
+def _left_out(levels: Levels) -> str:
+    """'; clipped: ...' naming the samples at or above the saturation level, or '' when none are."""
+    if not levels.saturated:
+        return ""
+    share = 100 * levels.saturated_share
+    return (f"; clipped: {levels.saturated} of {levels.samples} projector-on samples ({share:.2f}%) at "
+            f"or above the saturation level {levels.saturation():.4g}, left out of every statistic")
+
+
+def _ambient_ratio(on: np.ndarray, off: np.ndarray, unclipped: np.ndarray, where: str) -> float:
+    """Mean projector-off level over the mean light the projector adds, where the projector reaches
+    and no projector-on frame is clipped."""
+    reached = capture_visibility(on, off) & unclipped
     if not reached.any():
         raise CaptureError(f"{where}: the projector reaches no pixel: are the projector-on frames darker "
                            "than the projector-off ones, or the same?")
@@ -306,15 +325,18 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
     values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
     SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
-    return SensorFit(values, errors, notes)
+    ratios = stats.scene_ambient_ratios
+    ambient = (_significant(min(ratios), 3), _significant(max(ratios), 3)) if ratios else None
+    return SensorFit(values, errors, notes, ambient)
+
+
+def _significant(x: float, digits: int) -> float:
+    return 0.0 if x == 0 else round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
 
 
 def _rounded(estimate: Estimate) -> tuple[float, float]:
     """The value to 3 significant digits and its error to 2."""
-    def significant(x, digits):
-        return 0.0 if x == 0 else round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
-
-    return significant(estimate.value, 3), significant(estimate.error, 2)
+    return _significant(estimate.value, 3), _significant(estimate.error, 2)
 
 
 def _calibrated(stats: SensorStatistics, reference: SensorStatistics,

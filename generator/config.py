@@ -155,6 +155,18 @@ class LightingConfig(Checked):
                                           **{**bounds_of(SceneSpec, "projector_power"), "low_open": True})
     flood_ratio: float = setting(1.0, "flood rectangle power as a multiple of the projector power",
                                  low=0.0, high=100.0, low_open=True)
+    ambient_ratio: FloatRange = setting(
+        (0.0, 0.0), "ambient light over the projector's light where the projector reaches (what `dotsim "
+        "capture fit-sensor` measures: projector-off over on - off), log-uniform per scene: the ambient "
+        "passes are scaled to it (docs/CAPTURE.md \"Rooms lit as real rooms are\"); [0, 0]: off, the "
+        "ambient as world_strength and the lights give it", low=0.0, high=1000.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        low, high = self.ambient_ratio
+        if high > 0 and low <= 0:
+            raise ConfigError(f"[lighting] ambient_ratio = [{low:g}, {high:g}]: not allowed; allowed: [0, 0] "
+                              "(off) or a range whose low end is above 0 (log-uniform)")
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,16 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   projector and flood);
   and the same of the rig's second camera, named with its suffix (projector_right, ...), when the
   spec renders the stereo pair (SceneSpec.cameras).
+With the spec's ambient_ratio ([lighting] ambient_ratio) the ambient passes are first scaled so that
+the ambient light over the projector's, averaged where the projector reaches directly, is that ratio
+(ambient_scale; the right camera's by the same factor: one room). Every channel made from the
+ambient sees the scaled one: ir, ir_right, the stored ambient and flood, the visibility mask's noise,
+and so the device_depth engine (it models the device seeing that IR); labels and normals do not
+depend on light.
 Stored channels (dotsim.channels, the channels' one declaration: make_frame gives exactly the
 rendered ones it stores):
-  ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered;
+  ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered
+  (or scaled, above);
   flood = ambient + flood (the projector replaced by a rectangle, as in GigaDepth's Unity sim; no
   sensor effects on either);
   depth; visibility (dotsim.masks.direct_visibility_mask: the projector's direct light, after the
@@ -111,7 +118,8 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
     rig, masks, sensor = spec.rig, spec.masks, SensorModel(spec.sensor)
     raw = check_raw_passes(raw, spec, where)
     depth = _depth(raw["depth"])
-    ambient = raw["ambient"]
+    room = ambient_scale(raw["ambient"], raw["projector"], raw["flood_direct"] > 0, spec.ambient_ratio)
+    ambient = raw["ambient"] * room if room != 1.0 else raw["ambient"]
     flood = ambient + raw["flood"]
     gt_depth = np.where(is_ground_truth(depth, rig.max_depth), depth, np.nan)
     if len(streams) != len(spec.cameras):
@@ -146,7 +154,8 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
     }
     if len(spec.cameras) > 1:
         right = spec.cameras[1]
-        right_signal = raw["ambient_right"] + _speckled(raw, right.suffix, sensor, streams[1])[0]
+        right_ambient = raw["ambient_right"] * room if room != 1.0 else raw["ambient_right"]
+        right_signal = right_ambient + _speckled(raw, right.suffix, sensor, streams[1])[0]
         made["ir_right"] = sensor.apply(right_signal, streams[1].noise, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
             depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
@@ -178,6 +187,36 @@ def _reference_image(path: str, sha256: str, rig, distance: float) -> np.ndarray
     reference = device_depth.reference_image_at(pattern.image, rig, distance)
     reference.flags.writeable = False
     return reference
+
+
+def ambient_projector_ratio(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray) -> float | None:
+    """Mean ambient light over mean projector light, both where the projector reaches (fit-sensor's
+    ambient / projector statistic: a recording's projector-off over on - off); None where that is
+    undefined (the projector reaches nothing, or adds no light there).
+
+    >>> ambient, projector = np.full((2, 2), 0.5), np.array([[1.0, 0.0], [1.0, 0.0]])
+    >>> ambient_projector_ratio(ambient, projector, projector > 0)
+    0.5
+    """
+    if not reached.any():
+        return None
+    light = float(projector[reached].mean())
+    return float(ambient[reached].mean()) / light if light > 0 else None
+
+
+def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarray,
+                  ratio: float | None) -> float:
+    """The factor that brings ambient_projector_ratio to `ratio`; 1 when ratio is None or the frame's
+    own ratio is undefined or 0 (no ambient light to scale).
+
+    >>> ambient, projector = np.full((2, 2), 0.5), np.array([[1.0, 0.0], [1.0, 0.0]])
+    >>> ambient_scale(ambient, projector, projector > 0, 4.0)   # 4 / 0.5
+    8.0
+    """
+    if ratio is None:
+        return 1.0
+    current = ambient_projector_ratio(ambient, projector, reached)
+    return ratio / current if current else 1.0
 
 
 def _speckled(raw: dict, suffix: str, sensor: SensorModel, streams: SensorStreams):

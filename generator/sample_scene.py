@@ -377,7 +377,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         for _ in range(int(rng.integers(li.extra_lights[0], li.extra_lights[1] + 1))))
     projector_power = _uniform(rng, li.projector_power)
     seed = scene_seed(base_seed, scene_index)
-    return SceneSpec(
+    spec = SceneSpec(
         scene_index=scene_index, split=split, seed=seed,
         render=SceneRenderSettings(**{**asdict(config.render), "labels": config.render.labels or any(
             (sc.transparent_share, sc.metal_share))}, seed=seed),
@@ -394,4 +394,8 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         masks=config.masks,
         device_depth=config.device_depth,
     )
+    # drawn last, and only when asked for, so that every other draw (and so today's scenes) stays as it was
+    if li.ambient_ratio[1] <= 0:
+        return spec
+    return replace(spec, ambient_ratio=_log_uniform(rng, *li.ambient_ratio))
 

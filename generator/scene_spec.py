@@ -318,10 +318,10 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth")
-# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone, and
-# the device's depth engine off.
-_OPTIONAL = ("cameras", "device_depth")
+              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth", "ambient_ratio")
+# Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone, the
+# device's depth engine off, and without ambient_ratio the ambient stays as rendered.
+_OPTIONAL = ("cameras", "device_depth", "ambient_ratio")
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -353,6 +353,10 @@ class SceneSpec(Checked):
     sensor: SensorSpec
     masks: MaskParams
     device_depth: DeviceDepthConfig = DeviceDepthConfig()  # the simulated device's depth engine
+    # The ambient light over the projector's where it reaches, that the post-render scales the ambient
+    # passes to (generator.post_render); None: the ambient as rendered.
+    ambient_ratio: float | None = setting(None, "ambient over projector light where the projector reaches",
+                                          low=0.0, low_open=True, high=1e6)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -391,7 +395,7 @@ class SceneSpec(Checked):
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
             "device_depth": self.device_depth.to_dict(),
-        }
+        } | ({} if self.ambient_ratio is None else {"ambient_ratio": self.ambient_ratio})
 
     @classmethod
     def from_dict(cls, d: Any) -> SceneSpec:
@@ -431,5 +435,7 @@ class SceneSpec(Checked):
             masks=MaskParams.from_dict(d["masks"], f"{_WHERE}: masks"),
             device_depth=DeviceDepthConfig.from_dict(d.get("device_depth", DeviceDepthConfig().to_dict()),
                                                      f"{_WHERE}: device_depth"),
+            ambient_ratio=check_field(cls, "ambient_ratio", d.get("ambient_ratio"),
+                                      f"{_WHERE}: ambient_ratio"),
             **one_key,
         )

@@ -6,7 +6,9 @@ The truth is the [sensor] table the captures were rendered with; the fit must co
 each of its read noise, shot noise, blur and speckle contrast.
 """
 
+import json
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -14,6 +16,8 @@ import numpy as np
 import pytest
 
 from capture import still_scenes
+from capture.sensor_fit import fit, measure
+from capture.static_recording import open_recording
 from commands.cli import main
 from dotsim import dataset
 from dotsim.rig.presets import get_preset
@@ -60,12 +64,15 @@ def test_fit_recovers_the_known_sensor_from_rendered_captures(rendered, tmp_path
     assert drawing.shape == (640, 880, 3) and orange > 500 and blue > 500
 
 
-def write_frames(scene_frames, folder: Path, scale: float = 1.0) -> list[Path]:
-    """Frames' ir as 16-bit PNGs of 10-bit raw values, as a sensor's SDK saves them."""
+def write_frames(scene_frames, folder: Path, scale: float = 1.0, clip: int = 1023,
+                 channel: str = "ir") -> list[Path]:
+    """Frames' `channel` as 16-bit PNGs of 10-bit raw values, as a sensor's SDK saves them, clipped at
+    `clip` (a sensor that saturates there)."""
     folder.mkdir()
     paths = []
     for k, frame in enumerate(scene_frames):
-        raw = np.minimum(np.round(frame["ir"].astype(np.float64) * 1023 * scale), 1023).astype(np.uint16)
+        raw = np.round(frame[channel].astype(np.float64) * 1023 * scale)
+        raw = np.minimum(raw, clip).astype(np.uint16)
         paths.append(folder / f"on_{k}.png")
         cv2.imwrite(str(paths[-1]), raw)
     return paths
@@ -87,7 +94,6 @@ def test_image_files_and_bad_recordings(rendered, tmp_path, capsys):
         "too few frames: 3 projector-on frame(s) of a static scene; allowed: 1 (statistics of flat "
         "regions of one frame) or at least 4": [str(p) for p in still[:3]],
         "moving scene: ": [str(tmp_path / "moving")],
-        "saturated: ": [str(tmp_path / "saturated")],
     }
     output.unlink()
     output.with_suffix(".png").unlink()
@@ -99,6 +105,13 @@ def test_image_files_and_bad_recordings(rendered, tmp_path, capsys):
     status, _, err = fit_sensor(capsys, tmp_path / "still", "-o", missing)
     assert status == 2
     assert err == f"dotsim capture fit-sensor: error: -o {missing}: folder {missing.parent} does not exist\n"
+    # 10 times as bright, the brightest samples clipped at full scale: they are left out, and the noise
+    # of what is left is the known one scaled (read noise 10 x, shot noise sqrt(10) x)
+    status, out, err = fit_sensor(capsys, tmp_path / "saturated", "--white-level", 1023, "-o", output)
+    assert status == 0 and "note: clipped: " in out, err
+    table = tomllib.loads(output.read_text())["sensor"]
+    assert table["read_noise"] == pytest.approx(10 * KNOWN["read_noise"], rel=0.1)
+    assert table["shot_noise"] == pytest.approx(10**0.5 * KNOWN["shot_noise"], rel=0.1)
     # a rendering whose scenes move between frames (tiny.toml's motion) is no still recording
     generate(TINY, tmp_path / "moving_rendering", "train", 1, seed=0, progress=False)
     status, _, err = fit_sensor(capsys, tmp_path / "moving_rendering", "-o", output)
@@ -166,3 +179,98 @@ def test_a_recording_of_the_software_realsense(tmp_path, capsys):
     assert table["read_noise"] == pytest.approx(0.01, rel=0.15)
     assert table["shot_noise"] == pytest.approx(0.04, rel=0.15)
     assert "ambient / projector light" in out and "dots per 1000 px, " in out  # off frames, device depth
+
+
+def test_rendered_captures_with_5_percent_clipped(rendered):
+    """The rendered capture's 4 still scenes made brighter (a higher gain: every 10-bit value times g)
+    until 5% of their samples clip at full scale: the clipped samples are left out, and the noise of
+    the rest is the known one at that gain (read noise g x, shot noise sqrt(g) x: the variance is
+    g^2 (r^2 + k^2 L / g) at the new level L)."""
+    recording = open_recording([str(rendered["capture"])])
+    raw = np.concatenate([np.round(scene.on * 1023) for scene in recording.scenes()])
+    gain = 1023 / np.percentile(raw, 95)
+    count = int(np.sum(np.round(raw * gain) >= 1023))
+    assert 0.045 < count / raw.size < 0.055
+
+    def clipped():
+        for scene in recording.scenes():
+            yield replace(scene, on=np.minimum(np.round(scene.on * 1023 * gain), 1023) / 1023)
+
+    stats = measure(replace(recording, read=clipped))
+    assert stats.saturation == 1.0 and stats.saturated == count
+    fitted = fit(stats).values
+    assert fitted["read_noise"] == pytest.approx(gain * KNOWN["read_noise"], rel=0.1)
+    assert fitted["shot_noise"] == pytest.approx(gain**0.5 * KNOWN["shot_noise"], rel=0.1)
+
+
+def test_compare_checks_the_camera(rendered, tmp_path, capsys):
+    """--compare: a rendering of another camera is refused (field of view from the rigs of two
+    datasets, aspect ratio against image files); image files say only the aspect was checked."""
+    scenes = [dataset.read_scene(ref.path) for ref in dataset.open_dataset(rendered["capture"]).scenes]
+    write_frames(scenes[0].frames, tmp_path / "on")
+    output = tmp_path / "sensor.toml"
+    status, out, err = fit_sensor(capsys, tmp_path / "on", "--white-level", 1023, "--compare",
+                                  rendered["reference"], "-o", output)
+    assert status == 0, err
+    assert "note: the recording's rig is not known (image files): only the rendering's aspect ratio" in out
+    square = tmp_path / "square"
+    square.mkdir()
+    for path in sorted((tmp_path / "on").iterdir()):
+        cv2.imwrite(str(square / path.name), cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[:, 32:211])
+    output.unlink()
+    status, _, err = fit_sensor(capsys, square, "--white-level", 1023, "--compare", rendered["reference"],
+                                "-o", output)
+    assert status == 2 and not output.exists()
+    assert "243 x 179 px (aspect 1.358), the recording 179 x 179 px (aspect 1.000): another camera" in err
+    # the same frames imported with a rig of another field of view (focal length 1.2 times)
+    rig = get_preset("structure_core").scaled(SCALE).to_dict()
+    rig["camera"] = {**rig["camera"], "fx": rig["camera"]["fx"] * 1.2, "fy": rig["camera"]["fy"] * 1.2}
+    (tmp_path / "zoom.json").write_text(json.dumps({"rig": rig}))
+    write_frames(scenes[0].frames, tmp_path / "off", channel="ambient")
+    assert main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"), "--rig",
+                 str(tmp_path / "zoom.json"), "--white-level", "1023", "--out", str(tmp_path / "zoom")]) == 0
+    capsys.readouterr()
+    status, _, err = fit_sensor(capsys, tmp_path / "zoom", "--compare", rendered["reference"], "-o", output)
+    assert status == 2 and "another field of view; render your config with the recording's rig" in err, err
+    assert not output.exists()
+
+
+def test_compare_a_recording_with_a_rendering(rendered, tmp_path, capsys):
+    """`capture compare` of the rendered capture's first scene as image files (with its reference
+    pattern as a PNG in camera pixels) against the rendered capture itself: the same frames measured
+    through both paths, so every ratio is near 1 (the one-frame statistics exactly: the same mean
+    frame), and the table, the JSON and the picture are written."""
+    from capture.realism import dataset_frames
+
+    scenes = [dataset.read_scene(ref.path) for ref in dataset.open_dataset(rendered["capture"]).scenes]
+    write_frames(scenes[0].frames, tmp_path / "on")
+    reference = dataset_frames(rendered["capture"])[1]
+    cv2.imwrite(str(tmp_path / "reference.png"),
+                np.round(reference / reference.max() * 65535).astype(np.uint16))
+    report = tmp_path / "report.png"
+    status = main(["capture", "compare", str(tmp_path / "on"), str(rendered["capture"]), "--white-level",
+                   "1023", "--pattern", str(tmp_path / "reference.png"), "-o", str(report)])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    table = json.loads(report.with_suffix(".json").read_text())["rows"]
+    rows = {row["statistic"].split(" (")[0]: row for row in table}
+    assert rows["ambient / projector light, one frame"]["ratio"] == pytest.approx(1, abs=1e-3)
+    unmatched = rows["SGBM unmatched share"]
+    assert 0 < unmatched["recording"] < 1 and unmatched["ratio"] == pytest.approx(1, abs=0.05)
+    for name in ("read noise", "shot noise at full scale", "dot FWHM, recording px"):
+        assert rows[name]["ratio"] == pytest.approx(1, abs=0.15), name
+    assert "statistic" in out and "ratio" in out
+    assert "SGBM unmatched share (against the reference pattern)" in out
+    picture = cv2.imread(str(report))
+    assert picture.shape[1] == 880 and picture.shape[0] > 640
+    # a recording given as the rendering, and a picture that is not a .png: one line each, nothing written
+    report.unlink()
+    jpg = tmp_path / "r.jpg"
+    for args, message in (([str(tmp_path / "on"), str(tmp_path / "zoom_missing")], "zoom_missing"),
+                          ([str(tmp_path / "on"), str(rendered["capture"]), "-o", str(jpg)],
+                           f"-o {jpg}: the report's picture is written as a .png file")):
+        status = main(["capture", "compare", *args, "--white-level", "1023"] + ([] if "-o" in args else
+                                                                              ["-o", str(report)]))
+        _, err = capsys.readouterr()
+        assert status == 2 and message in err and err.count("\n") == 1, err
+    assert not report.exists()

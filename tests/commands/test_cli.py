@@ -106,7 +106,7 @@ def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
 # The commands that write a file or folder (issue 36, item 7), and those that draw a progress bar.
 WRITERS = {"generate", "assets preview", "show", "view", "export", "pattern make", "stats", "train", "eval",
            "infer", "capture import", "capture pattern", "capture record", "capture info",
-           "capture fit-sensor"}
+           "capture fit-sensor", "capture compare"}
 WITH_A_BAR = {"generate", "assets build", "train", "eval", "infer", "capture import", "capture record"}
 
 

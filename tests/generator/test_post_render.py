@@ -241,3 +241,32 @@ def test_the_stereo_engine_needs_the_stereo_pair():
     with pytest.raises(Exception, match=r"\[device_depth\] engine = \"stereo\" matches the left IR "
                        r"against the right one, which \[rig\] stereo = false does not render"):
         config_from_dict({"rig": {"preset": "realsense_d415"}, "device_depth": {"engine": "stereo"}})
+
+
+def test_the_ambient_is_scaled_to_the_target_ratio_where_the_projector_reaches():
+    """[lighting] ambient_ratio r: the ambient passes times one factor, so that the ambient light over
+    the projector's light, both averaged where the projector reaches directly, is r."""
+    raw = raw_frame(0.03, 0.1, 0.02)  # ambient 0.03, the projector 0.12, on the left half only
+    half = SHAPE[1] // 2
+    for name in ("projector", "projector_direct", "flood_direct"):
+        raw[name][:, half:] = 0.0
+    spec = spec_with()  # no noise, fixed exposure: ir = ambient + projector
+    frame = make_frame(raw, replace(spec, ambient_ratio=5.0), noise(0))
+    np.testing.assert_allclose(frame["ambient"], 5.0 * 0.12, rtol=1e-3)  # everywhere: one room
+    np.testing.assert_allclose(frame["ir"][:, :half], 0.6 + 0.12, rtol=1e-3)
+    np.testing.assert_allclose(frame["ir"][:, half:], 0.6, rtol=1e-3)
+    as_rendered = make_frame(raw, spec, noise(0))
+    np.testing.assert_allclose(as_rendered["ambient"], 0.03, rtol=1e-3)
+
+
+def test_the_device_engine_sees_the_relit_ir():
+    """The device's depth is made from the IR after the ambient is scaled to [lighting] ambient_ratio: the
+    dotted wall of the test above (depth over 80% of its inside) drowned in 1e5 times the projector's
+    light, where the dots are below a 10-bit level, gives depth almost nowhere."""
+    config = config_from_dict({"rig": {"preset": "realsense_d415", "scale": 0.25, "stereo": True},
+                               "sensor": {"shot_noise": 0.0, "read_noise": 0.0, "bloom_strength": 0.0},
+                               "device_depth": {"engine": "stereo", "subpixel_step": 0.125}})
+    spec = sample_scene_spec(config, 0, 0, "train", SceneResources("/p.png", "0" * 64))
+    lit = replace(spec, ambient_ratio=1e5)
+    depth = make_frame(dotted_wall_passes(spec, 1.2), lit, frame_streams(0, spec, 0))["device_depth"]
+    assert np.isfinite(depth[10:-10, 40:-10]).mean() < 0.05

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dotsim.config_schema import ConfigError
 from dotsim.rig.geometry import Rig
 from generator.config import config_from_dict
 from generator.sample_scene import (
@@ -289,3 +290,22 @@ def test_a_frames_random_streams_are_derived_in_one_place():
     assert same_pose[0] == same_pose[1] != same_pose[2]
     with pytest.raises(ValueError, match=r"^frame = -1: not a frame of scene 5; allowed: 0 to 3$"):
         frame_streams(9, spec, -1)
+
+
+def test_ambient_ratio_is_drawn_last_and_only_when_asked_for():
+    """[lighting] ambient_ratio: each scene draws its target log-uniformly in the range, after every
+    other draw, so the rest of the scene is the one drawn without it; [0, 0] (the default) draws
+    nothing and records nothing; a range starting at 0 is refused."""
+    plain = sample_scene_spec(config_from_dict({}), 3, 0, "train", SceneResources("/p.png", "0" * 64))
+    config = config_from_dict({"lighting": {"ambient_ratio": [0.1, 20.0]}})
+    ratios = []
+    for index in range(20):
+        spec = sample_scene_spec(config, index, 0, "train", SceneResources("/p.png", "0" * 64))
+        ratios.append(spec.ambient_ratio)
+        if index == 3:
+            lit = spec.to_dict()
+            assert lit.pop("ambient_ratio") == spec.ambient_ratio and lit == plain.to_dict()
+    assert plain.ambient_ratio is None and "ambient_ratio" not in plain.to_dict()
+    assert all(0.1 <= r <= 20.0 for r in ratios) and min(ratios) < 1.0 < max(ratios)
+    with pytest.raises(ConfigError, match=r"\[lighting\] ambient_ratio = \[0, 5\]: not allowed"):
+        config_from_dict({"lighting": {"ambient_ratio": [0.0, 5.0]}})

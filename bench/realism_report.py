@@ -1,0 +1,101 @@
+"""How real dotsim's Kinect rendering looks beside a real Kinect v1 frame: `dotsim capture compare` on the
+vendored capture (tests/data/real/kinect_v1_ctd: its README gives source and licence) and still
+renderings of the config docs/CONFIG.md gives for the Kinect (dotsim/configs/kinect.toml) through the
+capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), with the config's
+[sensor], with the [sensor] table fit-sensor fits to the real frame, and with that table in a room lit
+to the real frame's ambient / projector ratio ([lighting] ambient_ratio). Prints each table
+(statistic, recording, rendering, ratio) and writes the pictures.
+
+    python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
+
+Still scenes ([motion] translation = 0 and rotation = 0: a scene's 4 frames differ by the sensor's
+noise alone), built-in primitives instead of the asset cache unless --assets cache.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import tomllib
+from pathlib import Path
+
+REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kinect_v1_ctd"
+CONFIG = "kinect"
+STILL = {"motion": {"translation": 0.0, "rotation": 0.0}}
+
+
+def still_config(scale: float, samples: int, threads: int, assets: str, sensor: dict | None,
+                 ambient_ratio: float | None = None):
+    """The Kinect config through the capture's rig at [rig] scale `scale`, still, with `sensor` over
+    its [sensor] table (None: the config's own) and [lighting] ambient_ratio fixed at `ambient_ratio`
+    (None: the config's lighting)."""
+    from generator.config import config_from_dict, load_config
+
+    data = load_config(CONFIG).to_dict()
+    data.pop("source")
+    data["rig"] = {**data["rig"], "file": str(REAL / "rig.json"), "scale": scale}
+    data["render"] = {**data["render"], "samples": samples, "threads": threads}
+    data["motion"] = {**data["motion"], **STILL["motion"]}
+    if assets == "primitives":
+        data["assets"] = {"source": "primitives"}
+    if sensor is not None:
+        data["sensor"] = {**data["sensor"], **sensor}
+    if ambient_ratio is not None:
+        data["lighting"] = {**data["lighting"], "ambient_ratio": [ambient_ratio, ambient_ratio]}
+    return config_from_dict(data, source=f"{CONFIG} (still, rig {REAL / 'rig.json'}, scale {scale:g})")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.realism_report",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scale", type=float, default=0.5,
+                        help="[rig] scale of the renderings (default 0.5: 320 x 256)")
+    parser.add_argument("--scenes", type=int, default=1, help="still scenes of 4 frames each (default 1)")
+    parser.add_argument("--samples", type=int, default=4, help="Cycles samples (default 4)")
+    parser.add_argument("--threads", type=int, default=1, help="render threads (default 1; 0: all cores)")
+    parser.add_argument("--assets", choices=("primitives", "cache"), default="primitives",
+                        help="scene objects: built-in primitives (default) or the config's asset cache")
+    parser.add_argument("--out", type=Path, help="keep renderings and reports here (default: a temporary "
+                        "folder); a rerun with the same folder reuses the renderings")
+    args = parser.parse_args(argv)
+
+    from commands.cli import main as dotsim
+    from generator.driver import generate
+
+    with tempfile.TemporaryDirectory(prefix="dotsim-realism-") as tmp:
+        folder = args.out or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        fitted = folder / "kinect_fitted.toml"
+        if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "-o", str(fitted)]) != 0:
+            return 1
+        table = tomllib.loads(fitted.read_text())["sensor"]
+        status, real_ratio = 0, None
+        # the third: the fitted sensor in a room lit to the real frame's ambient / projector ratio (the
+        # one-frame estimate of the first report: the frame has no projector-off frame to fit it from)
+        variants = (("config", None, False), ("fitted", table, False), ("fitted_lit", table, True))
+        for name, sensor, lit in variants:
+            if lit and real_ratio is None:
+                continue
+            rendering = folder / f"rendering_{name}"
+            if not (rendering / "index.json").is_file():
+                config = still_config(args.scale, args.samples, args.threads, args.assets, sensor,
+                                      real_ratio if lit else None)
+                generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
+            which = ("of the config" if sensor is None else "fitted") + \
+                (f", [lighting] ambient_ratio = {real_ratio:.3g}" if lit else "")
+            print(f"\n== the Kinect config's rendering, [sensor] {which}")
+            report = folder / f"realism_{name}.png"
+            status |= dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
+                              str(REAL / "pattern.png"), "-o", str(report)])
+            if report.with_suffix(".json").is_file():
+                rows = json.loads(report.with_suffix(".json").read_text())["rows"]
+                off = [abs(row["ratio"] - 1) for row in rows if row["ratio"] is not None]
+                within = sum(value <= 0.25 for value in off)
+                print(f"{within} of {len(off)} statistics within 25% of the real frame's")
+                real_ratio = next(row["recording"] for row in rows if row["statistic"].startswith("ambient"))
+    return status
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
