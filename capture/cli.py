@@ -15,7 +15,7 @@ import numpy as np
 from capture.devices import DEVICE_SYNTAX, device_rig_file, open_device
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
 from capture.frames import CaptureError, list_images, read_image, recorded_images
-from capture.import_frames import import_frames
+from capture.import_frames import check_capture_folder, import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
@@ -331,7 +331,10 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 def _import(args: argparse.Namespace) -> int:
-    check_writable_folder(args.out, "--out")  # before any frame is read
+    try:
+        check_capture_folder(args.out, "dotsim capture import")  # before any frame is read
+    except CaptureError as error:
+        return _fail("import", error)
     if args.bag is not None:
         return _import_recording(args)
     start = time.perf_counter()
@@ -479,9 +482,9 @@ def _pattern(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    check_writable_folder(args.out, "--out")  # before the device is opened
     start = time.perf_counter()
     try:
+        check_capture_folder(args.out, "dotsim capture record")  # before the device is opened
         pattern = load_pattern(args.pattern) if args.pattern else None
         with _open(args, exposure=args.exposure, gain=args.gain, stereo=args.stereo) as device:
             calibrated = device_or_given_rig(args, device)

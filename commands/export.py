@@ -45,12 +45,12 @@ from dotsim.file_io import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_writer,
-    check_writable_folder,
     json_bytes,
     make_folder,
     sha256_file,
 )
 from dotsim.option_types import integer
+from dotsim.output_folder import EXPORT, check_output_folder
 from dotsim.shard_format import (
     INDEX_NAME,
     PATTERN_NAME,
@@ -264,7 +264,8 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
             raise ValueError(f"{name} {value}: at least 1")
     if precision not in PRECISIONS:
         raise ValueError(f"--precision {precision!r}: choose one of {', '.join(PRECISIONS)}")
-    out = check_writable_folder(out, "OUT")  # a file, a read-only or missing parent: one line, first
+    # a file, a read-only or missing parent, a folder that is no export: one line, first
+    out = check_output_folder(out, EXPORT, "OUT", "dotsim export")
     source = ds.open_dataset(dataset_dir, verify=verify)
     scenes = source.scenes if split is None else source.split(split)
     if not scenes:

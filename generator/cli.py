@@ -23,8 +23,8 @@ ground-truth projector column and disparity (docs/FORMAT.md). Scene k depends on
 --seed), never on the worker that renders it.
 
 Everything is checked before anything is written: a bad config key, type or range, a missing
-pattern or asset file, an unwritable DIR or a DIR holding a dataset made with other settings
-stops the run with a message naming the file, key and value. Rerunning the same command resumes:
+pattern or asset file, an unwritable DIR, a DIR holding anything but a dataset of rendered scenes
+(dotsim.output_folder) or one made with other settings stops the run with a message naming the file, key and value. Rerunning the same command resumes:
 complete scenes are skipped, half-written and damaged ones (a frame deleted) are redone, and the
 dataset is sealed again (shard.json, index.json; `dotsim verify DIR` checks every checksum). A
 failing scene is logged in DIR/logs/ and the run goes on; the exit status is 1 when any scene

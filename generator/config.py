@@ -26,7 +26,8 @@ from dotsim import config_schema
 from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bounds_of, setting
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
-from dotsim.file_io import WriteError, check_writable_folder, json_bytes
+from dotsim.file_io import WriteError, json_bytes
+from dotsim.output_folder import DATASET, RENDERED, check_output_folder
 from dotsim.rig import DEFAULT_MAX_DEPTH, DEFAULT_PRESET, PRESETS, Rig
 from dotsim.rig_files import (
     RIG_FILE_SUFFIXES,
@@ -412,11 +413,11 @@ def _resolve_rig(config: Config, prefix: str = "") -> None:
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
-    """`out` made absolute once it is known to be (or able to become) a writable directory
-    (dotsim.file_io.check_writable_folder: nothing is left behind); ConfigError naming `source`, the
-    directory and the problem."""
+    """`out` made absolute once it is known to be (or able to become) a writable directory that is
+    new, empty or a dataset of rendered scenes (dotsim.output_folder.check_output_folder: nothing is
+    left behind); ConfigError naming `source`, the directory and the problem."""
     try:
-        return check_writable_folder(out, source)
+        return check_output_folder(out, DATASET, source, "dotsim generate", RENDERED)
     except WriteError as error:
         raise ConfigError(str(error)) from None
 

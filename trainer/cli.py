@@ -8,8 +8,8 @@ from functools import partial
 
 from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
-from dotsim.file_io import check_writable_folder
 from dotsim.option_types import integer, number
+from dotsim.output_folder import EVAL, PREDICTIONS, TRAINING_RUN, check_output_folder
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
@@ -21,7 +21,8 @@ def _train(args: argparse.Namespace) -> None:
     from trainer.distributed import run_on_ranks
     from trainer.train import disk_full_in, train
 
-    check_writable_folder(args.out, "--out")  # before the data is read or a rank started
+    # before the data is read or a rank started
+    check_output_folder(args.out, TRAINING_RUN, "--out", "dotsim train")
     cfg = load_config(args.config)
     if args.max_steps is not None:
         cfg = replace(cfg, train=replace(cfg.train, max_steps=args.max_steps))
@@ -35,7 +36,7 @@ def _train(args: argparse.Namespace) -> None:
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
-    check_writable_folder(args.out, "--out")
+    check_output_folder(args.out, EVAL, "--out", "dotsim eval")
     evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
              max_frames=args.max_frames, images=args.images, precision=args.precision,
              val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames,
@@ -45,7 +46,7 @@ def _eval(args: argparse.Namespace) -> None:
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
-    check_writable_folder(args.out, "--out")
+    check_output_folder(args.out, PREDICTIONS, "--out", "dotsim infer")
     infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision,
           progress_bar=not args.no_progress)
 
