@@ -37,7 +37,7 @@ from dotsim.false_colour import colourise
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import cloud_pixels, depth_points, grey_levels
-from dotsim.prediction_file import prediction_path
+from dotsim.prediction_file import PREDICTION_ATTRIBUTE, prediction_path, prediction_source
 from dotsim.rig import Rig
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
@@ -123,6 +123,19 @@ def layout(rr, passes: list[str], with_predictions: bool):
         column_shares=[3, 2]), collapse_panels=True)
 
 
+def check_prediction_of(prediction: Path, frame: Path) -> None:
+    """ViewError unless `prediction` (a `dotsim infer` EXR) was predicted from `frame`: the input its
+    header records is that file (or no longer exists: a dataset moved since keeps its predictions)."""
+    source = prediction_source(prediction)
+    if source is None:
+        raise ViewError(f"{prediction}: not a `dotsim infer` prediction (no {PREDICTION_ATTRIBUTE} in its "
+                        "header); --predictions takes the folder `dotsim infer` wrote")
+    given = Path(str(source.get("input", "")))
+    if given.is_file() and given.resolve() != frame.resolve():
+        raise ViewError(f"{prediction}: predicted from {given}, not from {frame}; --predictions takes the "
+                        "folder `dotsim infer` wrote for this dataset's frames")
+
+
 def log_scene(rec, scene_path: Path, frames: list[int] | None = None, predictions: Path | None = None,
               verify: bool = True) -> dict[str, int]:
     """Log a scene directory into the recording stream `rec`; returns {entity: points or pixels}."""
@@ -142,6 +155,8 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
                             f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
                             f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
+        for k, path in predicted.items():
+            check_prediction_of(path, scene_path / ds.frame_name(k))
     passes = [name for name in VIEWED if name in meta["channels"]]
     rec.send_blueprint(layout(rr, passes, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -158,15 +173,23 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             rec.log(f"{CAMERA}/{name}", viewer_image(rr, f[name], name))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
-        points, colours = depth_points(f["depth"], rig.camera, grey)
-        rec.log(f"world/pose_{k}/ground_truth", rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
-                                                            radii=rr.Radius.ui_points(1.5)))
-        sizes[f"world/pose_{k}/ground_truth"] = len(points)
+        if "depth" in f:  # a capture has no ground truth: its frames show the passes alone
+            points, colours = depth_points(f["depth"], rig.camera, grey)
+            cloud = rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
+                                radii=rr.Radius.ui_points(1.5))
+            rec.log(f"world/pose_{k}/ground_truth", cloud)
+            sizes[f"world/pose_{k}/ground_truth"] = len(points)
         if predictions is not None and k not in predicted:
             rec.log(f"{CAMERA}/error", rr.Clear(recursive=False))  # not the error of an earlier frame
         elif predictions is not None:
             pred = ds.read_frame(predicted[k], verify=False, channels=("disparity", "depth"))
-            error = disparity_error(pred["disparity"], f["disparity"])
+            height, width = pred["disparity"].shape
+            if (height, width) != (rig.camera.height, rig.camera.width):
+                raise ViewError(f"{predicted[k]}: {width} x {height} px, not the scene's camera "
+                                f"({rig.camera.width} x {rig.camera.height}); --predictions takes the folder "
+                                "`dotsim infer` wrote for this dataset's frames")
+            truth = f.get("disparity", np.full_like(pred["disparity"], np.nan))
+            error = disparity_error(pred["disparity"], truth)
             rec.log(f"{CAMERA}/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
             # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
             # beyond the rig's range are left out (a few near-zero disparities would put points
@@ -211,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
     sizes = view(args.path, args.scene, args.frame, args.predictions, args.save, not args.no_verify)
     where = f"wrote {args.save}" if args.save else "sent to the Rerun viewer"
     clouds = ", ".join(f"{k} {v}" for k, v in sizes.items())
-    print(f"{where}: points per cloud: {clouds}")
+    print(f"{where}: points per cloud: {clouds}" if clouds else
+          f"{where}: the passes alone (no depth: a capture has no ground-truth cloud)")
     return 0
 
 
