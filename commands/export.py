@@ -158,10 +158,11 @@ class ExportResult:
 
 class _ShardWriter:
     """Writes samples into shard-NNNNNN.tar files: a new shard when the next sample would pass
-    `shard_bytes` of members or the shard has `samples_per_shard` samples. A scene's scene.json goes
-    into its first sample in each shard. After each shard, `on_shard(shards)` records progress."""
+    `shard_bytes` of members or the shard has `samples_per_shard` samples (an int, or a list: shard
+    k's count). A scene's scene.json goes into its first sample in each shard. After each shard,
+    `on_shard(shards)` records progress."""
 
-    def __init__(self, out: Path, shard_bytes: int | None, samples_per_shard: int | None,
+    def __init__(self, out: Path, shard_bytes: int | None, samples_per_shard: int | list[int] | None,
                  done: list[dict], on_shard):
         self.out, self.shard_bytes, self.samples_per_shard = out, shard_bytes, samples_per_shard
         self.shards, self.on_shard = list(done), on_shard
@@ -190,8 +191,14 @@ class _ShardWriter:
             _add(self._tar, name, data)
         self._used += tar_bytes_of(files)
         self._samples += 1
-        if self.samples_per_shard is not None and self._samples >= self.samples_per_shard:
+        if self.samples_per_shard is not None and self._samples >= self._limit():
             self.close()  # now, not at the next sample: a kill then loses no finished shard
+
+    def _limit(self) -> int:
+        """The samples the shard being written holds when full."""
+        if isinstance(self.samples_per_shard, list):
+            return self.samples_per_shard[len(self.shards)]
+        return self.samples_per_shard
 
     def close(self) -> None:
         if self._tar is None:
@@ -238,13 +245,14 @@ def _done_shards(out: Path, plan: dict) -> list[dict]:
     return done
 
 
-def _plan(source: ds.Dataset, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard
-          ) -> dict:
+def _plan(source: ds.Dataset, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard,
+          shards) -> dict:
     return {"source": {"dataset": str(Path(dataset_dir).resolve()), "split": split,
                        "index_sha256": sha256_file(Path(dataset_dir) / ds.INDEX_FILE),
                        "format_version": source.index["format_version"]},
             "channels": channels, "precision": precision,
-            "sharding": {"shard_bytes": shard_bytes} if samples_per_shard is None
+            "sharding": {"shards": shards} if shards is not None
+            else {"shard_bytes": shard_bytes} if samples_per_shard is None
             else {"samples_per_shard": samples_per_shard}}
 
 
@@ -255,8 +263,9 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
     """Write the scenes of `split` (None: all) of the sealed dataset as shards in `out` (see the
     module docstring), resuming an unfinished export of the same plan there.
 
-    Sharding: `shard_bytes` (default 256 MiB), `samples_per_shard`, or `shards` (that many shards of
-    equal sample counts, e.g. a multiple of the loader's workers); give at most one."""
+    Sharding: `shard_bytes` (default 256 MiB), `samples_per_shard`, or `shards` (that many shards,
+    whose sample counts differ by at most one, e.g. a multiple of the loader's workers; at most one
+    per sample); give at most one."""
     if sum(x is not None for x in (shard_bytes, samples_per_shard, shards)) > 1:
         raise ValueError("give one of --shard-size, --samples-per-shard and --shards")
     for name, value in (("--samples-per-shard", samples_per_shard), ("--shards", shards)):
@@ -272,10 +281,15 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
         raise ds.FormatError(f"{dataset_dir}: no scenes to export (split {split!r})")
     channels = choose_channels(channels, ds.read_scene_meta(scenes[0].path, verify=verify), scenes[0].path)
     if shards is not None:
-        samples_per_shard = -(-sum(ref.frame_count for ref in scenes) // shards)
+        samples = sum(ref.frame_count for ref in scenes)
+        if shards > samples:
+            raise ValueError(f"--shards {shards}: {dataset_dir} has {samples} sample(s) (frames) to export"
+                             f"{'' if split is None else f' in split {split!r}'}; allowed: 1 to {samples}")
+        samples_per_shard = [samples // shards + (k < samples % shards) for k in range(shards)]
     if samples_per_shard is None and shard_bytes is None:
         shard_bytes = DEFAULT_SHARD_BYTES
-    plan = _plan(source, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard)
+    plan = _plan(source, dataset_dir, split, channels, precision, shard_bytes,
+                 None if shards is not None else samples_per_shard, shards)
     if (out / INDEX_NAME).exists():
         index = load_json(out / INDEX_NAME)
         if index.get("plan") != plan:
@@ -363,7 +377,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     size.add_argument("--samples-per-shard", type=integer(1), default=None, metavar="N",
                       help="N samples (frames) per shard")
     size.add_argument("--shards", type=integer(1), default=None, metavar="N",
-                      help="N shards of equal sample counts (a multiple of the loader's workers)")
+                      help="N shards whose sample counts differ by at most one (a multiple of the "
+                      "loader's workers; at most the number of frames)")
     parser.add_argument("--split", default=None, help="export only the scenes of this split (default: all)")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
     parser.set_defaults(func=run, errors={ds.FormatError: 1, ValueError: 1})
