@@ -29,10 +29,13 @@ the one, capture the other.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
 import re
+import shutil
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -215,3 +218,29 @@ def check_output_folder(folder: str | os.PathLike, kind: str, option: str, comma
         raise OutputFolderError(f"{option} {folder}: holds {found.text()}; {command} writes only into a "
                                 f"new or empty folder or {own}")
     return folder
+
+
+@contextlib.contextmanager
+def removed_if_failed(folder: str | os.PathLike, resumable: Callable[[Path], bool] = lambda folder: False
+                      ) -> Iterator[None]:
+    """Run the block; when it raises and `folder` was new or empty before it, remove what the block
+    wrote there (the folder itself if it made it), unless `resumable(folder)` says that a rerun
+    continues from it (a training run with a checkpoint). A failed command then leaves nothing that
+    only looks like its output (a run's tb/ without a checkpoint); the error passes on."""
+    folder = Path(folder)
+    existed = folder.is_dir()
+    before = set(folder.iterdir()) if existed else set()
+    was_empty = folder_contents(folder).empty
+    try:
+        yield
+    except BaseException:
+        if was_empty and folder.is_dir() and not resumable(folder):
+            if not existed:
+                shutil.rmtree(folder, ignore_errors=True)
+            else:
+                for path in set(folder.iterdir()) - before:
+                    if path.is_dir() and not path.is_symlink():
+                        shutil.rmtree(path, ignore_errors=True)
+                    else:
+                        path.unlink(missing_ok=True)
+        raise

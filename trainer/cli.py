@@ -9,7 +9,7 @@ from functools import partial
 from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
 from dotsim.option_types import integer, number
-from dotsim.output_folder import EVAL, PREDICTIONS, TRAINING_RUN, check_output_folder
+from dotsim.output_folder import EVAL, PREDICTIONS, TRAINING_RUN, check_output_folder, removed_if_failed
 from trainer.config import ConfigError, load_config
 from trainer.data import DataError
 
@@ -19,7 +19,7 @@ EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointEr
 
 def _train(args: argparse.Namespace) -> None:
     from trainer.distributed import run_on_ranks
-    from trainer.train import disk_full_in, train
+    from trainer.train import CHECKPOINT, disk_full_in, train
 
     # before the data is read or a rank started
     check_output_folder(args.out, TRAINING_RUN, "--out", "dotsim train")
@@ -27,7 +27,8 @@ def _train(args: argparse.Namespace) -> None:
     if args.max_steps is not None:
         cfg = replace(cfg, train=replace(cfg.train, max_steps=args.max_steps))
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
-    with disk_full_in(args.out):
+    # a run that fails before its first checkpoint leaves no tb/ of a run that cannot resume
+    with disk_full_in(args.out), removed_if_failed(args.out, lambda out: (out / CHECKPOINT).is_file()):
         run(cfg, args.data, args.out, resume=args.resume, device=args.device, split=args.split,
             max_seconds=args.minutes * 60, val_data=args.val_data, val_split=args.val_split,
             val_frames=args.val_frames, progress_bar=not args.no_progress)
@@ -37,10 +38,11 @@ def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
     check_output_folder(args.out, EVAL, "--out", "dotsim eval")
-    evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
-             max_frames=args.max_frames, images=args.images, precision=args.precision,
-             val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames,
-             progress_bar=not args.no_progress)
+    with removed_if_failed(args.out):  # no errors/ of an eval that wrote no table
+        evaluate(args.checkpoint, args.data, args.out, split=args.split, device=args.device,
+                 max_frames=args.max_frames, images=args.images, precision=args.precision,
+                 val_data=args.val_data, val_split=args.val_split, val_frames=args.val_frames,
+                 progress_bar=not args.no_progress)
 
 
 def _infer(args: argparse.Namespace) -> None:

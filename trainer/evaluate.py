@@ -27,6 +27,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from dotsim.channels import CHANNEL
+from dotsim.dataset.frames import derivable_channels
 from dotsim.false_colour import titled, with_legend
 from dotsim.file_io import atomic_write_bytes
 from dotsim.images import write_image
@@ -228,6 +230,19 @@ def joint_table(joint: dict[tuple[str, float], np.ndarray], sgbm_method: str) ->
     return "\n".join(lines) + "\n"
 
 
+def check_scorable(frame: FrameRef, data_dir) -> None:
+    """DataError unless `frame` (of the data to evaluate) holds what eval scores against, EVAL_CHANNELS
+    (stored, or derived on read from depth or the projector column): the IR and the ground truth."""
+    stored = frame.stored_channels()
+    readable = stored | set(derivable_channels(stored, bool(stored & {"depth", "projector_column"})))
+    missing = [c for c in EVAL_CHANNELS if c not in readable]
+    if missing:
+        held = ", ".join(sorted(stored & set(CHANNEL))) or "no channel"
+        raise DataError(f"{data_dir}: its frames store {held}, not {', '.join(missing)}: nothing to score; "
+                        "eval needs ground truth (a rendered dataset, or its export with --channels "
+                        "ir,projector_column,visibility,edge; a capture has none)")
+
+
 def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, split: str = "test",
              device: str = "cpu", depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8,
              progress: bool = True, precision: str = "float32", val_data: str | Path | None = None,
@@ -244,6 +259,7 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path, out_dir: str | Path, 
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     model, cfg, rig = load_model(checkpoint, device)
     frames, data_rig, _ = list_frames(data_dir, split)
+    check_scorable(frames[0], data_dir)
     check_rig(rig, data_rig, f"checkpoint {checkpoint}", str(data_dir))
     reference = load_reference(data_dir, rig)
     depth_bins = depth_ranges(depth_bins, rig.max_depth)

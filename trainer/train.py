@@ -324,48 +324,55 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
     progress = progress and ranks.main
     bar = tqdm(total=total_steps, initial=step, desc="train", unit="step",
                disable=not (progress and progress_bar))
-    while step < total_steps:
-        epoch, within = divmod(step, steps_per_epoch)
-        loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,
-                             ranks.world)
-        for batch in loader:
-            batch = {k: v.to(device) for k, v in batch.items()}
-            with autocast(device, t.amp):
-                loss, parts = loss_of(batch)
-            # means over the ranks: the global batch's loss, and one elapsed time so all ranks stop together
-            values = [float(loss.detach()), *parts.values(), time.perf_counter() - start]
-            value, *part_values, elapsed = ranks.mean(torch.tensor(values, dtype=torch.float64)).tolist()
-            parts = dict(zip(parts, part_values, strict=True))
-            if not math.isfinite(value):
-                raise FloatingPointError(f"step {step}: loss is {value}; lower [train].lr")
-            opt.zero_grad(set_to_none=True)
-            scaler.scale(loss).backward()
-            scaler.step(opt)
-            scaler.update()
-            sched.step()
-            step += 1
-            losses.append(value)
-            bar.update(1)
-            bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
-            out_of_time = 0 < max_seconds < elapsed
-            if ranks.main:  # rank 0 alone writes
-                if step % t.log_every == 0 or step == total_steps:
-                    writer.add_scalar("loss/total", value, step)
-                    for k, v in parts.items():
-                        writer.add_scalar(f"loss/{k}", v, step)
-                    writer.add_scalar("lr", sched.get_last_lr()[0], step)
-                if step % t.image_every == 0 or step == total_steps:
-                    _log_images(writer, step, model, batch)
-                if validation is not None and (step % t.val_every == 0 or step == total_steps or out_of_time):
-                    rates, image = validation(model, device)
-                    for name, rate in rates.items():
-                        writer.add_scalar(f"validation/{name}", rate, step)
-                    writer.add_image("validation/ir_and_error_0_to_5_px", image, step, dataformats="HWC")
-                if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
-                    save()
-            if step >= total_steps or out_of_time:
-                total_steps = step
-                break
+    try:
+        while step < total_steps:
+            epoch, within = divmod(step, steps_per_epoch)
+            loader = make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,
+                                 ranks.world)
+            for batch in loader:
+                batch = {k: v.to(device) for k, v in batch.items()}
+                with autocast(device, t.amp):
+                    loss, parts = loss_of(batch)
+                # means over the ranks: the global batch's loss, and one elapsed time so all ranks stop
+                # together
+                values = [float(loss.detach()), *parts.values(), time.perf_counter() - start]
+                value, *part_values, elapsed = ranks.mean(torch.tensor(values, dtype=torch.float64)).tolist()
+                parts = dict(zip(parts, part_values, strict=True))
+                if not math.isfinite(value):
+                    raise FloatingPointError(f"step {step}: loss is {value}; lower [train].lr")
+                opt.zero_grad(set_to_none=True)
+                scaler.scale(loss).backward()
+                scaler.step(opt)
+                scaler.update()
+                sched.step()
+                step += 1
+                losses.append(value)
+                bar.update(1)
+                bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
+                out_of_time = 0 < max_seconds < elapsed
+                if ranks.main:  # rank 0 alone writes
+                    if step % t.log_every == 0 or step == total_steps:
+                        writer.add_scalar("loss/total", value, step)
+                        for k, v in parts.items():
+                            writer.add_scalar(f"loss/{k}", v, step)
+                        writer.add_scalar("lr", sched.get_last_lr()[0], step)
+                    if step % t.image_every == 0 or step == total_steps:
+                        _log_images(writer, step, model, batch)
+                    if validation is not None and (step % t.val_every == 0 or step == total_steps
+                                                   or out_of_time):
+                        rates, image = validation(model, device)
+                        for name, rate in rates.items():
+                            writer.add_scalar(f"validation/{name}", rate, step)
+                        writer.add_image("validation/ir_and_error_0_to_5_px", image, step, dataformats="HWC")
+                    if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
+                        save()
+                if step >= total_steps or out_of_time:
+                    total_steps = step
+                    break
+    except BaseException:
+        if ranks.main:
+            writer.close()  # its thread flushes no more into a tb/ the caller may remove
+        raise
     bar.close()
     if ranks.main:
         writer.close()
