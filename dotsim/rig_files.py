@@ -376,7 +376,8 @@ def rig_file_json(rig: Rig, **extra) -> bytes:
 def check_rig(rig: Rig, where: str) -> None:
     """Refuse a rig dotsim cannot simulate or use, naming `where` (a file or config key) and the value.
 
-    Checks: principal points inside their images; the projector facing the scene the camera sees
+    Checks: principal points inside their images; a positive baseline (the projector at +x); the
+    projector facing the scene the camera sees
     (not behind the camera); and some camera pixel lit by the projector at some depth from 0.3 m to
     max_depth. Focal lengths are already positive (Intrinsics refuses others).
     """
@@ -387,6 +388,11 @@ def check_rig(rig: Rig, where: str) -> None:
                 raise RigFileError(f"{where}: {role} {axis} = {value:g} is outside the image; allowed: "
                                    f"-0.5 <= {axis} <= {size - 0.5:g} ({role} is {intrinsics.width} x "
                                    f"{intrinsics.height} px)")
+    if rig.baseline <= 0:
+        raise RigFileError(f"{where}: the projector's x offset (baseline) is {rig.baseline:g} m; allowed: "
+                           "> 0, the projector to the camera's right (image +x): at 0 no dot moves with "
+                           "depth (disparity 0 everywhere); dotsim's disparity is positive for a projector "
+                           "at +x")
     axis = rig.R.T @ np.array([0.0, 0.0, 1.0])  # the projector's optical axis in the camera frame
     if axis[2] <= 0:
         raise RigFileError(f"{where}: the projector points behind the camera (its optical axis in the "

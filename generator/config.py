@@ -85,7 +85,10 @@ class RigConfig(Checked):
                                           "the preset's or file's rotation)", low=-30.0, high=30.0)
     projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
-    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
+    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth; "
+                               "left out: the preset's or rig file's own (the default is structure_core's), "
+                               "and another value is refused (a rig's range is part of the rig a network "
+                               "is trained for: give a rig file with the max_depth you want)",
                                **bounds_of(Rig, "max_depth"))
     stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
                            "stereo_visibility and stereo_disparity beside the channels of the rig's own "
@@ -273,8 +276,23 @@ def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None =
     Raises ConfigError naming `source`, the key, the value and what is allowed.
     """
     config = config_schema.from_dict(Config, data, source, base_dir, source=source)
+    rig_given = data.get("rig") if isinstance(data.get("rig"), dict) else {}
+    if "max_depth" not in rig_given:  # the rig's own range: a preset's or rig file's max_depth
+        config = replace(config, rig=replace(config.rig, max_depth=_own_max_depth(config.rig, source)))
     _check_cross_fields(config)
     return config
+
+
+def _own_max_depth(rig: RigConfig, source: str) -> float:
+    """The max_depth of the preset or rig file that [rig] names (the rig's own range)."""
+    try:
+        return composed_rig(rig.file or rig.preset).rig.max_depth
+    except RigFileError as error:
+        raise ConfigError(f"{source}: [rig] file: {error}") from None
+
+
+# Objects keep this far in front of the room's walls (generator.sample_scene: exit distance - 0.05 m).
+_OBJECT_WALL_GAP = 0.05
 
 
 def _check_cross_fields(config: Config) -> None:
@@ -289,8 +307,21 @@ def _check_cross_fields(config: Config) -> None:
             problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
+    own = _own_max_depth(config.rig, src)
+    if config.rig.max_depth != own:
+        rig = f"rig file {config.rig.file}" if config.rig.file else f"preset {config.rig.preset}"
+        raise ConfigError(f"{src}: [rig] max_depth = {config.rig.max_depth:g} m but the {rig} says "
+                          f"{own:g} m: data captured or imported with that rig would not match a network "
+                          f"trained on these renders; allowed: max_depth = {own:g} or left out (the rig's "
+                          "own), or a rig file with the max_depth you want ([rig] file)")
     _resolve_rig(config)
     wall, room = config.scene.back_wall_distance, config.scene.room_size
+    near = config.scene.distance[0]
+    if wall[1] > 0 and wall[0] <= near + _OBJECT_WALL_GAP:
+        raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)} is not beyond [scene] "
+                          f"distance = {list(config.scene.distance)}: the nearest objects would stand behind "
+                          f"the back wall; allowed: back_wall_distance low > {near + _OBJECT_WALL_GAP:g} m "
+                          f"(distance's low + {_OBJECT_WALL_GAP:g} m), or [0, 0]")
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
                           f"must stand inside the room; allowed: [0, 0], or 0 < low <= high < the smallest "
@@ -373,6 +404,8 @@ def with_rig(config: Config, spec: str | None = None, camera_file: str | None = 
     camera_file) in place of its own; its other [rig] keys still apply. Raises ConfigError naming the
     options."""
     rig = rig_settings(spec, config.rig) if spec else config.rig
+    if spec:  # the range is the rig's own (a config's max_depth is its rig's: _check_cross_fields)
+        rig = replace(rig, max_depth=_own_max_depth(rig, _options(spec, camera_file)))
     if camera_file:
         rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
     config = replace(config, rig=rig)
