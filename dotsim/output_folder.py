@@ -71,6 +71,10 @@ _MARKERS = {
     "eval.md": EVAL, "eval.csv": EVAL, "errors": EVAL,
 }
 _DATASET_SHARD = re.compile(r"shard_\d{5,}")
+# What else a folder of a kind holds, named as its own in a refusal (they do not tell the kind alone: a
+# user's pattern.png or shard-000000.tar is no export).
+_MEMBERS = {DATASET: re.compile(r"pattern\.png|textures|logs"),
+            EXPORT: re.compile(r"pattern\.png|SHA256SUMS|shard-\d{6}\.tar")}
 _PREDICTION_SUFFIXES = (".exr", ".png", ".ply")
 _ASSET_SPLITS = ("train", "test")
 _SHOWN = 3  # names a refusal quotes
@@ -172,6 +176,10 @@ def folder_contents(folder: str | os.PathLike) -> Contents:
             others.append(shown)
         else:
             kinds.setdefault(kind, []).append(shown)
+    for kind, members in _MEMBERS.items():
+        if kind in kinds:
+            kinds[kind] += [name for name in others if members.fullmatch(name.rstrip("/"))]
+            others = [name for name in others if not members.fullmatch(name.rstrip("/"))]
     if not kinds and others:
         stems = {Path(name).stem for name in others if name.endswith(".exr")}
         predictions = [name for name in others if name.endswith(".exr") and _is_prediction(folder / name)]

@@ -261,6 +261,13 @@ def holds_camera_only(path) -> bool:
     return calibration.rig is None and calibration.projector is None and calibration.rotation is None
 
 
+def rig_max_depth(base: str) -> float:
+    """The max_depth a preset or rig file gives itself (DEFAULT_MAX_DEPTH for a file that gives none):
+    a generator config's [rig] max_depth when it leaves the key out. RigFileError naming the file."""
+    parts = _preset_parts(base) if base in PRESETS else _file_parts(base, ("camera", "projector"), None)
+    return parts.max_depth
+
+
 def composed_rig(base: str | Rig = DEFAULT_PRESET, camera_file: str = "", projector_file: str = "",
                  base_name: str = "") -> CalibratedRig:
     """A rig as it is, not through a config's [rig]: `base` (a preset's name, a rig file's path, or a
@@ -388,11 +395,6 @@ def check_rig(rig: Rig, where: str) -> None:
                 raise RigFileError(f"{where}: {role} {axis} = {value:g} is outside the image; allowed: "
                                    f"-0.5 <= {axis} <= {size - 0.5:g} ({role} is {intrinsics.width} x "
                                    f"{intrinsics.height} px)")
-    if rig.baseline <= 0:
-        raise RigFileError(f"{where}: the projector's x offset (baseline) is {rig.baseline:g} m; allowed: "
-                           "> 0, the projector to the camera's right (image +x): at 0 no dot moves with "
-                           "depth (disparity 0 everywhere); dotsim's disparity is positive for a projector "
-                           "at +x")
     axis = rig.R.T @ np.array([0.0, 0.0, 1.0])  # the projector's optical axis in the camera frame
     if axis[2] <= 0:
         raise RigFileError(f"{where}: the projector points behind the camera (its optical axis in the "
@@ -402,6 +404,11 @@ def check_rig(rig: Rig, where: str) -> None:
         raise RigFileError(f"{where}: the projector sits {-rig.projector_translation[2]:g} m behind the "
                            f"camera (translation {list(rig.projector_translation)}); allowed: z >= "
                            f"{-_COVERAGE_NEAR:g} m")
+    if rig.baseline <= 0:
+        raise RigFileError(f"{where}: the projector's x offset (baseline) is {rig.baseline:g} m; allowed: "
+                           "> 0, the projector to the camera's right (image +x): at 0 no dot moves with "
+                           "depth (disparity 0 everywhere); dotsim's disparity is positive for a projector "
+                           "at +x")
     if lit_share(rig) == 0.0:
         raise RigFileError(f"{where}: the projector's field misses the camera's view (no camera pixel is "
                            f"lit at any depth from {_COVERAGE_NEAR:g} to {rig.max_depth:g} m); check the "

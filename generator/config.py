@@ -35,6 +35,7 @@ from dotsim.rig_files import (
     composed_rig,
     configured_rig,
     holds_camera_only,
+    rig_max_depth,
 )
 from dotsim.stereo import stereo_baseline
 from generator.scene_spec import (
@@ -87,8 +88,8 @@ class RigConfig(Checked):
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
     max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth; "
                                "left out: the preset's or rig file's own (the default is structure_core's), "
-                               "and another value is refused (a rig's range is part of the rig a network "
-                               "is trained for: give a rig file with the max_depth you want)",
+                               "so that data captured with that rig matches; another value sets this "
+                               "config's rig apart (a network trained on it refuses data of the preset)",
                                **bounds_of(Rig, "max_depth"))
     stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
                            "stereo_visibility and stereo_disparity beside the channels of the rig's own "
@@ -286,7 +287,7 @@ def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None =
 def _own_max_depth(rig: RigConfig, source: str) -> float:
     """The max_depth of the preset or rig file that [rig] names (the rig's own range)."""
     try:
-        return composed_rig(rig.file or rig.preset).rig.max_depth
+        return rig_max_depth(rig.file or rig.preset)
     except RigFileError as error:
         raise ConfigError(f"{source}: [rig] file: {error}") from None
 
@@ -307,13 +308,6 @@ def _check_cross_fields(config: Config) -> None:
             problem = "is a folder, not a file" if Path(path).is_dir() else "file not found"
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
-    own = _own_max_depth(config.rig, src)
-    if config.rig.max_depth != own:
-        rig = f"rig file {config.rig.file}" if config.rig.file else f"preset {config.rig.preset}"
-        raise ConfigError(f"{src}: [rig] max_depth = {config.rig.max_depth:g} m but the {rig} says "
-                          f"{own:g} m: data captured or imported with that rig would not match a network "
-                          f"trained on these renders; allowed: max_depth = {own:g} or left out (the rig's "
-                          "own), or a rig file with the max_depth you want ([rig] file)")
     _resolve_rig(config)
     wall, room = config.scene.back_wall_distance, config.scene.room_size
     near = config.scene.distance[0]
@@ -404,7 +398,7 @@ def with_rig(config: Config, spec: str | None = None, camera_file: str | None = 
     camera_file) in place of its own; its other [rig] keys still apply. Raises ConfigError naming the
     options."""
     rig = rig_settings(spec, config.rig) if spec else config.rig
-    if spec:  # the range is the rig's own (a config's max_depth is its rig's: _check_cross_fields)
+    if spec and config.rig.max_depth == _own_max_depth(config.rig, config.source):  # not set apart: follows
         rig = replace(rig, max_depth=_own_max_depth(rig, _options(spec, camera_file)))
     if camera_file:
         rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
