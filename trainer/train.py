@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
+import sys
 import threading
 import time
 from dataclasses import replace
@@ -374,6 +375,10 @@ def train(cfg: Config, data_dir: str | Path, out_dir: str | Path, resume: bool =
             writer.close()  # its thread flushes no more into a tb/ the caller may remove
         raise
     bar.close()
+    if progress and losses and max(losses) == 0.0:  # every pixel weighted 0: no visible pattern
+        print(f"warning: the loss was 0 at every one of {len(losses)} step(s): the training frames show no "
+              f"visible pixel (visibility = 1 nowhere), so nothing was learnt; `dotsim stats {data_dir}` "
+              "shows the visible share", file=sys.stderr, flush=True)
     if ranks.main:
         writer.close()
     leave_process_group(ranks)

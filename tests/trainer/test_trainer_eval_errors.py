@@ -256,3 +256,28 @@ def test_eval_of_data_without_ground_truth_says_there_is_nothing_to_score(tmp_pa
         assert_one_line_error(capsys.readouterr().err, f"{data}: its frames store {stored}, not {missing}: "
                               "nothing to score")
         assert not out.exists()
+
+
+def test_training_on_frames_with_nothing_visible_says_so(tmp_path, run, capsys):
+    """Issue 45: frames with no visible pixel trained with loss 0 and no word."""
+    from dotsim.channels import rendered_channels
+    from dotsim.dataset import seal_dataset, write_scene
+
+    rig = get_preset("structure_core").scaled(0.1)
+    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    rng, pattern = np.random.default_rng(0), np.asarray(dots.image, np.float64)
+    frames = []
+    for _ in range(4):
+        frame = synthetic_frame(planar_depth(rig, 1.5, 0.0, 0.1), rig, pattern, rng)
+        frame["visibility"][:] = 0
+        frames.append(frame)
+    dark = tmp_path / "dark"
+    write_scene(dark, 0, {"split": "train", "rig": rig.to_dict(), "pattern": {"sha256": dots.sha256},
+                          "poses": [np.eye(4).tolist()] * 4}, frames, channels=rendered_channels(False))
+    seal_dataset(dark)
+    cfg = config_from_dict({**run["cfg"], "train": {**run["cfg"]["train"], "max_steps": 2}}, "t")
+    capsys.readouterr()
+    result = train(cfg, dark, tmp_path / "run", progress=True, progress_bar=False)
+    assert result["losses"] == [0.0, 0.0]
+    assert "the loss was 0 at every one of 2 step(s): the training frames show no visible pixel" in \
+        capsys.readouterr().err
