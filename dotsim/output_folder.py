@@ -73,7 +73,7 @@ _MARKERS = {
 _DATASET_SHARD = re.compile(r"shard_\d{5,}")
 # What else a folder of a kind holds, named as its own in a refusal (they do not tell the kind alone: a
 # user's pattern.png or shard-000000.tar is no export).
-_MEMBERS = {DATASET: re.compile(r"pattern\.png|textures|logs"),
+_MEMBERS = {DATASET: re.compile(r"pattern\.png|textures|logs|slurm"),
             EXPORT: re.compile(r"pattern\.png|SHA256SUMS|shard-\d{6}\.tar")}
 _PREDICTION_SUFFIXES = (".exr", ".png", ".ply")
 _ASSET_SPLITS = ("train", "test")

@@ -156,3 +156,31 @@ def test_a_folder_of_two_kinds_names_both(world, tmp_path):
     with pytest.raises(of.OutputFolderError, match="a `dotsim train` run .checkpoint.pt. and a `dotsim eval` "
                                                    "folder .eval.md."):
         of.check_output_folder(tmp_path, of.TRAINING_RUN, "--out", "dotsim train")
+
+
+# folder -> (kind, contents) the command that made it writes again (a resume, a rerun)
+OWN = {"rendered dataset": (of.DATASET, of.RENDERED), "captured dataset": (of.DATASET, of.CAPTURED),
+       "export": (of.EXPORT, None), "training run": (of.TRAINING_RUN, None), "eval": (of.EVAL, None),
+       "predictions": (of.PREDICTIONS, None), "asset cache": (of.ASSET_CACHE, None)}
+
+
+@pytest.mark.parametrize("folder", OWN)
+def test_a_folder_of_the_commands_own_kind_is_accepted(folder, world):
+    kind, contents = OWN[folder]
+    path = world["folders"][folder]
+    assert of.check_output_folder(path, kind, "--out", "dotsim x", contents) == path
+
+
+def test_what_a_run_and_a_slurm_dataset_hold_beside_their_markers_is_theirs(tmp_path):
+    """A run with its eval/ beside (the Makefile's RUN/eval) resumes; a dataset's logs/ and slurm/ are
+    its own."""
+    run = tmp_path / "run"
+    (run / "tb").mkdir(parents=True)
+    (run / "checkpoint.pt").write_bytes(b"")
+    (run / "eval").mkdir()
+    assert of.check_output_folder(run, of.TRAINING_RUN, "--out", "dotsim train") == run
+    data = tmp_path / "data"
+    for name in ("logs", "slurm/20261128"):
+        (data / name).mkdir(parents=True)
+    (data / "generate.json").write_text("{}")
+    assert of.folder_contents(data).kinds == {of.DATASET: ["generate.json", "logs/", "slurm/"]}
