@@ -13,9 +13,10 @@ Groups (--only):
 - folders: every writing command (generate, capture import, export, train, eval, infer) into a folder
   of each other kind and into one of a user's own files: refused in one line naming what is there, the
   folder byte for byte as it was, `dotsim verify` of a dataset still clean.
-- data: the listed failures on real data: view and eval of a capture (no depth), eval of an export of
-  the IR alone, stats of frames with nothing visible, export --shards beyond the samples, view
-  --predictions of another input, a train that fails before its first checkpoint (no RUN/tb).
+- data: the listed failures on real data: view and eval of a capture (no depth), eval of an export
+  of the IR alone, stats of and training on frames with nothing visible, export --shards beyond the
+  samples, view --predictions of another input, a train that fails before its first checkpoint (no
+  RUN/tb).
 
 Inputs are made here with the commands themselves at tiny sizes: a captured dataset from random
 122 x 90 PNG pairs, a rendered one by `dotsim generate --config tiny` (one scene of four frames; the
@@ -294,7 +295,8 @@ def data_probes(inputs: Inputs) -> dict[str, Callable[[], tuple[bool, str]]]:
         "--out", inputs.work / "eval_ir", "--no-progress",
         names=("its frames store ir, not", "nothing to score"))
 
-    def stats_dark():
+    def dark_data() -> Path:
+        """The rendered scene with its visibility zeroed: frames with nothing visible."""
         dark = inputs.work / "dark"
         if not dark.exists():
             scene = ds.open_dataset(inputs.rendered).scenes[0]
@@ -306,13 +308,23 @@ def data_probes(inputs: Inputs) -> dict[str, Callable[[], tuple[bool, str]]]:
             ds.write_scene(dark, 0, keep, [{k: v for k, v in f.items() if k not in ds.DERIVED_CHANNELS}
                                            for f in frames])
             ds.seal_dataset(dark)
-        status, out, err = run("stats", dark, "-o", inputs.work / "dark_stats.png")
+        return dark
+
+    def stats_dark():
+        status, out, err = run("stats", dark_data(), "-o", inputs.work / "dark_stats.png")
         written = (inputs.work / "dark_stats.json").is_file()
         summary = json.loads((inputs.work / "dark_stats.json").read_text()) if written else {}
         held = status == 0 and written and "is visible" in err and summary["visible"]["median_m"] is None
         return held, err.strip().splitlines()[-1] if err.strip() else f"exit {status}"
 
     probes["item 4: stats of frames with nothing visible"] = stats_dark
+
+    def train_dark():
+        status, _, err = run("train", "--config", "train_tiny", "--data", dark_data(), "--split", "all",
+                             "--out", inputs.work / "dark_run", "--max-steps", "1", "--no-progress")
+        return status == 0 and "the loss was 0 at every one" in err, err.strip().splitlines()[-1]
+
+    probes["training on frames with nothing visible says so"] = train_dark
     probes["item 16: export --shards beyond the samples"] = lambda: refused(
         "export", inputs.rendered, "-o", inputs.work / "export_99", "--shards", "99",
         names=("--shards 99", "allowed: 1 to 4"))
