@@ -136,6 +136,27 @@ def check_prediction_of(prediction: Path, frame: Path) -> None:
                         "folder `dotsim infer` wrote for this dataset's frames")
 
 
+def predicted_frames(scene_path: Path, meta: dict, frames: list[int], predictions: Path) -> dict[int, Path]:
+    """{frame: its prediction file} for the `frames` of the scene that have one in `predictions`, each
+    checked to be this frame's (check_prediction_of) and of the scene's camera; ViewError when none
+    has one or one is another's."""
+    wanted = {k: prediction_path(predictions, meta["scene_index"], k) for k in frames}
+    predicted = {k: path for k, path in wanted.items() if path.is_file()}
+    if not predicted:
+        raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
+                        f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
+                        f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
+    camera = Rig.from_dict(meta["rig"]).camera
+    for k, path in predicted.items():
+        check_prediction_of(path, scene_path / ds.frame_name(k))
+        height, width = ds.read_frame(path, verify=False, channels=("disparity",))["disparity"].shape
+        if (height, width) != (camera.height, camera.width):
+            raise ViewError(f"{path}: {width} x {height} px, not the scene's camera ({camera.width} x "
+                            f"{camera.height}); --predictions takes the folder `dotsim infer` wrote for this "
+                            "dataset's frames")
+    return predicted
+
+
 def log_scene(rec, scene_path: Path, frames: list[int] | None = None, predictions: Path | None = None,
               verify: bool = True) -> dict[str, int]:
     """Log a scene directory into the recording stream `rec`; returns {entity: points or pixels}."""
@@ -147,16 +168,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
     for k in frames:
         if not 0 <= k < count:
             raise ViewError(f"{scene_path}: no frame {k}; it has {count}")
-    predicted = {}  # frame -> its prediction file, for the frames that have one
-    if predictions is not None:
-        wanted = {k: prediction_path(predictions, meta["scene_index"], k) for k in frames}
-        predicted = {k: path for k, path in wanted.items() if path.is_file()}
-        if not predicted:
-            raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
-                            f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
-                            f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
-        for k, path in predicted.items():
-            check_prediction_of(path, scene_path / ds.frame_name(k))
+    predicted = {} if predictions is None else predicted_frames(scene_path, meta, frames, predictions)
     passes = [name for name in VIEWED if name in meta["channels"]]
     rec.send_blueprint(layout(rr, passes, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -183,11 +195,6 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             rec.log(f"{CAMERA}/error", rr.Clear(recursive=False))  # not the error of an earlier frame
         elif predictions is not None:
             pred = ds.read_frame(predicted[k], verify=False, channels=("disparity", "depth"))
-            height, width = pred["disparity"].shape
-            if (height, width) != (rig.camera.height, rig.camera.width):
-                raise ViewError(f"{predicted[k]}: {width} x {height} px, not the scene's camera "
-                                f"({rig.camera.width} x {rig.camera.height}); --predictions takes the folder "
-                                "`dotsim infer` wrote for this dataset's frames")
             truth = f.get("disparity", np.full_like(pred["disparity"], np.nan))
             error = disparity_error(pred["disparity"], truth)
             rec.log(f"{CAMERA}/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
@@ -216,6 +223,10 @@ def view(path, scene_index: int | None = None, frame: int | None = None, predict
         raise ViewError(f"{predictions}: no such folder (--predictions takes `dotsim infer`'s --out)")
     if save is not None and Path(save).suffix != ".rrd":
         raise ViewError(f"{save}: a recording is written as .rrd")
+    if predictions is not None:  # refused before a recording stream exists (one left open hangs the next)
+        meta = ds.read_scene_meta(scene_path, verify=verify)
+        predicted_frames(scene_path, meta, list(range(len(meta["frames"]))) if frame is None else [frame],
+                         Path(predictions))
     rec = rr.RecordingStream("dotsim", recording_id=str(scene_path.resolve()))
     # A recording to save is kept in memory and written by the atomic writer, which names a full
     # disk or an unusable folder (Rerun's own file sink leaves a truncated file and says nothing).
