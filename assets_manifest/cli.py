@@ -16,14 +16,14 @@ from assets_manifest.cache import (
 from assets_manifest.manifest import ManifestError, find_overlaps, load_manifest
 from assets_manifest.mesh_arrays import MeshError, load_mesh_npz
 from dotsim.command_options import add_no_progress, add_output
-from dotsim.file_io import check_writable_folder
 from dotsim.option_types import integer
+from dotsim.output_folder import ASSET_CACHE, check_output_folder
 
 SPLITS = ("train", "test")
 
 
 def _build(args) -> int:
-    check_writable_folder(args.cache, "--cache")  # before anything is built
+    check_output_folder(args.cache, ASSET_CACHE, "--cache", "dotsim assets build")  # before anything is built
     manifest_path = Path(args.manifest) if args.manifest else default_manifest_path(args.split)
     try:
         manifest = load_manifest(manifest_path)

@@ -15,7 +15,7 @@ import numpy as np
 from capture.devices import DEVICE_SYNTAX, device_rig_file, open_device
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD
 from capture.frames import CaptureError, list_images, read_image, recorded_images
-from capture.import_frames import import_frames
+from capture.import_frames import check_capture_folder, import_frames
 from capture.record import record
 from capture.rectify import rectifier
 from capture.wall_pattern import DEFAULT_DETECT_THRESHOLD, WallPatternError, extract_wall_pattern
@@ -376,7 +376,10 @@ def _read_json(path: Path, what: str) -> dict:
 
 
 def _import(args: argparse.Namespace) -> int:
-    check_writable_folder(args.out, "--out")  # before any frame is read
+    try:
+        check_capture_folder(args.out, "dotsim capture import")  # before any frame is read
+    except CaptureError as error:
+        return _fail("import", error)
     if args.bag is not None:
         return _import_recording(args)
     start = time.perf_counter()
@@ -524,9 +527,9 @@ def _pattern(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
-    check_writable_folder(args.out, "--out")  # before the device is opened
     start = time.perf_counter()
     try:
+        check_capture_folder(args.out, "dotsim capture record")  # before the device is opened
         pattern = load_pattern(args.pattern) if args.pattern else None
         with _open(args, exposure=args.exposure, gain=args.gain, stereo=args.stereo) as device:
             calibrated = device_or_given_rig(args, device)
@@ -599,6 +602,10 @@ def _compare(args: argparse.Namespace) -> int:
         if not args.output.parent.is_dir():
             raise CaptureError(f"-o {args.output}: folder {args.output.parent} does not exist")
         check_writable_folder(args.output.parent, "-o")
+        for path in (args.output, args.output.with_suffix(".json")):  # files of its own, never a folder
+            if path.is_dir():
+                raise CaptureError(f"-o {args.output}: {path} is a folder; allowed: a file name (the "
+                                   "report's .png, its .json table beside it)")
         if args.num_disparities is not None and args.num_disparities % 16:
             raise CaptureError(f"--num-disparities {args.num_disparities}: allowed: a multiple of 16")
         recording = open_recording(args.recording, args.off, args.white_level)

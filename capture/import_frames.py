@@ -34,6 +34,7 @@ from capture.rectify import Rectifier, rectifier
 from dotsim import __version__ as DOTSIM_VERSION
 from dotsim import dataset, pattern_store
 from dotsim.images import GreyImage
+from dotsim.output_folder import CAPTURED, DATASET, OutputFolderError, check_output_folder
 from dotsim.patterns import DotPattern
 from dotsim.rig.files import Lens
 from dotsim.rig.geometry import Rig
@@ -184,11 +185,13 @@ def _existing_checksums(dataset_dir: Path, scene_index: int, scenes_per_shard: i
         return None  # not a capture scene
 
 
-def refuse_rendered(dataset_dir: Path) -> None:
-    """CaptureError when `dataset_dir` holds rendered scenes: a dataset holds one kind of data."""
-    if dataset.holds_captures(dataset_dir) is False:
-        raise CaptureError(f"{dataset_dir}: holds rendered scenes (`dotsim generate`); a dataset holds one "
-                           "kind of data: choose an empty --out")
+def check_capture_folder(dataset_dir: Path, command: str) -> None:
+    """CaptureError unless `dataset_dir` is new, empty or a dataset of captured scenes
+    (dotsim.output_folder): a dataset holds one kind of data, and no other folder is written."""
+    try:
+        check_output_folder(dataset_dir, DATASET, "--out", command, CAPTURED)
+    except OutputFolderError as error:
+        raise CaptureError(str(error)) from None
 
 
 def _stray_scenes(dataset_dir: Path, scene_count: int) -> list[Path]:
@@ -236,7 +239,7 @@ def import_frames(on_spec: str, off_spec: str, rig: Rig, out_dir: str | os.PathL
                            f"pairs or pass --frames-per-scene 1")
     out_dir = Path(out_dir)
     scenes = [pairs[k:k + frames_per_scene] for k in range(0, len(pairs), frames_per_scene)]
-    refuse_rendered(out_dir)
+    check_capture_folder(out_dir, "dotsim capture import")
     if out_dir.exists():
         stray = _stray_scenes(out_dir, len(scenes))
         if stray:

@@ -26,7 +26,7 @@ import numpy as np
 from capture.devices import Device, DeviceError, DeviceFrame
 from capture.dots import DEFAULT_DOT_WINDOW, DEFAULT_VISIBILITY_THRESHOLD, capture_visibility
 from capture.frames import CaptureError
-from capture.import_frames import check_pair, refuse_rendered, scene_meta
+from capture.import_frames import check_capture_folder, check_pair, scene_meta
 from capture.rectify import Rectifier, rectifier
 from dotsim import dataset, pattern_store
 from dotsim.dataset.lock import writer_lock
@@ -142,7 +142,7 @@ def record(device: Device, rig: Rig, out_dir: str | os.PathLike, *, scenes: int,
                            f"camera is {rig.camera.width}x{rig.camera.height} px; allowed: a rig of the "
                            f"stream's size (--rig) or a stream of the rig's (--size)")
     out_dir = Path(out_dir)
-    refuse_rendered(out_dir)
+    check_capture_folder(out_dir, "dotsim capture record")
     if out_dir.exists() and dataset.complete_scenes(out_dir):
         raise CaptureError(f"{out_dir}: already holds recorded scenes; choose an empty --out")
     if pattern is not None and pattern.image.shape != (rig.projector.height, rig.projector.width):

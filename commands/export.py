@@ -71,7 +71,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     size.add_argument("--samples-per-shard", type=integer(1), default=None, metavar="N",
                       help="N samples (frames) per shard")
     size.add_argument("--shards", type=integer(1), default=None, metavar="N",
-                      help="N shards of equal sample counts (a multiple of the loader's workers)")
+                      help="N shards whose sample counts differ by at most one (a multiple of the "
+                      "loader's workers; at most the number of frames)")
     parser.add_argument("--split", default=None, help="export only the scenes of this split (default: all)")
     parser.add_argument("--no-verify", action="store_true", help="skip sha256 checks of the files read")
     parser.set_defaults(func=run, errors={ds.FormatError: 1, ValueError: 1})

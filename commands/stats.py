@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,20 +176,29 @@ def _count_beyond(hist: np.ndarray, value: float) -> int:
     return int(hist[round(value / DEPTH_STEP):].sum())
 
 
-def _median(hist: np.ndarray, step: float) -> float:
-    """The median of a histogram's values, linearly within its bin (nan when empty)."""
+def _median(hist: np.ndarray, step: float) -> float | None:
+    """The median of a histogram's values, linearly within its bin (None when empty: JSON's null)."""
     total = hist.sum()
     if not total:
-        return float("nan")
+        return None
     cum = np.cumsum(hist)
     k = int(np.searchsorted(cum, total / 2))
     before = cum[k - 1] if k else 0
     return float((k + (total / 2 - before) / hist[k]) * step)
 
 
-def _top(hist: np.ndarray, step: float) -> float:
+def _top(hist: np.ndarray, step: float) -> float | None:
     nonzero = np.nonzero(hist)[0]
-    return float((nonzero[-1] + 1) * step) if nonzero.size else float("nan")
+    return float((nonzero[-1] + 1) * step) if nonzero.size else None
+
+
+def _value(value: float | None, unit: str, digits: int = 2) -> str:
+    """A median or maximum as printed: "n/a" where there was nothing to take it of.
+
+    >>> _value(1.234, "m"), _value(None, "px")
+    ('1.23 m', 'n/a')
+    """
+    return "n/a" if value is None else f"{value:.{digits}f} {unit}"
 
 
 def _trimmed(hist: np.ndarray) -> list[int]:
@@ -200,6 +210,11 @@ def _trimmed(hist: np.ndarray) -> list[int]:
 def dataset_stats(source: FrameSource, max_frames: int = 0) -> CoverageStats:
     """CoverageStats over the frames of a data source (dotsim.frame_source.open_source: one split of a
     dataset folder or of its export), the first `max_frames` of them (0: all)."""
+    missing = [c for c in STATS_CHANNELS if c not in source.channels]
+    if missing:
+        raise ds.FormatError(f"{source.name}: stores {', '.join(source.channels)}, no ground truth "
+                             f"({', '.join(missing)}): nothing for stats to count (a capture: "
+                             "`dotsim show` draws its passes)")
     stats = CoverageStats(source.rig)
     for ref in source.first(max_frames).frames:
         stats.add_frame(ref.read(STATS_CHANNELS))
@@ -215,10 +230,11 @@ def format_summary(s: dict) -> str:
         f"visible {s['share_visible']:.1%}, on edges {s['share_edge']:.1%} "
         f"({s['share_edge_of_visible']:.1%} of the visible)",
         f"visible pixels: {vis['share_beyond_1m']:.1%} beyond 1 m, {vis['share_beyond_2m']:.1%} beyond 2 m, "
-        f"median {vis['median_m']:.2f} m; disparity median {s['visible_disparity_px']['median']:.1f} px, "
-        f"max {s['visible_disparity_px']['max']:.1f} px",
+        f"median {_value(vis['median_m'], 'm')}; disparity median "
+        f"{_value(s['visible_disparity_px']['median'], 'px', 1)}, "
+        f"max {_value(s['visible_disparity_px']['max'], 'px', 1)}",
         f"all valid depth: {val['share_beyond_1m']:.1%} beyond 1 m, {val['share_beyond_2m']:.1%} beyond 2 m, "
-        f"median {val['median_m']:.2f} m",
+        f"median {_value(val['median_m'], 'm')}",
         f"pattern coverage: {cov['share_columns_lit']:.1%} of projector columns and "
         f"{cov['share_rows_lit']:.1%} of rows lit on visible pixels; of the {cov['region_grid'][0]} x "
         f"{cov['region_grid'][1]} projector regions {cov['regions_in_camera_view']} are ever in the "
@@ -289,7 +305,8 @@ def draw(stats: CoverageStats, title: str) -> np.ndarray:
                 cv2.LINE_AA)
     s = stats.summary()
     line = (f"visible: {s['share_visible']:.1%} of pixels, {s['visible']['share_beyond_1m']:.1%} beyond 1 m, "
-            f"{s['visible']['share_beyond_2m']:.1%} beyond 2 m, median {s['visible']['median_m']:.2f} m; "
+            f"{s['visible']['share_beyond_2m']:.1%} beyond 2 m, "
+            f"median {_value(s['visible']['median_m'], 'm')}; "
             f"edges {s['share_edge']:.1%}")
     cv2.putText(canvas, line, (10, h + 60), FONT, 0.42, TEXT, 1, cv2.LINE_AA)
     return canvas
@@ -303,6 +320,10 @@ def run(args: argparse.Namespace) -> int:
     write_image(output, draw(stats, f"{args.path} (split {args.split}, {stats.frames} frames)"))
     atomic_write_json(json_path, {"dataset": str(args.path), "split": args.split, **summary})
     print(format_summary(summary))
+    if not stats.visible:
+        print(f"no pixel of the {stats.frames} frame(s) is visible (visibility = 1 nowhere): nothing for "
+              "training to learn from; see docs/CONFIG_GUIDE.md 'Shaping the depth distribution'",
+              file=sys.stderr)
     print(f"wrote {output} and {json_path}")
     return 0
 

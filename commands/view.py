@@ -40,7 +40,7 @@ from dotsim.false_colour import colourise, normal_colours
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels
-from dotsim.prediction_file import prediction_path
+from dotsim.prediction_file import PREDICTION_ATTRIBUTE, prediction_path, prediction_source
 from dotsim.rig.geometry import Rig, is_ground_truth
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
@@ -133,6 +133,40 @@ def layout(rr, passes: list[str], with_predictions: bool):
         column_shares=[3, 2]), collapse_panels=True)
 
 
+def check_prediction_of(prediction: Path, frame: Path) -> None:
+    """ViewError unless `prediction` (a `dotsim infer` EXR) was predicted from `frame`: the input its
+    header records is that file (or no longer exists: a dataset moved since keeps its predictions)."""
+    source = prediction_source(prediction)
+    if source is None:
+        raise ViewError(f"{prediction}: not a `dotsim infer` prediction (no {PREDICTION_ATTRIBUTE} in its "
+                        "header); --predictions takes the folder `dotsim infer` wrote")
+    given = Path(str(source.get("input", "")))
+    if given.is_file() and given.resolve() != frame.resolve():
+        raise ViewError(f"{prediction}: predicted from {given}, not from {frame}; --predictions takes the "
+                        "folder `dotsim infer` wrote for this dataset's frames")
+
+
+def predicted_frames(scene_path: Path, meta: dict, frames: list[int], predictions: Path) -> dict[int, Path]:
+    """{frame: its prediction file} for the `frames` of the scene that have one in `predictions`, each
+    checked to be this frame's (check_prediction_of) and of the scene's camera; ViewError when none
+    has one or one is another's."""
+    wanted = {k: prediction_path(predictions, meta["scene_index"], k) for k in frames}
+    predicted = {k: path for k, path in wanted.items() if path.is_file()}
+    if not predicted:
+        raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
+                        f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
+                        f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
+    camera = Rig.from_dict(meta["rig"]).camera
+    for k, path in predicted.items():
+        check_prediction_of(path, scene_path / ds.frame_name(k))
+        height, width = ds.read_frame(path, verify=False, channels=("disparity",))["disparity"].shape
+        if (height, width) != (camera.height, camera.width):
+            raise ViewError(f"{path}: {width} x {height} px, not the scene's camera ({camera.width} x "
+                            f"{camera.height}); --predictions takes the folder `dotsim infer` wrote for this "
+                            "dataset's frames")
+    return predicted
+
+
 def log_scene(rec, scene_path: Path, frames: list[int] | None = None, predictions: Path | None = None,
               verify: bool = True) -> dict[str, int]:
     """Log a scene directory into the recording stream `rec`; returns {entity: points or pixels}."""
@@ -144,14 +178,7 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
     for k in frames:
         if not 0 <= k < count:
             raise ViewError(f"{scene_path}: no frame {k}; it has {count}")
-    predicted = {}  # frame -> its prediction file, for the frames that have one
-    if predictions is not None:
-        wanted = {k: prediction_path(predictions, meta["scene_index"], k) for k in frames}
-        predicted = {k: path for k, path in wanted.items() if path.is_file()}
-        if not predicted:
-            raise ViewError(f"{predictions}: no prediction for frame(s) {frames} of scene "
-                            f"{meta['scene_index']} (looked for {wanted[frames[0]].name}, ...); "
-                            f"--predictions takes the folder `dotsim infer` wrote for some of its frames")
+    predicted = {} if predictions is None else predicted_frames(scene_path, meta, frames, predictions)
     passes = [name for name in VIEWED if name in meta["channels"]]
     rec.send_blueprint(layout(rr, passes, predictions is not None))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -168,15 +195,18 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             rec.log(f"{CAMERA}/{name}", viewer_image(rr, f, name))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
-        points, colours = depth_points(f["depth"], rig.camera, grey)
-        rec.log(f"world/pose_{k}/ground_truth", rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
-                                                            radii=rr.Radius.ui_points(1.5)))
-        sizes[f"world/pose_{k}/ground_truth"] = len(points)
+        if "depth" in f:  # a capture has no ground truth: its frames show the passes alone
+            points, colours = depth_points(f["depth"], rig.camera, grey)
+            cloud = rr.Points3D(points, colors=np.repeat(colours[:, None], 3, 1),
+                                radii=rr.Radius.ui_points(1.5))
+            rec.log(f"world/pose_{k}/ground_truth", cloud)
+            sizes[f"world/pose_{k}/ground_truth"] = len(points)
         if predictions is not None and k not in predicted:
             rec.log(f"{CAMERA}/error", rr.Clear(recursive=False))  # not the error of an earlier frame
         elif predictions is not None:
             pred = ds.read_frame(predicted[k], verify=False, channels=("disparity", "depth"))
-            error = disparity_error(pred["disparity"], f["disparity"])
+            truth = f.get("disparity", np.full_like(pred["disparity"], np.nan))
+            error = disparity_error(pred["disparity"], truth)
             rec.log(f"{CAMERA}/error", rr.Image(_rgb(colourise(error, 0.0, ERROR_RANGE_PX))))
             # the predicted cloud beside the truth, coloured by its error (grey where no truth); depths
             # beyond the rig's range are left out (a few near-zero disparities would put points
@@ -203,6 +233,10 @@ def view(path, scene_index: int | None = None, frame: int | None = None, predict
         raise ViewError(f"{predictions}: no such folder (--predictions takes `dotsim infer`'s --out)")
     if save is not None and Path(save).suffix != ".rrd":
         raise ViewError(f"{save}: a recording is written as .rrd")
+    if predictions is not None:  # refused before a recording stream exists (one left open hangs the next)
+        meta = ds.read_scene_meta(scene_path, verify=verify)
+        predicted_frames(scene_path, meta, list(range(len(meta["frames"]))) if frame is None else [frame],
+                         Path(predictions))
     rec = rr.RecordingStream("dotsim", recording_id=str(scene_path.resolve()))
     # A recording to save is kept in memory and written by the atomic writer, which names a full
     # disk or an unusable folder (Rerun's own file sink leaves a truncated file and says nothing).
@@ -221,7 +255,8 @@ def run(args: argparse.Namespace) -> int:
     sizes = view(args.path, args.scene, args.frame, args.predictions, args.save, not args.no_verify)
     where = f"wrote {args.save}" if args.save else "sent to the Rerun viewer"
     clouds = ", ".join(f"{k} {v}" for k, v in sizes.items())
-    print(f"{where}: points per cloud: {clouds}")
+    print(f"{where}: points per cloud: {clouds}" if clouds else
+          f"{where}: the passes alone (no depth: a capture has no ground-truth cloud)")
     return 0
 
 

@@ -171,8 +171,9 @@ def _convert(hint: Any, value: Any, rule: dict, top: bool = True) -> Any:
             raise _Invalid(f"wrong type ({type(value).__name__})")
         if hint in (int, float) and not _in_bounds(value, rule):
             raise _Invalid("out of range" if math.isfinite(value) else "not finite")
-        if hint is str and rule["choices"] and value not in rule["choices"]:
-            raise _Invalid("not a valid choice" + _did_you_mean(value, rule["choices"]))
+        if rule["choices"] and value not in rule["choices"]:  # of numbers too ([model] stride: 1 or 2)
+            raise _Invalid("not a valid choice" + (_did_you_mean(value, rule["choices"]) if hint is str
+                                                   else ""))
         if hint is str and top and len(value) < rule["min_items"]:
             raise _Invalid("empty")
         return hint(value)
@@ -259,6 +260,8 @@ def _allowed(hint: Any, rule: dict) -> str:
             return "a path (string; relative to the config file)"
         return f"one of {choices}" if choices else "a non-empty string" if rule["min_items"] else "a string"
     if hint in (int, float):
+        if rule["choices"]:
+            return "one of " + ", ".join(_fmt(c) for c in rule["choices"])
         text = "an integer" if hint is int else "a number"
         return f"{text}, {bounds}" if bounds else text
     if _is_range(hint):

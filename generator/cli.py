@@ -26,17 +26,17 @@ sensor-model IR image, the ambient and flood passes, depth, visibility and edge 
 ground-truth projector column and disparity (docs/FORMAT.md). Scene k depends only on (config, k,
 --seed), never on the worker that renders it.
 
-Everything is checked before anything is written: a bad config key, type or range, a missing
-pattern or asset file, an unwritable DIR or a DIR holding a dataset made with other settings
-stops the run with a message naming the file, key and value. Rerunning the same command resumes:
-complete scenes are skipped, half-written and damaged ones (a frame deleted) are redone, and the
-dataset is sealed again (shard.json, index.json; `dotsim verify DIR` checks every checksum). A
-failing scene is logged in DIR/logs/ and the run goes on; the exit status is 1 when any scene
-failed or the disk is full, 2 on a config error. Every input a render reads (textures, meshes,
-pattern) is checked against its recorded sha256 first. One writer per DIR: a second run into it
-is refused, naming the first one's pid (--no-seal range tasks take no lock). The render workers
-never outlive the run: Ctrl-C, SIGTERM and SIGHUP stop them (exit status 128 + the signal), and
-a run killed outright (kill -9) takes them with it.
+Everything is checked before anything is written: a bad config key, type or range, a missing pattern
+or asset file, an unwritable DIR, a DIR holding anything but a dataset of rendered scenes
+(dotsim.output_folder) or one made with other settings stops the run with a message naming the file,
+key and value. Rerunning the same command resumes: complete scenes are skipped, half-written and
+damaged ones (a frame deleted) are redone, and the dataset is sealed again (shard.json, index.json;
+`dotsim verify DIR` checks every checksum). A failing scene is logged in DIR/logs/ and the run goes
+on; the exit status is 1 when any scene failed or the disk is full, 2 on a config error. Every input
+a render reads (textures, meshes, pattern) is checked against its recorded sha256 first. One writer
+per DIR: a second run into it is refused, naming the first one's pid (--no-seal range tasks take no
+lock). The render workers never outlive the run: Ctrl-C, SIGTERM and SIGHUP stop them (exit status
+128 + the signal), and a run killed outright (kill -9) takes them with it.
 
 Past one machine (docs/SCALE.md): --ray renders on a Ray cluster (one task per two scenes, retried
 when a node dies); --slurm submits a Slurm job array (one task per range of scenes, each the same

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -28,8 +28,9 @@ from dotsim.config_schema import Checked, ConfigError, FloatRange, IntRange, bou
 from dotsim.configs import config_path, relative_base
 from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.device_depth import DeviceDepthConfig
-from dotsim.file_io import WriteError, check_writable_folder, json_bytes
-from dotsim.rig.config import RigConfig
+from dotsim.file_io import WriteError, json_bytes
+from dotsim.output_folder import DATASET, RENDERED, check_output_folder
+from dotsim.rig.config import RigConfig, with_own_max_depth
 from dotsim.rig.options import checked_rig
 from dotsim.sensor.settings import SensorConfig
 from generator.scene_spec import (
@@ -253,8 +254,13 @@ def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None =
     Raises ConfigError naming `source`, the key, the value and what is allowed.
     """
     config = config_schema.from_dict(Config, data, source, base_dir, source=source)
+    config = replace(config, rig=with_own_max_depth(config.rig, data.get("rig"), source))
     _check_cross_fields(config)
     return config
+
+
+# Objects keep this far in front of the room's walls (generator.sample_scene: exit distance - 0.05 m).
+_OBJECT_WALL_GAP = 0.05
 
 
 def _check_cross_fields(config: Config) -> None:
@@ -275,6 +281,12 @@ def _check_cross_fields(config: Config) -> None:
                           f"right one, which [rig] stereo = false does not render; allowed: [rig] stereo = "
                           f"true, or engine = \"structured_light\" or \"off\"")
     wall, room = config.scene.back_wall_distance, config.scene.room_size
+    near = config.scene.distance[0]
+    if wall[1] > 0 and wall[0] <= near + _OBJECT_WALL_GAP:
+        raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)} is not beyond [scene] "
+                          f"distance = {list(config.scene.distance)}: the nearest objects would stand behind "
+                          f"the back wall; allowed: back_wall_distance low > {near + _OBJECT_WALL_GAP:g} m "
+                          f"(distance's low + {_OBJECT_WALL_GAP:g} m), or [0, 0]")
     if wall[1] > 0 and (wall[0] <= 0 or wall[1] >= room[0]):
         raise ConfigError(f"{src}: [scene] back_wall_distance = {list(wall)}: a camera facing the back wall "
                           f"must stand inside the room; allowed: [0, 0], or 0 < low <= high < the smallest "
@@ -326,11 +338,11 @@ def _read_saved(path: Path) -> dict:
 
 
 def check_output_dir(out: str | os.PathLike, source: str = "--out") -> Path:
-    """`out` made absolute once it is known to be (or able to become) a writable directory
-    (dotsim.file_io.check_writable_folder: nothing is left behind); ConfigError naming `source`, the
-    directory and the problem."""
+    """`out` made absolute once it is known to be (or able to become) a writable directory that is
+    new, empty or a dataset of rendered scenes (dotsim.output_folder.check_output_folder: nothing is
+    left behind); ConfigError naming `source`, the directory and the problem."""
     try:
-        return check_writable_folder(out, source)
+        return check_output_folder(out, DATASET, source, "dotsim generate", RENDERED)
     except WriteError as error:
         raise ConfigError(str(error)) from None
 

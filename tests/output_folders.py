@@ -49,3 +49,10 @@ def assert_one_line_error(err: str, *names: object) -> None:
     assert len(lines) == 1 and "Traceback" not in err and ": error: " in lines[0], err
     for name in names:
         assert str(name) in lines[0], (name, err)
+
+
+def snapshot(root: Path) -> dict[str, bytes | None]:
+    """Every path under root (relative, as text) with its bytes (None for a folder): equal snapshots
+    mean nothing was added, removed or changed."""
+    root = Path(root)
+    return {str(p.relative_to(root)): None if p.is_dir() else p.read_bytes() for p in sorted(root.rglob("*"))}

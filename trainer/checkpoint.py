@@ -138,10 +138,15 @@ def load_checkpoint(path: str | Path, map_location="cpu") -> tuple[dict, Config,
 def check_rig(expected: Rig, found: Rig, what: str, source: str) -> None:
     """Refuse data whose rig (resolution, intrinsics, baseline) differs from the model's."""
     if expected != found:
-        diffs = [k for k in expected.to_dict() if expected.to_dict()[k] != found.to_dict()[k]]
+        ours, theirs = found.to_dict(), expected.to_dict()
+        diffs = [k for k in theirs if theirs[k] != ours[k]]
+        # each differing value, both sides (a max_depth of 10 against 20 m, not the key alone)
+        values = "; ".join(f"{k} {ours[k]} here, {theirs[k]} in the {what}" for k in diffs
+                           if not isinstance(ours[k], dict))
         raise DataError(
             f"{source}: rig {found.name!r} ({found.camera.width}x{found.camera.height}) differs from the "
             f"{what}'s rig {expected.name!r} ({expected.camera.width}x{expected.camera.height}) in {diffs}"
+            + (f" ({values})" if values else "") + "; allowed: data of the rig the network was trained on"
         )
 
 

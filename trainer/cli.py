@@ -8,9 +8,9 @@ from functools import partial
 
 from dotsim.command_options import add_no_progress, add_output
 from dotsim.dataset import FormatError
-from dotsim.file_io import check_writable_folder
 from dotsim.frame_source import open_source
 from dotsim.option_types import integer, number
+from dotsim.output_folder import EVAL, PREDICTIONS, TRAINING_RUN, check_output_folder, removed_if_failed
 from trainer.config import ConfigError, load_config
 from trainer.samples import DataError
 
@@ -19,17 +19,20 @@ EXPECTED_ERRORS = {ConfigError: 1, DataError: 1, FormatError: 1, FloatingPointEr
 
 
 def _train(args: argparse.Namespace) -> None:
+    from trainer.checkpoint import CHECKPOINT
     from trainer.distributed import run_on_ranks
     from trainer.train import disk_full_in, train
 
-    check_writable_folder(args.out, "--out")  # before the data is read or a rank started
+    # before the data is read or a rank started
+    check_output_folder(args.out, TRAINING_RUN, "--out", "dotsim train")
     cfg = load_config(args.config)
     if args.max_steps is not None:
         cfg = replace(cfg, train=replace(cfg.train, max_steps=args.max_steps))
     data = open_source(args.data, args.split)
     validation = open_source(args.val_data, args.val_split) if args.val_data is not None else None
     run = train if args.nproc == 1 else partial(run_on_ranks, args.nproc, train)
-    with disk_full_in(args.out):
+    # a run that fails before its first checkpoint leaves no tb/ of a run that cannot resume
+    with disk_full_in(args.out), removed_if_failed(args.out, lambda out: (out / CHECKPOINT).is_file()):
         run(cfg, data, args.out, resume=args.resume, device=args.device, max_seconds=args.minutes * 60,
             validation=validation, val_frames=args.val_frames, progress_bar=not args.no_progress)
 
@@ -37,17 +40,18 @@ def _train(args: argparse.Namespace) -> None:
 def _eval(args: argparse.Namespace) -> None:
     from trainer.evaluate import evaluate
 
-    check_writable_folder(args.out, "--out")
+    check_output_folder(args.out, EVAL, "--out", "dotsim eval")
     validation = open_source(args.val_data, args.val_split) if args.val_data is not None else None
-    evaluate(args.checkpoint, open_source(args.data, args.split), args.out, device=args.device,
-             max_frames=args.max_frames, images=args.images, precision=args.precision,
-             validation=validation, val_frames=args.val_frames, progress_bar=not args.no_progress)
+    with removed_if_failed(args.out):  # no errors/ of an eval that wrote no table
+        evaluate(args.checkpoint, open_source(args.data, args.split), args.out, device=args.device,
+                 max_frames=args.max_frames, images=args.images, precision=args.precision,
+                 validation=validation, val_frames=args.val_frames, progress_bar=not args.no_progress)
 
 
 def _infer(args: argparse.Namespace) -> None:
     from trainer.infer import infer
 
-    check_writable_folder(args.out, "--out")
+    check_output_folder(args.out, PREDICTIONS, "--out", "dotsim infer")
     infer(args.checkpoint, args.inputs, args.out, device=args.device, precision=args.precision,
           progress_bar=not args.no_progress)
 

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from dotsim.dataset.frames import derivable_channels
 from dotsim.file_io import atomic_write_bytes
 from dotsim.frame_source import FrameRef, FrameSource
 from dotsim.images import write_image
@@ -44,6 +45,7 @@ from trainer.samples import DataError
 from trainer.scoring import (
     CLASSES,
     DEPTH_BINS,
+    SCORED_CHANNELS,
     DeviceDepthMethod,
     NetworkMethod,
     Scorer,
@@ -193,6 +195,19 @@ def joint_table(joint: dict[tuple[str, float], np.ndarray], sgbm_method: str) ->
     return "\n".join(lines) + "\n"
 
 
+def check_scorable(data: FrameSource) -> None:
+    """DataError unless the frames of `data` hold what eval scores against, SCORED_CHANNELS (stored, or
+    derived on read from depth or the projector column): the IR and the ground truth."""
+    stored = set(data.channels)
+    readable = stored | set(derivable_channels(stored, bool(stored & {"depth", "projector_column"})))
+    missing = [c for c in SCORED_CHANNELS if c not in readable]
+    if missing:
+        held = ", ".join(sorted(data.channels)) or "no channel"
+        raise DataError(f"{data.name}: its frames store {held}, not {', '.join(missing)}: nothing to score; "
+                        "eval needs ground truth (a rendered dataset, or its export with --channels "
+                        "ir,projector_column,visibility,edge; a capture has none)")
+
+
 def evaluate(checkpoint: str | Path, data: FrameSource, out_dir: str | Path, device: str = "cpu",
              depth_bins=DEPTH_BINS, max_frames: int = 0, images: int = 8, progress: bool = True,
              precision: str = "float32", validation: FrameSource | None = None, val_frames: int = 8,
@@ -208,6 +223,7 @@ def evaluate(checkpoint: str | Path, data: FrameSource, out_dir: str | Path, dev
     plain (GigaDepth's)."""
     out_dir = Path(out_dir)
     model, _, rig = load_model(checkpoint, device)
+    check_scorable(data)
     check_rig(rig, data.rig, f"checkpoint {checkpoint}", data.name)
     data = data.first(max_frames)
     held_out: list[FrameRef] = []

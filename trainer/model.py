@@ -419,6 +419,12 @@ class GigaDepthNet(nn.Module):
 
 
 
+# The fewest leaves the columns of [model] min_depth .. max_depth must span somewhere in the image: within
+# one leaf every level of the tree has at most one feasible class, nothing is left to choose (19.9 m of a
+# 20 m rig trained with loss 0); tests/trainer/test_feasible_classes.py trains with 1.34 leaves (3 m).
+MIN_FEASIBLE_LEAVES = 1.0
+
+
 def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
     """[low, high] tree position (x' * leaves) of the projector columns that depths from
     [model] min_depth to the rig's max_depth give, per (output row, full-resolution column) of the
@@ -439,6 +445,16 @@ def feasible_positions(cfg: ModelConfig, rig: Rig) -> torch.Tensor | None:
     known = np.isfinite(ends[0]) & np.isfinite(ends[1])
     low = np.where(known, np.fmin(*ends), -np.inf)
     high = np.where(known, np.fmax(*ends), np.inf)
+    widest = float(np.max(high[known] - low[known])) if known.any() else math.inf
+    if widest < MIN_FEASIBLE_LEAVES:
+        # span in leaves ~ k (1 / z - 1 / max_depth): the min_depth that gives MIN_FEASIBLE_LEAVES
+        k = widest / (1 / cfg.min_depth - 1 / rig.max_depth)
+        nearest = 1 / (MIN_FEASIBLE_LEAVES / k + 1 / rig.max_depth)
+        raise ConfigError(f"[model] min_depth = {cfg.min_depth:g} m is too close to the rig's max_depth "
+                          f"{rig.max_depth:g} m: the projector columns of depths between them span at most "
+                          f"{widest:.2f} of the tree's {leaves} leaves, so no level has a class left to "
+                          f"choose and nothing is learnt (loss 0); allowed: 0 (every class) or at most "
+                          f"{nearest:.3g} m")
     return torch.from_numpy(np.stack([low, high], -1).astype(np.float32))
 
 

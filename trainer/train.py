@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
+import sys
 import threading
 import time
 from functools import partial
@@ -179,8 +180,6 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
     validation: `val_frames` frames spread over that source (held out from the training frames) are
     scored every [train].val_every steps and at the end (trainer.scoring.Validation), into TensorBoard.
     progress: print warnings and the summary, with a progress bar (progress_bar=False: without)."""
-    from torch.utils.tensorboard import SummaryWriter
-
     out_dir, t, rig = Path(out_dir), cfg.train, data.rig
     steps_per_epoch, total_steps = plan_steps(cfg, data)
     ranks = join_ranks(cfg, rig, device, progress)
@@ -191,42 +190,64 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
     loss_of = TrainingLoss(state.model, cfg, ranks)
     if ranks.world > 1:  # BatchNorm statistics are global already (GlobalBatchNorm2d): no buffers to send
         loss_of = DistributedDataParallel(loss_of, forward_sync_buffers=False)
-    if ranks.main:
-        writer = SummaryWriter(str(make_folder(out_dir) / "tb"), purge_step=step + 1)  # step was saved
     ds = FrameDataset(data.frames, rig, cfg.data, cfg.seed, augment=True, stride=cfg.model.stride)
     losses, rates, start = [], {}, time.perf_counter()
     state.model.train()
     progress = progress and ranks.main
     bar = tqdm(total=total_steps, initial=step, desc="train", unit="step",
                disable=not (progress and progress_bar))
-    while step < total_steps:
-        epoch, within = divmod(step, steps_per_epoch)
-        for batch in make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers, ranks.rank,
-                                 ranks.world):
-            batch = {k: v.to(ranks.device) for k, v in batch.items()}
-            weights = loss_weights(cfg, step, total_steps)
-            value, parts, elapsed = optimiser_step(loss_of, state, batch, cfg, ranks, step, start, weights)
-            step += 1
-            losses.append(value)
-            bar.update(1)
-            bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
-            out_of_time = 0 < max_seconds < elapsed
-            if ranks.main:  # rank 0 alone writes
-                rates = log_step(writer, step, step == total_steps, out_of_time, cfg, state, value, parts,
-                                 batch, validate, ranks.device) or rates
-                if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
-                    save_checkpoint(out_dir / CHECKPOINT, state, step, cfg, rig)
-            if step >= total_steps or out_of_time:
-                total_steps = step
-                break
+    with tensorboard_log(out_dir, step, ranks.main) as writer:
+        while step < total_steps:
+            epoch, within = divmod(step, steps_per_epoch)
+            for batch in make_loader(ds, t.batch_size, epoch, within * t.batch_size, cfg.data.workers,
+                                     ranks.rank, ranks.world):
+                batch = {k: v.to(ranks.device) for k, v in batch.items()}
+                weights = loss_weights(cfg, step, total_steps)
+                value, parts, elapsed = optimiser_step(loss_of, state, batch, cfg, ranks, step, start,
+                                                       weights)
+                step += 1
+                losses.append(value)
+                bar.update(1)
+                bar.set_postfix(loss=f"{value:.4f}", epoch=epoch)
+                out_of_time = 0 < max_seconds < elapsed
+                if ranks.main:  # rank 0 alone writes
+                    rates = log_step(writer, step, step == total_steps, out_of_time, cfg, state, value, parts,
+                                     batch, validate, ranks.device) or rates
+                    if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
+                        save_checkpoint(out_dir / CHECKPOINT, state, step, cfg, rig)
+                if step >= total_steps or out_of_time:
+                    total_steps = step
+                    break
     bar.close()
-    if ranks.main:
-        writer.close()
+    if progress and losses and max(losses) == 0.0:  # every pixel weighted 0: no visible pattern
+        print(nothing_learnt(len(losses), data.name), file=sys.stderr, flush=True)
     leave_process_group(ranks)
     result = {"step": step, "losses": losses, "seconds": time.perf_counter() - start, "validation": rates}
     if progress:
         print(summary(result, total_steps, t.batch_size, ranks.world, out_dir))
     return result
+
+
+@contextlib.contextmanager
+def tensorboard_log(out_dir: Path, step: int, main: bool):
+    """Rank 0's TensorBoard writer in OUT/tb (None on the other ranks), continuing after `step` (the
+    step a resumed checkpoint saved), closed when the block ends, a failed one too: its thread then
+    writes no more into a tb/ that `dotsim train` removes (dotsim.output_folder.removed_if_failed)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(str(make_folder(out_dir) / "tb"), purge_step=step + 1) if main else None
+    try:
+        yield writer
+    finally:
+        if writer is not None:
+            writer.close()
+
+
+def nothing_learnt(steps: int, data_name: str) -> str:
+    """The warning of a run whose loss was 0 at every step (every pixel weighted 0: nothing visible)."""
+    return (f"warning: the loss was 0 at every one of {steps} step(s): the training frames show no visible "
+            f"pixel (visibility = 1 nowhere), so nothing was learnt; `dotsim stats {data_name}` shows the "
+            "visible share")
 
 
 def held_out_validation(validation: FrameSource | None, count: int, data: FrameSource) -> Validation | None:

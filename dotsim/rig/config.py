@@ -12,11 +12,12 @@ from a generator config file: what needs only the rig does not depend on the res
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from dotsim import config_schema
-from dotsim.config_schema import Checked, bounds_of, setting
+from dotsim.config_schema import Checked, ConfigError, bounds_of, setting
 from dotsim.configs import config_path, relative_base
+from dotsim.rig.files import RigFileError, rig_max_depth
 from dotsim.rig.geometry import DEFAULT_MAX_DEPTH, Rig
 from dotsim.rig.presets import PRESETS
 from dotsim.sensor.settings import SensorSpec
@@ -54,7 +55,10 @@ class RigConfig(Checked):
                                           "the preset's or file's rotation)", low=-30.0, high=30.0)
     projector_rotation_y: float = setting(0.0, "projector rotation about y, degrees", low=-30.0, high=30.0)
     projector_rotation_z: float = setting(0.0, "projector rotation about z, degrees", low=-30.0, high=30.0)
-    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth",
+    max_depth: float = setting(DEFAULT_MAX_DEPTH, "largest depth in metres treated as valid ground truth; "
+                               "left out: the preset's or rig file's own (the default is structure_core's), "
+                               "so that data captured with that rig matches; another value sets this "
+                               "config's rig apart (a network trained on it refuses data of the preset)",
                                **bounds_of(Rig, "max_depth"))
     stereo: bool = setting(False, "render the rig's second IR camera too (active stereo): ir_right, "
                            "stereo_visibility and stereo_disparity beside the channels of the rig's own "
@@ -100,4 +104,27 @@ def read_rig_config(spec: str | os.PathLike) -> tuple[RigConfig, str]:
     path = config_path(spec)
     data = config_schema.read_toml(path)
     table = {"rig": data["rig"]} if "rig" in data else {}
-    return config_schema.from_dict(_RigTable, table, str(path), relative_base(path)).rig, str(path)
+    settings = config_schema.from_dict(_RigTable, table, str(path), relative_base(path)).rig
+    return with_own_max_depth(settings, data.get("rig"), str(path)), str(path)
+
+
+def own_max_depth(settings: RigConfig, source: str) -> float:
+    """The max_depth of the preset or rig file [rig] `settings` name (dotsim.rig.files.rig_max_depth):
+    the rig's own range. ConfigError naming `source`'s [rig] file."""
+    try:
+        return rig_max_depth(settings.file or settings.preset)
+    except RigFileError as error:
+        raise ConfigError(f"{source}: [rig] file: {error}") from None
+
+
+def with_own_max_depth(settings: RigConfig, table, source: str) -> RigConfig:
+    """`settings` as read from the [rig] `table` (a dict, or None without one) of config `source`, its
+    max_depth the rig's own where the table leaves the key out (a realsense_d415 config then renders
+    to the preset's 10 m, as data captured with it is imported), an explicit one kept as an override.
+
+    >>> with_own_max_depth(RigConfig(preset="realsense_d415"), {"preset": "realsense_d415"}, "c").max_depth
+    10.0
+    """
+    if isinstance(table, dict) and "max_depth" in table:
+        return settings
+    return replace(settings, max_depth=own_max_depth(settings, source))

@@ -259,6 +259,13 @@ def holds_camera_only(path) -> bool:
     return calibration.rig is None and calibration.projector is None and calibration.rotation is None
 
 
+def rig_max_depth(base: str) -> float:
+    """The max_depth a preset or rig file gives itself (DEFAULT_MAX_DEPTH for a file that gives none):
+    a generator config's [rig] max_depth when it leaves the key out. RigFileError naming the file."""
+    parts = _preset_parts(base) if base in PRESETS else _file_parts(base, ("camera", "projector"), None)
+    return parts.max_depth
+
+
 def composed_rig(base: str | Rig = DEFAULT_PRESET, camera_file: str = "", projector_file: str = "",
                  base_name: str = "") -> CalibratedRig:
     """A rig as it is, not through a config's [rig]: `base` (a preset's name, a rig file's path, or a
@@ -374,7 +381,8 @@ def rig_file_json(rig: Rig, **extra) -> bytes:
 def check_rig(rig: Rig, where: str) -> None:
     """Refuse a rig dotsim cannot simulate or use, naming `where` (a file or config key) and the value.
 
-    Checks: principal points inside their images; the projector facing the scene the camera sees
+    Checks: principal points inside their images; a positive baseline (the projector at +x); the
+    projector facing the scene the camera sees
     (not behind the camera); and some camera pixel lit by the projector at some depth from 0.3 m to
     max_depth. Focal lengths are already positive (Intrinsics refuses others).
     """
@@ -394,6 +402,11 @@ def check_rig(rig: Rig, where: str) -> None:
         raise RigFileError(f"{where}: the projector sits {-rig.projector_translation[2]:g} m behind the "
                            f"camera (translation {list(rig.projector_translation)}); allowed: z >= "
                            f"{-_COVERAGE_NEAR:g} m")
+    if rig.baseline <= 0:
+        raise RigFileError(f"{where}: the projector's x offset (baseline) is {rig.baseline:g} m; allowed: "
+                           "> 0, the projector to the camera's right (image +x): at 0 no dot moves with "
+                           "depth (disparity 0 everywhere); dotsim's disparity is positive for a projector "
+                           "at +x")
     if lit_share(rig) == 0.0:
         raise RigFileError(f"{where}: the projector's field misses the camera's view (no camera pixel is "
                            f"lit at any depth from {_COVERAGE_NEAR:g} to {rig.max_depth:g} m); check the "

@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dotsim.config_schema import ConfigError
-from dotsim.rig.config import RigConfig, read_rig_config
+from dotsim.rig.config import RigConfig, own_max_depth, read_rig_config
 from dotsim.rig.files import (
     RIG_FILE_SUFFIXES,
     CalibratedRig,
@@ -83,11 +83,16 @@ def with_rig_options(settings: RigConfig, source: str, spec: str | None = None,
                      camera_file: str | None = None) -> tuple[RigConfig, CalibratedRig]:
     """A generator config's [rig] settings (of config file `source`) with `dotsim generate --rig SPEC`
     (rig_settings) and `--camera-file FILE` (its [rig] camera_file) in their place, its other [rig]
-    keys still applying, and the rig they give (checked_rig). Raises ConfigError naming the options."""
+    keys still applying, and the rig they give (checked_rig). A max_depth that is the rig's own moves
+    with a preset or rig file SPEC to the new rig's own; one set apart stays (a generator config SPEC
+    brings its own). Raises ConfigError naming the options."""
     rig = rig_settings(spec, settings) if spec else settings
+    given = options_text(spec, camera_file)
+    follows = spec and Path(spec).suffix.lower() != ".toml"
+    if follows and settings.max_depth == own_max_depth(settings, source):
+        rig = replace(rig, max_depth=own_max_depth(rig, given))
     if camera_file:
         rig = replace(rig, camera_file=str(Path(camera_file).resolve()))
-    given = options_text(spec, camera_file)
     return rig, checked_rig(rig, source, f"{given}: " if given else "")
 
 

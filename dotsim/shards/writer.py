@@ -43,11 +43,11 @@ from dotsim.file_io import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_writer,
-    check_writable_folder,
     json_bytes,
     make_folder,
     sha256_file,
 )
+from dotsim.output_folder import EXPORT, check_output_folder
 from dotsim.shards.format import (
     INDEX_NAME,
     PATTERN_NAME,
@@ -128,10 +128,11 @@ class ExportResult:
 
 class _ShardWriter:
     """Writes samples into shard-NNNNNN.tar files: a new shard when the next sample would pass
-    `shard_bytes` of members or the shard has `samples_per_shard` samples. A scene's scene.json goes
-    into its first sample in each shard. After each shard, `on_shard(shards)` records progress."""
+    `shard_bytes` of members or the shard has `samples_per_shard` samples (an int, or a list: shard
+    k's count). A scene's scene.json goes into its first sample in each shard. After each shard,
+    `on_shard(shards)` records progress."""
 
-    def __init__(self, out: Path, shard_bytes: int | None, samples_per_shard: int | None,
+    def __init__(self, out: Path, shard_bytes: int | None, samples_per_shard: int | list[int] | None,
                  done: list[dict], on_shard):
         self.out, self.shard_bytes, self.samples_per_shard = out, shard_bytes, samples_per_shard
         self.shards, self.on_shard = list(done), on_shard
@@ -160,8 +161,14 @@ class _ShardWriter:
             _add(self._tar, name, data)
         self._used += tar_bytes_of(files)
         self._samples += 1
-        if self.samples_per_shard is not None and self._samples >= self.samples_per_shard:
+        if self.samples_per_shard is not None and self._samples >= self._limit():
             self.close()  # now, not at the next sample: a kill then loses no finished shard
+
+    def _limit(self) -> int:
+        """The samples the shard being written holds when full."""
+        if isinstance(self.samples_per_shard, list):
+            return self.samples_per_shard[len(self.shards)]
+        return self.samples_per_shard
 
     def close(self) -> None:
         if self._tar is None:
@@ -208,13 +215,14 @@ def _done_shards(out: Path, plan: dict) -> list[dict]:
     return done
 
 
-def _plan(source: ds.Dataset, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard
-          ) -> dict:
+def _plan(source: ds.Dataset, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard,
+          shards) -> dict:
     return {"source": {"dataset": str(Path(dataset_dir).resolve()), "split": split,
                        "index_sha256": sha256_file(Path(dataset_dir) / ds.INDEX_FILE),
                        "format_version": source.index["format_version"]},
             "channels": channels, "precision": precision,
-            "sharding": {"shard_bytes": shard_bytes} if samples_per_shard is None
+            "sharding": {"shards": shards} if shards is not None
+            else {"shard_bytes": shard_bytes} if samples_per_shard is None
             else {"samples_per_shard": samples_per_shard}}
 
 
@@ -225,8 +233,9 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
     """Write the scenes of `split` (None: all) of the sealed dataset as shards in `out` (see the
     module docstring), resuming an unfinished export of the same plan there.
 
-    Sharding: `shard_bytes` (default 256 MiB), `samples_per_shard`, or `shards` (that many shards of
-    equal sample counts, e.g. a multiple of the loader's workers); give at most one."""
+    Sharding: `shard_bytes` (default 256 MiB), `samples_per_shard`, or `shards` (that many shards,
+    whose sample counts differ by at most one, e.g. a multiple of the loader's workers; at most one
+    per sample); give at most one."""
     if sum(x is not None for x in (shard_bytes, samples_per_shard, shards)) > 1:
         raise ValueError("give one of --shard-size, --samples-per-shard and --shards")
     for name, value in (("--samples-per-shard", samples_per_shard), ("--shards", shards)):
@@ -234,17 +243,23 @@ def export_webdataset(dataset_dir: str | Path, out: str | Path, shard_bytes: int
             raise ValueError(f"{name} {value}: at least 1")
     if precision not in PRECISIONS:
         raise ValueError(f"--precision {precision!r}: choose one of {', '.join(PRECISIONS)}")
-    out = check_writable_folder(out, "OUT")  # a file, a read-only or missing parent: one line, first
+    # a file, a read-only or missing parent, a folder that is no export: one line, first
+    out = check_output_folder(out, EXPORT, "OUT", "dotsim export")
     source = ds.open_dataset(dataset_dir, verify=verify)
     scenes = source.scenes if split is None else source.split(split)
     if not scenes:
         raise ds.FormatError(f"{dataset_dir}: no scenes to export (split {split!r})")
     channels = choose_channels(channels, ds.read_scene_meta(scenes[0].path, verify=verify), scenes[0].path)
     if shards is not None:
-        samples_per_shard = -(-sum(ref.frame_count for ref in scenes) // shards)
+        samples = sum(ref.frame_count for ref in scenes)
+        if shards > samples:
+            raise ValueError(f"--shards {shards}: {dataset_dir} has {samples} sample(s) (frames) to export"
+                             f"{'' if split is None else f' in split {split!r}'}; allowed: 1 to {samples}")
+        samples_per_shard = [samples // shards + (k < samples % shards) for k in range(shards)]
     if samples_per_shard is None and shard_bytes is None:
         shard_bytes = DEFAULT_SHARD_BYTES
-    plan = _plan(source, dataset_dir, split, channels, precision, shard_bytes, samples_per_shard)
+    plan = _plan(source, dataset_dir, split, channels, precision, shard_bytes,
+                 None if shards is not None else samples_per_shard, shards)
     if (out / INDEX_NAME).exists():
         index = load_json(out / INDEX_NAME)
         if index.get("plan") != plan:

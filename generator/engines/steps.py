@@ -126,9 +126,6 @@ def prepare_run(request: RunRequest, hold: contextlib.ExitStack | None = None, o
     config, out = request.config, request.out
     record = _run_record(config, request.split, request.seed)
     _check_existing_run(out, record)
-    if dataset.holds_captures(out):
-        raise ConfigError(f"{out}: holds scenes of a real sensor (`dotsim capture import / record`); a "
-                          "dataset holds one kind of data: render into a new --out")
     has_scenes = (out / dataset.LAYOUT_FILE).exists()
     if has_scenes and dataset.read_layout(out) != config.output.scenes_per_shard:
         raise ConfigError(f"{out}: dataset has scenes_per_shard = {dataset.read_layout(out)}, the config "

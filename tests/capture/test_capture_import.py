@@ -275,7 +275,7 @@ def test_import_refuses_a_dataset_of_rendered_scenes(tmp_path, rig, capsys):
     before = {p: p.read_bytes() for p in data.rglob("*") if p.is_file()}
     write_frames(tmp_path / "on", random_frames(rig, 2, np.uint16, 1))
     write_frames(tmp_path / "off", random_frames(rig, 2, np.uint16, 2))
-    with pytest.raises(CaptureError, match=f"{data}: holds rendered scenes"):
+    with pytest.raises(CaptureError, match=f"{data}: holds a dotsim dataset of rendered scenes"):
         import_frames(str(tmp_path / "on"), str(tmp_path / "off"), rig, data, frames_per_scene=2,
                       progress=False)
     assert {p: p.read_bytes() for p in data.rglob("*") if p.is_file()} == before

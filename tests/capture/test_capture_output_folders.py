@@ -72,4 +72,4 @@ def test_record_refuses_a_dataset_of_rendered_scenes(inputs, tmp_path, capsys):
     """A dataset holds one kind of data (issue 37, item 4)."""
     data = make_dataset(tmp_path / "rendered", scenes=1, frames_per_scene=1)
     assert main(commands(inputs, data)["record"]) == 2
-    assert_one_line_error(capsys.readouterr().err, f"{data}: holds rendered scenes")
+    assert_one_line_error(capsys.readouterr().err, f"{data}: holds a dotsim dataset of rendered scenes")

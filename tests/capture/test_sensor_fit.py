@@ -265,12 +265,15 @@ def test_compare_a_recording_with_a_rendering(rendered, tmp_path, capsys):
     assert picture.shape[1] == 880 and picture.shape[0] > 640
     # a recording given as the rendering, and a picture that is not a .png: one line each, nothing written
     report.unlink()
-    jpg = tmp_path / "r.jpg"
+    jpg, folder = tmp_path / "r.jpg", tmp_path / "folder.png"
+    folder.mkdir()  # a folder where the picture goes (issue 45: a command writes its own files only)
     for args, message in (([str(tmp_path / "on"), str(tmp_path / "zoom_missing")], "zoom_missing"),
                           ([str(tmp_path / "on"), str(rendered["capture"]), "-o", str(jpg)],
-                           f"-o {jpg}: the report's picture is written as a .png file")):
+                           f"-o {jpg}: the report's picture is written as a .png file"),
+                          ([str(tmp_path / "on"), str(rendered["capture"]), "-o", str(folder)],
+                           f"-o {folder}: {folder} is a folder")):
         status = main(["capture", "compare", *args, "--white-level", "1023"] + ([] if "-o" in args else
                                                                               ["-o", str(report)]))
         _, err = capsys.readouterr()
         assert status == 2 and message in err and err.count("\n") == 1, err
-    assert not report.exists()
+    assert not report.exists() and not any(folder.iterdir())

@@ -102,3 +102,26 @@ def test_cli_writes_png_and_json(dataset, tmp_path, capsys):
     assert saved["frames"] == 2 and saved["split"] == "all" and saved["visible"]["share_beyond_1m"] > 0
     assert dotsim_main(["stats", str(root), "--split", "test", "-o", str(png)]) == 1
     assert "no scenes with split 'test'" in capsys.readouterr().err
+
+
+def test_nothing_visible_is_said_and_both_files_are_written(tmp_path, capsys):
+    """Issue 45 item 4: frames with no visible pixel gave a NaN median, a traceback from the JSON
+    writer, and stats.png without stats.json; now both are written (medians null) and stderr says
+    that there is nothing visible."""
+    rig = get_preset("structure_core").scaled(0.1)
+    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    frame = known_frame(rig, np.asarray(dots.image, np.float64))
+    frame["visibility"][:] = 0
+    root = tmp_path / "dark"
+    write_scene(root, 0, {"split": "train", "rig": rig.to_dict(), "pattern": {"sha256": dots.sha256},
+                          "poses": [np.eye(4).tolist()]}, [frame])
+    seal_dataset(root)
+    out = tmp_path / "stats.png"
+    assert dotsim_main(["stats", str(root), "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "no pixel of the 1 frame(s) is visible" in captured.err and "Traceback" not in captured.err
+    summary = json.loads(out.with_suffix(".json").read_text())
+    assert summary["share_visible"] == 0 and summary["visible"]["median_m"] is None
+    assert summary["visible_disparity_px"] == {"median": None, "max": None}
+    assert NEAR <= summary["valid"]["median_m"] <= FAR  # the depth is there, only nothing is visible
+    assert cv2.imread(str(out)) is not None and "median n/a" in captured.out

@@ -16,6 +16,7 @@ from dotsim.oracle_dataset import random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.prediction_file import write_prediction
 from dotsim.rig.presets import get_preset
+from tests.output_folders import assert_one_line_error
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
 
@@ -205,3 +206,49 @@ def test_labels_are_segmentation_images_and_normals_one_rgb_image():
              "normal_y": np.zeros((1, 2)), "normal_z": np.array([[-1.0, 0.0]])}
     assert isinstance(view.viewer_image(rr, frame, "instance"), rr.SegmentationImage)
     assert isinstance(view.viewer_image(rr, frame, "normal_x"), rr.Image)
+
+
+def test_a_capture_without_depth_shows_its_passes(tmp_path, capsys):
+    """Issue 45 item 3: a `capture import` dataset has no depth; view showed a KeyError traceback."""
+    import cv2
+
+    rig = get_preset("structure_core").scaled(0.1)
+    rng = np.random.default_rng(0)
+    for name in ("on", "off"):
+        (tmp_path / name).mkdir()
+        for k in range(2):
+            cv2.imwrite(str(tmp_path / name / f"f_{k}.png"),
+                        rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    data = tmp_path / "captured"
+    assert cli.main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
+                     "--scale", "0.1", "--frames-per-scene", "2", "--out", str(data), "--no-progress"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "cap.rrd"
+    assert cli.main(["view", str(data), "--save", str(out)]) == 0
+    assert "no depth" in capsys.readouterr().out
+    entities = {c.entity_path for c in rr.dataframe.load_recording(str(out)).schema().component_columns()}
+    assert "/world/camera/ir" in entities and not any(e.endswith("ground_truth") for e in entities)
+
+
+def test_predictions_of_another_dataset_are_refused(scene, tmp_path, capsys):
+    """Issue 45 item 17: a prediction whose header names another input file is not drawn as this
+    frame's, and one of another camera size neither."""
+    root, path = scene
+    other = tmp_path / "other_frame.exr"
+    other.write_bytes((path / "frame_2.exr").read_bytes())  # an existing file that is not this frame
+    frame = ds.read_frame(path / ds.frame_name(2))
+    preds = tmp_path / "pred"
+    preds.mkdir()
+    channels = {"disparity": frame["disparity"], "depth": frame["depth"]}
+    write_prediction(preds / "scene_0000005_frame_2.exr", channels,
+                     {"checkpoint": "c.pt", "input": str(other), "precision": "float32"})
+    argv = ["view", str(path), "--frame", "2", "--predictions", str(preds), "--save", str(tmp_path / "a.rrd")]
+    capsys.readouterr()
+    assert cli.main(argv) == 1
+    assert_one_line_error(capsys.readouterr().err, f"predicted from {other}, not from {path / 'frame_2.exr'}")
+    small = {k: v[:-2, :-2] for k, v in channels.items()}
+    write_prediction(preds / "scene_0000005_frame_2.exr", small,
+                     {"checkpoint": "c.pt", "input": str(path / "frame_2.exr"), "precision": "float32"})
+    assert cli.main(argv) == 1
+    assert_one_line_error(capsys.readouterr().err, f"{W - 2} x {H - 2} px, not the scene's camera")
+    assert not (tmp_path / "a.rrd").exists()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import pytest
@@ -206,6 +206,14 @@ ERROR_CASES = [
     (TRAIN, "[train]\nce_weights = [1.0]\n",
      ["[train] ce_weights = [1.0]: not one weight per tree level; allowed: 3 weights"]),
     (TRAIN, "[model]\nlcn_window = 10\n", ["[model] lcn_window = 10: even"]),
+    # settings that contradict each other (issue 45 items 5, 9, 10 and the preset's max_depth)
+    (GEN, "[scene]\ndistance = [1.0, 3.0]\nback_wall_distance = [0.5, 0.8]\nroom_size = [4, 6]\n",
+     ["[scene] back_wall_distance = [0.5, 0.8] is not beyond [scene] distance = [1.0, 3.0]",
+      "allowed: back_wall_distance low > 1.05 m"]),
+    (GEN, "[rig]\nbaseline = -0.05\n",
+     ["[rig]: the projector's x offset (baseline) is -0.05 m; allowed: > 0"]),
+    (TRAIN, "[model]\nstride = 0\n", ["[model] stride = 0: not a valid choice; allowed: one of 1, 2"]),
+    (TRAIN, "[model]\nstride = 100\n", ["[model] stride = 100: not a valid choice"]),
 ]
 
 
@@ -349,3 +357,34 @@ def test_records_are_checked_on_construction_and_read_whole_from_json():
         read(Pose, {"name": "a", "offset": None, "depth": -1}, "pose")
     with pytest.raises(ConfigError, match=r"^pose = 3: not a mapping"):
         read(Pose, 3, "pose")
+
+
+def test_max_depth_left_out_is_the_rigs_own_and_follows_rig(tmp_path):
+    """Issue 45: a realsense_d415 config without max_depth rendered to 20 m while the preset (and data
+    imported with --rig realsense_d415) says 10 m."""
+    from dotsim.rig.config import read_rig_config
+    from dotsim.rig.options import with_rig_options
+
+    path = write(tmp_path, '[rig]\npreset = "realsense_d415"\n')
+    config = load_config(path)
+    assert config.rig.max_depth == 10.0 == config.calibrated_rig.rig.max_depth
+    assert read_rig_config(path)[0].max_depth == 10.0  # `--rig my.toml` and `rig show my.toml` alike
+    base = load_config("structure_core")
+    settings, calibrated = with_rig_options(base.rig, base.source, "kinect_v1")
+    assert settings.max_depth == 8.0 == calibrated.rig.max_depth
+    apart = replace(base.rig, max_depth=7.0)  # set apart from the preset's: stays
+    assert with_rig_options(apart, base.source, "kinect_v1")[1].rig.max_depth == 7.0
+
+
+def test_a_rig_file_of_zero_baseline_is_refused(tmp_path):
+    """Issue 45 item 9: a zero baseline gave disparity 0 everywhere while 62 % of pixels were marked
+    visible."""
+    from dataclasses import replace
+
+    from dotsim.rig.files import rig_file_json
+    from dotsim.rig.presets import get_preset
+
+    rig = get_preset("structure_core")
+    (tmp_path / "flat.json").write_bytes(rig_file_json(replace(rig, projector_translation=(0.0, 0.0, 0.0))))
+    message = error_of(tmp_path, f'[rig]\nfile = "{tmp_path / "flat.json"}"\n')
+    assert "my.toml: [rig]: the projector's x offset (baseline) is 0 m; allowed: > 0" in message

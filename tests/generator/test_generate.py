@@ -567,7 +567,7 @@ def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):
     capsys.readouterr()
     assert run_cli("--config", str(TINY), "--out", str(out), "--split", "test", "--scenes", "2") == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{out}: holds scenes of a real sensor" in err, err
+    assert err.count("\n") == 1 and f"{out}: holds a dotsim dataset of captured scenes" in err, err
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 

@@ -233,3 +233,73 @@ def test_a_full_output_folder_is_one_line_and_nothing_half_written(command, run,
     assert dotsim_main(_command(command, run, tmp_path / "out")) == 1
     assert_one_line_error(capsys.readouterr().err, tmp_path / "out", "no space left on device")
     assert not leftovers(tmp_path)
+
+
+def test_a_train_that_fails_before_its_first_checkpoint_leaves_no_run(tmp_path, run, capsys):
+    """Issue 45: a failed train left RUN/tb behind, a folder that looks like a run but cannot resume.
+    Here every frame is damaged after sealing, so the first batch fails its checksum; an existing empty
+    --out folder stays (empty), a new one is not left behind."""
+    data = make_dataset(tmp_path / "data", scenes=2, frames_per_scene=2)  # one batch of train_tiny
+    for frame in data.glob("shard_*/scene_*/frame_*.exr"):
+        frame.write_bytes(frame.read_bytes() + b"damage")
+    toml = tmp_path / "train.toml"
+    toml.write_text(Path("dotsim/configs/train_tiny.toml").read_text())
+    for out in (tmp_path / "new_run", tmp_path / "empty"):
+        if out.name == "empty":
+            out.mkdir()
+        assert dotsim_main(["train", "--config", str(toml), "--data", str(data), "--out", str(out),
+                            "--max-steps", "1", "--no-progress"]) == 1
+        assert_one_line_error(capsys.readouterr().err, "frame_")
+        assert (out.is_dir() and not any(out.iterdir())) if out.name == "empty" else not out.exists()
+
+
+def test_eval_of_data_without_ground_truth_says_there_is_nothing_to_score(tmp_path, run, capsys):
+    """Issue 45 items 14 and 15: a capture (no depth) said "pattern.png: no such file", an export of
+    the IR alone "it has []"; both now name what the frames store and what eval needs, and write
+    nothing."""
+    from dotsim.shards.writer import export_webdataset
+
+    ir_only = export_webdataset(run["data"], tmp_path / "ir_only", channels=["ir"]).out
+    rng = np.random.default_rng(0)
+    for name in ("on", "off"):
+        (tmp_path / name).mkdir()
+        for k in range(2):
+            cv2.imwrite(str(tmp_path / name / f"f_{k}.png"), rng.integers(0, 256, (90, 122), dtype=np.uint8))
+    captured = tmp_path / "captured"
+    assert dotsim_main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
+                        "--scale", "0.1", "--frames-per-scene", "2", "--out", str(captured),
+                        "--no-progress"]) == 0
+    capsys.readouterr()
+    for data, stored, missing in ((ir_only, "ir", "visibility, disparity, edge"),
+                                  (captured, "ambient, ir, visibility", "disparity, edge")):
+        out = tmp_path / f"eval_{data.name}"
+        assert dotsim_main(["eval", "--checkpoint", str(run["ckpt"]), "--data", str(data), "--split", "all",
+                            "--out", str(out), "--no-progress"]) == 1
+        assert_one_line_error(capsys.readouterr().err, f"{data}: its frames store {stored}, not {missing}: "
+                              "nothing to score")
+        assert not out.exists()
+
+
+def test_training_on_frames_with_nothing_visible_says_so(tmp_path, run, capsys):
+    """Issue 45: frames with no visible pixel trained with loss 0 and no word."""
+    from dotsim.channels import rendered_channels
+    from dotsim.dataset import seal_dataset, write_scene
+
+    rig = get_preset("structure_core").scaled(0.1)
+    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=0)
+    rng, pattern = np.random.default_rng(0), np.asarray(dots.image, np.float64)
+    frames = []
+    for _ in range(4):
+        frame = synthetic_frame(planar_depth(rig, 1.5, 0.0, 0.1), rig, pattern, rng)
+        frame["visibility"][:] = 0
+        frames.append(frame)
+    dark = tmp_path / "dark"
+    write_scene(dark, 0, {"split": "train", "rig": rig.to_dict(), "pattern": {"sha256": dots.sha256},
+                          "poses": [np.eye(4).tolist()] * 4}, frames, channels=rendered_channels(False))
+    seal_dataset(dark)
+    cfg = config_from_dict({**run["cfg"], "train": {**run["cfg"]["train"], "max_steps": 2}}, "t")
+    capsys.readouterr()
+    result = train(cfg, open_source(dark, "train"), tmp_path / "run", progress=True, progress_bar=False)
+    assert result["losses"] == [0.0, 0.0]
+    assert "the loss was 0 at every one of 2 step(s): the training frames show no visible pixel" in \
+        capsys.readouterr().err

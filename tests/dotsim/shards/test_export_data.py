@@ -98,12 +98,19 @@ def test_shards_sized_by_bytes_with_checksums_and_scene_json_once(export):
     assert tar_bytes_of([("a", b"x" * 513)]) == 512 + 1024
 
 
-def test_samples_per_shard_and_shard_count(data, tmp_path):
+def test_samples_per_shard_and_shard_count(data, tmp_path, capsys):
     by_count = export_webdataset(data, tmp_path / "per3", samples_per_shard=3)
     assert [s["samples"] for s in by_count.shards] == [3, 3, 2]
     assert cli.main(["export", str(data), str(tmp_path / "four"), "--shards", "4"]) == 0
     index = ds.layout.load_json(tmp_path / "four" / "index.json")
     assert [s["samples"] for s in index["shards"]] == [2, 2, 2, 2]
+    # issue 45 item 16: N shards whatever N (6 of 8 samples were 4 shards of 2), never more than samples
+    six = export_webdataset(data, tmp_path / "six", shards=6)
+    assert [s["samples"] for s in six.shards] == [2, 2, 1, 1, 1, 1]
+    capsys.readouterr()
+    assert cli.main(["export", str(data), str(tmp_path / "nine"), "--shards", "9"]) == 1
+    assert_one_line_error(capsys.readouterr().err, "--shards 9", "has 8 sample(s)", "allowed: 1 to 8")
+    assert not (tmp_path / "nine").exists()
     for bad in (["--shards", "0"], ["--samples-per-shard", "-1"], ["--shard-size", "1e400M"]):
         with pytest.raises(SystemExit):  # argparse: "allowed: ..."
             cli.main(["export", str(data), str(tmp_path / "bad"), *bad])
