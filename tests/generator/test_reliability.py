@@ -567,11 +567,12 @@ def small_disk(tmp_path):
 def fill(disk: Path, leave: int = 0) -> None:
     """Fill the filesystem until a write fails with ENOSPC (a real full disk), then free `leave`
     bytes again."""
-    with open(disk / "filler", "wb") as stream:
+    # Unbuffered: a buffered file keeps the bytes its last flush could not write and raises ENOSPC
+    # again when the with-block closes it (so the test failed or passed with the free space's size).
+    with open(disk / "filler", "wb", buffering=0) as stream:
         try:
             while True:
                 stream.write(b"\0" * 65536)
-                stream.flush()
         except OSError as error:
             assert error.errno == errno.ENOSPC
     with pytest.raises(OSError):
