@@ -2,7 +2,7 @@
 rendered, post-rendered and encoded without and with each, side by side (docs/CONFIG.md "Materials",
 docs/RENDERING.md "Labels, normals and materials").
 
-    python -m bench.materials_cost [--sizes 640,1280] [--objects 300] [--repeats 3] [--no-lights]
+    python -m bench.materials_cost [--sizes 640,1216] [--objects 300] [--repeats 3] [--no-lights]
 
 bench.render_speed's scene (a wall 6 m away, N textured primitives from 0.8 to 5 m, two 50 W extra
 lights unless --no-lights: then the one-render recipe) seen by a Structure Core scaled to each width
@@ -91,8 +91,8 @@ def same_raw(plain: list[dict], other: list[dict]) -> bool:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.materials_cost",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="640,1280", help="camera widths, comma-separated (default "
-                        "640,1280)")
+    parser.add_argument("--sizes", default="640,1216", help="camera widths, comma-separated, at most "
+                        "Structure Core's 1216 (default 640,1216)")
     parser.add_argument("--objects", type=int, default=300, help="random objects (default 300)")
     parser.add_argument("--repeats", type=int, default=3, help="rounds per way (default 3)")
     parser.add_argument("--no-lights", action="store_true", help="no extra point lights (the one-render "
