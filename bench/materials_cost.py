@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.render_speed import bench_spec, scene_poses, write_inputs
+from bench.render_speed import add_side_by_side_options, bench_spec, scene_poses, write_inputs
 from dotsim.dataset import encode_frame
 from dotsim.rig.presets import get_preset
 from generator.post_render import frame_channels, make_frame
@@ -91,12 +91,7 @@ def same_raw(plain: list[dict], other: list[dict]) -> bool:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.materials_cost",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="640,1216", help="camera widths, comma-separated, at most "
-                        "Structure Core's 1216 (default 640,1216)")
-    parser.add_argument("--objects", type=int, default=300, help="random objects (default 300)")
-    parser.add_argument("--repeats", type=int, default=3, help="rounds per way (default 3)")
-    parser.add_argument("--no-lights", action="store_true", help="no extra point lights (the one-render "
-                        "recipe)")
+    add_side_by_side_options(parser, FULL.camera.width)
     args = parser.parse_args(argv)
 
     from generator.blender.render import SceneRenderer

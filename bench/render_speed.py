@@ -64,6 +64,18 @@ def write_inputs(rig: Rig, folder: Path, n_textures: int = 8) -> tuple[str, str,
     return str(pattern_path), pattern.sha256, textures
 
 
+
+def add_side_by_side_options(parser: argparse.ArgumentParser, full_width: int) -> None:
+    """The options of a benchmark that renders one scene several ways, taking turns (bench.stereo_cost,
+    bench.materials_cost): camera widths up to the rig's full `full_width`, objects, rounds, lights."""
+    sizes = f"640,{full_width}"
+    parser.add_argument("--sizes", default=sizes,
+                        help=f"camera widths, comma-separated, at most {full_width} (default {sizes})")
+    parser.add_argument("--objects", type=int, default=300, help="random objects (default 300)")
+    parser.add_argument("--repeats", type=int, default=3, help="rounds per way (default 3)")
+    parser.add_argument("--no-lights", action="store_true", help="no extra point lights (the one-render "
+                        "recipe)")
+
 def bench_spec(
     rig: Rig,
     inputs: tuple[str, str, list[str]],

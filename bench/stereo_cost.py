@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.render_speed import bench_spec, scene_poses, write_inputs
+from bench.render_speed import add_side_by_side_options, bench_spec, scene_poses, write_inputs
 from dotsim.rig.presets import get_preset
 from generator.post_render import make_frame
 from generator.sample_scene import frame_streams
@@ -54,12 +54,7 @@ def one_round(renderer, spec: SceneSpec) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.stereo_cost", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="640,1280", help="camera widths, comma-separated (default "
-                        "640,1280)")
-    parser.add_argument("--objects", type=int, default=300, help="random objects (default 300)")
-    parser.add_argument("--repeats", type=int, default=3, help="rounds per way (default 3)")
-    parser.add_argument("--no-lights", action="store_true", help="no extra point lights (the one-render "
-                        "recipe)")
+    add_side_by_side_options(parser, FULL.camera.width)
     args = parser.parse_args(argv)
 
     from generator.blender.render import SceneRenderer
