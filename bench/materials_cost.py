@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.render_speed import add_side_by_side_options, bench_spec, scene_poses, write_inputs
+from bench.render_speed import add_side_by_side_options, bench_rig, bench_spec, scene_poses, write_inputs
 from dotsim.dataset import encode_frame
 from dotsim.rig.presets import get_preset
 from generator.post_render import frame_channels, make_frame
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     lights = not args.no_lights
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
         for width in (int(w) for w in args.sizes.split(",")):
-            rig = FULL if width == FULL.camera.width else FULL.scaled(width / FULL.camera.width)
+            rig = bench_rig(width)
             inputs = write_inputs(rig, Path(tmp))
             specs = scenes(rig, inputs, args.objects, lights)
             runs = {way: [] for way in WAYS}

@@ -41,10 +41,11 @@ from generator.scene_spec import SceneSpec
 FULL_WIDTH = 1216
 
 
-def bench_rig(width: int) -> Rig:
-    """Structure Core scaled to `width` camera pixels (1216 = full size)."""
-    rig = get_preset("structure_core")
-    return rig if width == FULL_WIDTH else rig.scaled(width / FULL_WIDTH)
+def bench_rig(width: int, preset: str = "structure_core") -> Rig:
+    """The preset's rig scaled to `width` camera pixels (its own width, 1216 for Structure Core, = full
+    size)."""
+    rig = get_preset(preset)
+    return rig if width == rig.camera.width else rig.scaled(width / rig.camera.width)
 
 
 def write_inputs(rig: Rig, folder: Path, n_textures: int = 8) -> tuple[str, str, list[str]]:

@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.render_speed import add_side_by_side_options, bench_spec, scene_poses, write_inputs
+from bench.render_speed import add_side_by_side_options, bench_rig, bench_spec, scene_poses, write_inputs
 from dotsim.rig.presets import get_preset
 from generator.post_render import make_frame
 from generator.sample_scene import frame_streams
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     lights = not args.no_lights
     with tempfile.TemporaryDirectory(prefix="dotsim-bench-") as tmp, SceneRenderer() as renderer:
         for width in (int(w) for w in args.sizes.split(",")):
-            rig = FULL if width == FULL.camera.width else FULL.scaled(width / FULL.camera.width)
+            rig = bench_rig(width, "realsense_d415")
             inputs = write_inputs(rig, Path(tmp))
             specs = {way: scene(rig, inputs, args.objects, lights, way == "stereo") for way in WAYS}
             runs = {way: [] for way in WAYS}
