@@ -176,11 +176,11 @@ def test_train_table2_fits_the_table2_camera_standing_upright():
     cover its 256 half-resolution rows 4 apiece (the 54 of the camera lying on its side do not fit)."""
     from dataclasses import replace
 
-    from generator.config import load_config as load_generator_config
-    from generator.sample_scene import build_rig
+    from dotsim.rig.config import read_rig_config
+    from dotsim.rig.options import checked_rig
     from trainer.config import resolution_mismatch
 
-    camera = build_rig(load_generator_config("table2")).camera
+    camera = checked_rig(*read_rig_config("table2")).rig.camera  # [rig] alone: CI has no asset cache built
     assert (camera.width, camera.height) == (432, 512)
     cfg = load_config("train_table2")
     assert cfg.model.lines * 4 == 512 // 2 and resolution_mismatch(cfg, 432, 512) is None
