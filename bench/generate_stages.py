@@ -5,9 +5,9 @@
 
 For each side (`before`: the code of commit --before, unpacked from git into a temporary folder;
 `after`: this checkout) and each IR width of --sizes, a child process running that side's code
-renders scene --scene of the before side's configs/structure_core.toml (built-in primitives, so
-no asset cache is needed; scene 0 has extra lights, so it takes the direct render too) and
-measures, per frame:
+renders scene --scene of the before side's structure_core.toml (in dotsim/configs/, or configs/ in
+older revisions; built-in primitives, so no asset cache is needed; scene 0 has extra lights, so it
+takes the direct render too) and measures, per frame:
 
 - render: SceneRenderer.render of the scene (build + its frames), wall and CPU seconds;
 - each stage of the work around the render, run one frame after another in one thread and timed
@@ -315,7 +315,9 @@ def main(argv: list[str] | None = None) -> int:
         trees = {"before": unpack(args.before, Path(tmp)), "after": REPO}
         # Both sides render the before side's config, so they render the same scene whatever the
         # configs have become since (they moved to dotsim/configs/ and changed their layout).
-        config_path = trees["before"] / "configs" / "structure_core.toml"
+        config_path = next(path for path in (trees["before"] / "dotsim" / "configs" / "structure_core.toml",
+                                             trees["before"] / "configs" / "structure_core.toml")
+                           if path.is_file())
         for width in (int(w) for w in args.sizes.split(",")):
             results[width] = {side: run_side(tree, config_path, width, args.scene, args.repeats,
                                              args.compression and side == "after")
