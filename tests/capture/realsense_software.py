@@ -7,12 +7,10 @@ frames of the current pose at about 100 fps: the projector-on or -off image as t
 says at that moment, with `frame_emitter_mode` metadata, and the depth. The pose advances each time
 the emitter is switched on again after being off (the recorder moves on to the next pose), and
 the feeder stops pushing when the poses run out: the device goes silent as an unplugged one does.
-interrupt_at_pose raises KeyboardInterrupt in the main thread when that pose starts, as Ctrl-C does.
 """
 
 from __future__ import annotations
 
-import _thread
 import threading
 import time
 
@@ -51,12 +49,11 @@ class SoftwareStereoModule:
     the right camera's (on, off) uint8 images) those."""
 
     def __init__(self, rig: Rig, poses: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 interrupt_at_pose: int | None = None, stream_right: bool = False,
+                 stream_right: bool = False,
                  right_poses: list[tuple[np.ndarray, np.ndarray]] | None = None):
         self.poses = poses
         self.right_poses = right_poses
         self.stream_right = stream_right or right_poses is not None
-        self.interrupt_at_pose = interrupt_at_pose  # press Ctrl-C (in the main thread) at this pose
         self.device = rs.software_device()
         self.device.register_info(rs.camera_info.serial_number, SERIAL)
         self.device.register_info(rs.camera_info.name, "dotsim software stereo module")
@@ -110,8 +107,6 @@ class SoftwareStereoModule:
             on = self.sensor.get_option(rs.option.emitter_enabled) != 0
             if on and not was_on:
                 self.pose += 1
-                if self.pose == self.interrupt_at_pose:
-                    _thread.interrupt_main()
             was_on = on
             if self.pose >= len(self.poses):
                 return  # silent from now on, like an unplugged device

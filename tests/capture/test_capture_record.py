@@ -7,6 +7,7 @@ the device announced (librealsense keeps them as float32).
 """
 
 import json
+import signal
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -152,15 +153,32 @@ def test_device_that_stops_mid_recording_keeps_every_complete_frame(rendered, tm
     check_frames_equal_fed(frames, rendered[:4])
 
 
+class CtrlCAtPose(RealSenseDevice):
+    """A RealSense device whose user presses Ctrl-C as pose `pose` starts: SIGINT raised in the main
+    thread when the recorder switches the projector on for it (the (pose+1)-th switch on), so the
+    moment does not depend on how fast another thread runs on a loaded machine."""
+
+    def __init__(self, device, pose: int):
+        super().__init__(device)
+        self.pose, self.switched_on = pose, 0
+
+    def set_emitter(self, on: bool) -> None:
+        if on:
+            self.switched_on += 1
+            if self.switched_on == self.pose + 1:
+                signal.raise_signal(signal.SIGINT)
+        super().set_emitter(on)
+
+
 def test_ctrl_c_keeps_every_complete_frame(rendered, tmp_path):
-    with SoftwareStereoModule(RIG, rendered[:6], interrupt_at_pose=3) as module:
-        device = RealSenseDevice(module.device)
+    with SoftwareStereoModule(RIG, rendered[:6]) as module:
+        device = CtrlCAtPose(module.device, pose=3)
         summary = record(device, device.rig(), tmp_path / "rec", scenes=2, frames_per_scene=3,
                          progress=False)
         device.close()
     assert summary["stopped"] == "interrupted (Ctrl-C)"
     frames, _ = read_recorded(tmp_path / "rec")
-    assert summary["frames"] == len(frames) >= 3  # poses 0-2 were complete when Ctrl-C came
+    assert summary["frames"] == len(frames) == 3  # poses 0-2 were complete when Ctrl-C came
     check_frames_equal_fed(frames, rendered)
 
 
