@@ -249,7 +249,7 @@ def main(argv=None) -> int:
             row = {"scene": index, "frame": number, **shares(cause), **errors(frame["device_depth"], truth)}
             rows.append(row)
             print("scene {scene} frame {frame}: ".format(**row)
-                  + ", ".join(f"{key} {row[key]:.1%}" for key in KEYS), flush=True)
+                  + ", ".join(f"{key} {row[key]:.2%}" for key in KEYS), flush=True)
             if args.picture is not None and (index, number) == (args.scene, args.frame):
                 write_image(args.picture, picture(frame, truth, cause, row))
     if args.jsonl is not None:
