@@ -120,7 +120,8 @@ def scene_meta(job: RenderJob, spec: SceneSpec) -> dict:
             "rig": stored["rig"], "pattern": job.pattern_meta, "poses": stored["poses"],
             "objects": stored["objects"], "lights": stored["lights"], "projector": stored["projector"],
             "flood": stored["flood"], "world": stored["world"], "render": stored["render"],
-            "versions": job.versions}
+            "versions": job.versions} | ({"colour_camera": stored["colour_camera"]} if "colour_camera" in stored
+                                         else {})
 
 
 def read_raw_npz(path: Path, spec: SceneSpec) -> list[dict[str, np.ndarray]]:
