@@ -116,8 +116,11 @@ class SceneContent:
         scene.collection.children.link(self.collection)
         self.meshes = MeshCache()
         self.materials = MaterialCache()
-        # (object, its IR material, its visible-light twin) of the built scene's tinted surfaces
-        self._tinted: list[tuple[bpy.types.Object, bpy.types.Material, bpy.types.Material]] = []
+        # The visible-light twins of the materials (the colour camera's render), a cache of their own:
+        # they never push an infrared material out of `materials`.
+        self.twins = MaterialCache()
+        # (object, texture path or None, material kind) of the built scene's tinted surfaces
+        self._tinted: list[tuple[bpy.types.Object, str | None, str]] = []
         self._world_strength = 0.0
 
     def set_camera(self, camera: Intrinsics) -> None:
@@ -203,14 +206,13 @@ class SceneContent:
         try:
             blender_material = self.materials.get(None if material.texture is None else material.texture.path,
                                                   material.kind)
-            if material.tint is not None:
-                texture = None if material.texture is None else material.texture.path
-                self._tinted.append((obj, blender_material, self.materials.get(texture, material.kind, True)))
         except ValueError as error:
             raise ValueError(f"scene spec: {where}.material.texture: {error}") from None
         self.collection.objects.link(obj)
         obj.material_slots[0].link = "OBJECT"
         obj.material_slots[0].material = blender_material
+        if material.tint is not None:
+            self._tinted.append((obj, None if material.texture is None else material.texture.path, material.kind))
         return obj
 
     @contextlib.contextmanager
@@ -219,16 +221,19 @@ class SceneContent:
         light materials, the world and the extra lights white (their light is in blue alone for the IR
         passes, AMBIENT_COLOUR); as before after. The projector is the renderer's to switch off."""
         lights = [obj.data for obj in self.collection.objects if obj.type == "LIGHT"]
-        for obj, _, visible in self._tinted:
-            obj.material_slots[0].material = visible
+        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]  # as the IR renders had them
+        # room for every twin the scene uses, so none is dropped while another surface still shows it
+        self.twins.capacity = max(self.twins.capacity, len({(texture, kind) for _, texture, kind in self._tinted}))
+        for obj, texture, kind in self._tinted:
+            obj.material_slots[0].material = self.twins.get(texture, kind, tinted=True)
         for light in lights:
             light.color = (1.0, 1.0, 1.0)
         self.background.inputs["Color"].default_value = (*(self._world_strength,) * 3, 1.0)
         try:
             yield
         finally:
-            for obj, infrared, _ in self._tinted:
-                obj.material_slots[0].material = infrared
+            for (obj, _, _), material in zip(self._tinted, infrared, strict=True):
+                obj.material_slots[0].material = material
             for light in lights:
                 light.color = AMBIENT_COLOUR
             self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], self._world_strength, 1.0)
@@ -238,3 +243,4 @@ class SceneContent:
         self.clear()
         self.meshes.clear()
         self.materials.clear()
+        self.twins.clear()

@@ -154,3 +154,23 @@ def test_rgb_samples_sets_the_colour_renders_samples_alone(renderer, pattern):
     assert error(b["rgb"]) < 0.5 * error(a["rgb"])
     np.testing.assert_array_equal(a["projector"], b["projector"])
     np.testing.assert_array_equal(a["ambient"], b["ambient"])
+
+
+def test_a_scene_of_more_textures_than_the_material_cache_holds(renderer, pattern, tmp_path):
+    """70 textured objects, more textures than the renderer's material cache keeps (64): the colour render
+    gives every tinted surface its twin and leaves each object's infrared material as the build left it."""
+    import cv2
+
+    objects = [_wall((0.8, 0.8, 0.8))]
+    for k, obj in enumerate(ds.clutter(70, seed=6, depth_range=(0.6, 1.4))):
+        path = tmp_path / f"texture_{k}.png"
+        cv2.imwrite(str(path), np.random.default_rng(k).integers(0, 255, (16, 16), dtype=np.uint8))
+        material = {**obj["material"], "texture": {"path": str(path), "scale": 1.0, "contrast": 0.5}}
+        objects.append({**obj, "material": _tinted(material, (0.2, 0.9, 0.4))})
+    spec = _spec(pattern, objects, lights=[LAMP])
+    renderer.setup(spec)
+    slots = [obj.material_slots[0].material for obj in renderer.content.collection.objects if obj.type == "MESH"]
+    frame = renderer.render_poses(list(spec.poses))[0]
+    assert np.isfinite(frame["rgb"]).all() and frame["rgb"].mean() > 0
+    after = [obj.material_slots[0].material for obj in renderer.content.collection.objects if obj.type == "MESH"]
+    assert after == slots
