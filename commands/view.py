@@ -113,7 +113,8 @@ def viewer_image(rr, frame: dict[str, np.ndarray], name: str):
     return rr.DepthImage(np.where(np.isfinite(image), image, 0), meter=1.0)
 
 
-def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False, colour: ColourCamera | None = None) -> None:
+def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False,
+            colour: ColourCamera | None = None) -> None:
     """Static: the rig at pose K with its camera and projector frusta, with `stereo` its right camera's,
     and with `colour` its colour camera's."""
     pose = _pose(pose)

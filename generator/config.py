@@ -32,8 +32,8 @@ from dotsim.file_io import WriteError, json_bytes
 from dotsim.output_folder import DATASET, RENDERED, check_output_folder
 from dotsim.rig.colour_camera import ColourCamera
 from dotsim.rig.config import RigConfig, with_own_max_depth
-from dotsim.rig.presets import PRESET_COLOUR_CAMERAS
 from dotsim.rig.options import checked_rig
+from dotsim.rig.presets import PRESET_COLOUR_CAMERAS
 from dotsim.sensor.settings import SensorConfig
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
@@ -256,8 +256,8 @@ class Config:
         if not self.render.rgb:
             return None
         if self.rig.file or self.rig.camera_file or self.rig.projector_file:
-            raise ConfigError(f"{self.source}: [render] rgb = true with a [rig] from files: a rig file holds no "
-                              f"colour camera; allowed: [rig] preset = one of "
+            raise ConfigError(f"{self.source}: [render] rgb = true with a [rig] from files: a rig file holds "
+                              f"no colour camera; allowed: [rig] preset = one of "
                               f"{', '.join(sorted(PRESET_COLOUR_CAMERAS))}, without file, camera_file or "
                               f"projector_file")
         if self.rig.preset not in PRESET_COLOUR_CAMERAS:

@@ -408,8 +408,8 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         lights=lights,
         poses=_poses(rng, config, base_pose),
         cameras=camera_views(rig, config.rig.stereo),
-        objects=(_tinted(tuple(objects), scene_rng(base_seed, scene_index, STREAM_COLOUR)) if config.render.rgb
-                 else tuple(objects)),
+        objects=(_tinted(tuple(objects), scene_rng(base_seed, scene_index, STREAM_COLOUR))
+                 if config.render.rgb else tuple(objects)),
         sensor=config.sensor.at_scale(config.rig.scale),
         masks=config.masks,
         device_depth=config.device_depth,

@@ -98,7 +98,8 @@ class SceneRenderSettings(RenderConfig):
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SceneRenderSettings:
-        return record_from_dict(cls, d, where, optional=("direct_light", "labels", "normals", "rgb", "rgb_samples"))
+        return record_from_dict(cls, d, where,
+                                optional=("direct_light", "labels", "normals", "rgb", "rgb_samples"))
 
 
 @dataclass(frozen=True)
@@ -385,15 +386,16 @@ class SceneSpec(Checked):
         if self.render.labels and len(self.objects) > MAX_LABELLED_OBJECTS:
             raise ConfigError(f"SceneSpec.objects: {len(self.objects)} objects with render.labels = true; "
                               f"allowed: at most {MAX_LABELLED_OBJECTS} (Blender's object pass index)")
-        untinted = [k for k, obj in enumerate(self.objects)
-                    if self.render.rgb and obj.material.kind in ("opaque", "ir_dark") and obj.material.tint is None]
+        untinted = [k for k, obj in enumerate(self.objects) if self.render.rgb
+                    and obj.material.kind in ("opaque", "ir_dark") and obj.material.tint is None]
         if untinted:
             raise ConfigError(f"SceneSpec.objects[{untinted[0]}].material.tint is missing with render.rgb = "
-                              f"true; allowed: a tint on every opaque and ir_dark surface (its visible colour)")
+                              f"true; allowed: a tint on every opaque and ir_dark surface (its visible "
+                              f"colour)")
         if self.render.rgb != (self.colour_camera is not None):
             raise ConfigError(f"SceneSpec.colour_camera = {self.colour_camera!r} with render.rgb = "
-                              f"{str(self.render.rgb).lower()}; allowed: a colour camera exactly when render.rgb "
-                              f"is true")
+                              f"{str(self.render.rgb).lower()}; allowed: a colour camera exactly when "
+                              f"render.rgb is true")
         if self.colour_camera is not None and not isinstance(self.colour_camera, ColourCamera):
             raise ConfigError(f"SceneSpec.colour_camera = {self.colour_camera!r}: not a ColourCamera")
         see_through = [k for k, obj in enumerate(self.objects) if obj.material.kind in SEE_THROUGH_KINDS]

@@ -30,6 +30,7 @@ from dotsim.channels import (
     DERIVED_CHANNELS,
     LABEL_CHANNELS,
     MASK_CHANNELS,
+    OWN_SHAPE_CHANNELS,
     RENDERED_CHANNELS,
     stored_channels,
 )
@@ -96,11 +97,11 @@ def frame_format_version(channels) -> str:
     return max([OLDEST_WRITTEN, *(CHANNEL[name].since for name in channels)], key=key)
 
 
-def frame_shapes(shape) -> dict[str, tuple[int, int]]:
+def camera_shapes(shape) -> dict[str, tuple[int, int]]:
     """{camera: (height, width)} of a frame's cameras (dotsim.channels.CAMERAS) from `shape`: such a
     dict, or the IR camera's (height, width) alone (a frame of that camera's channels only).
 
-    >>> frame_shapes((4, 6)), frame_shapes({"ir": (4, 6), "colour": (2, 3)})["colour"]
+    >>> camera_shapes((4, 6)), camera_shapes({"ir": (4, 6), "colour": (2, 3)})["colour"]
     ({'ir': (4, 6)}, (2, 3))
     """
     if isinstance(shape, dict):
@@ -176,8 +177,9 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shapes: dict, where: s
         array = _to_stored(name, frame[name], where)
         shape = _channel_shape(name, shapes, where)
         if array.shape != shape:
-            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the {CHANNEL[name].camera} "
-                              f"camera's is {shape} (height, width{', components' if len(shape) > 2 else ''})")
+            layout = "height, width, components" if len(shape) > 2 else "height, width"
+            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the "
+                              f"{CHANNEL[name].camera} camera's is {shape} ({layout})")
         pixels[name] = np.ascontiguousarray(array)
     for name in (c for c in channels if c in DERIVED_CHANNELS):
         if "depth" not in channels or rig is None:
@@ -202,7 +204,7 @@ def encode_frame(frame: dict, shape, channels: tuple[str, ...] | None = None,
                  rig: dict | None = None) -> bytes:
     """The bytes of one frame EXR (validated and converted to the stored dtypes first).
 
-    shape: the IR camera's (height, width), or {camera: (height, width)} (frame_shapes) when the frame
+    shape: the IR camera's (height, width), or {camera: (height, width)} (camera_shapes) when the frame
     has channels of another camera (the colour camera's `rgb`), which then lie in a part of their own.
     channels: the channel set the frame must carry (default RENDERED_CHANNELS; the derived ones,
     DERIVED_CHANNELS, may be left out); compression: an OpenEXR compression name (docs/FORMAT.md
@@ -214,12 +216,12 @@ def encode_frame(frame: dict, shape, channels: tuple[str, ...] | None = None,
     channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     derives = any(c in DERIVED_CHANNELS for c in channels)
     parsed = _parse_rig(rig, where) if rig is not None and derives else None
-    pixels = _frame_pixels(frame, channels, frame_shapes(shape), where, parsed)
+    pixels = _frame_pixels(frame, channels, camera_shapes(shape), where, parsed)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               VERSION_ATTRIBUTE: frame_format_version(channels)}
     if parsed is not None:
         header[RIG_ATTRIBUTE] = json.dumps(rig, sort_keys=True)
-    own = {name: pixels.pop(name) for name in list(pixels) if CHANNEL[name].camera != "ir"}
+    own = {name: pixels.pop(name) for name in OWN_SHAPE_CHANNELS if name in pixels}
     stream = io.BytesIO()
     if not own:  # a single-part file, byte for byte what format 2.2 and before wrote
         OpenEXR.File(header, pixels).write(stream)
@@ -245,16 +247,16 @@ def _own_part_channels(parts, path: Path) -> dict[str, np.ndarray]:
     for part in parts[1:]:
         for key, channel in part.channels.items():
             name, _, component = key.rpartition(".")
-            if name not in CHANNEL or CHANNEL[name].camera == "ir":
-                raise FormatError(f"{path}: part {part.name()!r} holds {key!r}, no channel of a camera of its "
-                                  f"own; known: {[c.name for c in CHANNELS if c.camera != 'ir']}")
+            if name not in OWN_SHAPE_CHANNELS:
+                raise FormatError(f"{path}: part {part.name()!r} holds {key!r}, no channel of a camera of "
+                                  f"its own; known: {list(OWN_SHAPE_CHANNELS)}")
             found.setdefault(name, {})[component] = channel.pixels
     out = {}
     for name, components in found.items():
         want = CHANNEL[name].components or "Y"
         if sorted(components) != sorted(want):
-            raise FormatError(f"{path}: channel {name!r} stored with components {sorted(components)}, expected "
-                              f"{list(want)}")
+            raise FormatError(f"{path}: channel {name!r} stored with components {sorted(components)}, "
+                              f"expected {list(want)}")
         stacked = [components[c] for c in want]
         out[name] = np.stack(stacked, axis=-1) if CHANNEL[name].components else stacked[0]
     return out
@@ -281,7 +283,7 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
 
     channels: the ones to return, all required (None: every dotsim channel in the file, and in
     format 2.x the derived ones its header allows); shape: (height, width) every channel of the IR
-    camera must have, or {camera: (height, width)} (frame_shapes) for the channels of each camera
+    camera must have, or {camera: (height, width)} (camera_shapes) for the channels of each camera
     (None: all of one camera of one shape). FormatError naming the file.
     """
     import OpenEXR
@@ -295,7 +297,7 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
         raise
     except Exception as e:  # OpenEXR raises plain RuntimeError/ValueError for corrupt files
         raise FormatError(f"{path}: not a readable OpenEXR file ({e})") from None
-    shapes = {} if shape is None else frame_shapes(shape)
+    shapes = {} if shape is None else camera_shapes(shape)
     version = header.get(VERSION_ATTRIBUTE)
     if version is not None:
         check_format_version(version, path)

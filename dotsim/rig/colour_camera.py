@@ -39,7 +39,8 @@ class ColourCamera(Checked):
     def __post_init__(self) -> None:
         super().__post_init__()
         if not isinstance(self.intrinsics, Intrinsics):
-            raise ValueError(f"colour camera intrinsics must be Intrinsics, got {type(self.intrinsics).__name__}")
+            raise ValueError(f"colour camera intrinsics must be Intrinsics, got "
+                             f"{type(self.intrinsics).__name__}")
         check_square_pixels(self.intrinsics.fx, self.intrinsics.fy)
         if not is_rotation(self.rotation):
             raise ValueError(f"colour camera rotation must be a proper rotation (orthonormal, det +1), got "

@@ -212,7 +212,8 @@ class SceneContent:
         obj.material_slots[0].link = "OBJECT"
         obj.material_slots[0].material = blender_material
         if material.tint is not None:
-            self._tinted.append((obj, None if material.texture is None else material.texture.path, material.kind))
+            texture = None if material.texture is None else material.texture.path
+            self._tinted.append((obj, texture, material.kind))
         return obj
 
     @contextlib.contextmanager
@@ -221,9 +222,11 @@ class SceneContent:
         light materials, the world and the extra lights white (their light is in blue alone for the IR
         passes, AMBIENT_COLOUR); as before after. The projector is the renderer's to switch off."""
         lights = [obj.data for obj in self.collection.objects if obj.type == "LIGHT"]
-        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]  # as the IR renders had them
+        # as the IR renders saw them (None where the build dropped a material: MaterialCache.capacity)
+        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]
         # room for every twin the scene uses, so none is dropped while another surface still shows it
-        self.twins.capacity = max(self.twins.capacity, len({(texture, kind) for _, texture, kind in self._tinted}))
+        used = {(texture, kind) for _, texture, kind in self._tinted}
+        self.twins.capacity = max(self.twins.capacity, len(used))
         for obj, texture, kind in self._tinted:
             obj.material_slots[0].material = self.twins.get(texture, kind, tinted=True)
         for light in lights:

@@ -16,12 +16,12 @@ import pytest
 from commands.show import contact_sheet
 from dotsim import dataset
 from dotsim.channels import rendered_channels
+from dotsim.config_schema import read_toml
+from dotsim.configs import config_path
 from dotsim.false_colour import colour_image
 from dotsim.frame_source import open_source
 from dotsim.rig.presets import PRESET_COLOUR_CAMERAS
 from dotsim.shards.writer import export_webdataset
-from dotsim.config_schema import read_toml
-from dotsim.configs import config_path
 from generator.config import ConfigError, config_from_dict
 from generator.driver import generate
 from generator.sample_scene import SceneResources, sample_scene_spec
@@ -68,7 +68,8 @@ def test_scene_json_records_the_colour_camera_and_the_frame_its_image(data):
 
 def test_the_export_the_frame_source_show_and_view_carry_it(data, tmp_path):
     folder = open_source(data, "train")
-    assert "rgb" in folder.channels and folder.colour_camera == PRESET_COLOUR_CAMERAS["realsense_d415"].scaled(SCALE)
+    assert "rgb" in folder.channels
+    assert folder.colour_camera == PRESET_COLOUR_CAMERAS["realsense_d415"].scaled(SCALE)
     export = open_source(export_webdataset(data, tmp_path / "wds").out, "train")
     assert export.colour_camera == folder.colour_camera
     for a, b in zip(folder.frames, export.frames, strict=True):

@@ -256,10 +256,10 @@ def test_a_colour_cameras_image_has_its_own_shape_in_a_part_of_its_own(tmp_path)
     sent = frame_inputs(rng)
     sent["rgb"] = rng.uniform(0, 3, colour + (3,))
     channels = rendered_channels(False, ("rgb",))
-    with_colour = {**meta(), "colour_camera": {"intrinsics": {"width": 40, "height": 27, "fx": 30.0,
-                                                              "fy": 30.0, "cx": 19.5, "cy": 13.0},
-                                               "translation": [-0.015, 0.0, 0.0],
-                                               "rotation": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}}
+    identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    intrinsics = {"width": 40, "height": 27, "fx": 30.0, "fy": 30.0, "cx": 19.5, "cy": 13.0}
+    with_colour = {**meta(), "colour_camera": {"intrinsics": intrinsics, "translation": [-0.015, 0.0, 0.0],
+                                               "rotation": identity}}
     scene = ds.write_scene(tmp_path / "a", 0, with_colour, [sent], channels=channels)
     got = ds.read_frame(scene / "frame_0.exr")
     assert got["rgb"].dtype == np.float16 and got["rgb"].shape == colour + (3,)
@@ -278,12 +278,13 @@ def test_a_colour_cameras_image_has_its_own_shape_in_a_part_of_its_own(tmp_path)
 
     with pytest.raises(ds.FormatError, match=r"channel 'rgb' has shape \(45, 61, 3\), the colour camera's is "
                                              r"\(27, 40, 3\)"):
-        ds.write_scene(tmp_path / "c", 0, with_colour, [{**sent, "rgb": np.zeros((H, W, 3))}], channels=channels)
+        ds.write_scene(tmp_path / "c", 0, with_colour, [{**sent, "rgb": np.zeros((H, W, 3))}],
+                       channels=channels)
     with pytest.raises(ds.FormatError, match="channel 'rgb' is an image of the colour camera, whose size the "
                                              "scene does not give"):
         ds.write_scene(tmp_path / "d", 0, meta(), [sent], channels=channels)
-    with pytest.raises(ds.FormatError, match=r"channel\(s\) \['rgb'\] of a camera whose size scene.json does not "
-                                             "give"):
+    with pytest.raises(ds.FormatError, match=r"channel\(s\) \['rgb'\] of a camera whose size scene.json "
+                                             "does not give"):
         ds.parse_scene_meta(scene / "scene.json", json.dumps(
             {k: v for k, v in ds.read_scene_meta(scene).items() if k != "colour_camera"}).encode())
     single = ds.encode_frame(frame_inputs(rng), (H, W), rendered_channels(False), rig=RIG.to_dict())

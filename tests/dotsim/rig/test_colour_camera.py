@@ -23,7 +23,8 @@ def test_a_turned_and_shifted_camera_projects_as_its_pose_says():
     optical axis 2 m away (built from the pose by hand) lands on its principal point, and a point 0.1 m
     to its right on the row of its principal point, f * 0.1 / 2 px to the right."""
     angle = math.radians(10.0)
-    rotation = ((math.cos(angle), 0.0, math.sin(angle)), (0.0, 1.0, 0.0), (-math.sin(angle), 0.0, math.cos(angle)))
+    cos, sin = math.cos(angle), math.sin(angle)
+    rotation = ((cos, 0.0, sin), (0.0, 1.0, 0.0), (-sin, 0.0, cos))
     camera = ColourCamera(Intrinsics.centred(64, 48, 50.0), translation=(0.03, 0.0, 0.0), rotation=rotation)
     axis_z = np.array([math.sin(angle), 0.0, math.cos(angle)])  # its z axis in the IR frame: R's third column
     axis_x = np.array([math.cos(angle), 0.0, -math.sin(angle)])

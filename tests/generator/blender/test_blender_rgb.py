@@ -111,7 +111,8 @@ def test_a_square_lands_where_the_colour_cameras_calibration_puts_it(renderer, p
     assert f * t_x / centre[2] > 4 * 0.35
     # the IR image (its own camera: f 72.5 px, no offset) has the square where that camera puts it
     seen = raw["depth"] < 1.5
-    ir_u = (RIG.camera.fx * (centre[0] - half) + RIG.camera.cx, RIG.camera.fx * (centre[0] + half) + RIG.camera.cx)
+    ir_u = (RIG.camera.fx * (centre[0] - half) + RIG.camera.cx,
+            RIG.camera.fx * (centre[0] + half) + RIG.camera.cx)
     assert abs(u[seen].mean() - sum(ir_u) / 2) < 0.35
 
 
@@ -169,8 +170,8 @@ def test_a_scene_of_more_textures_than_the_material_cache_holds(renderer, patter
         objects.append({**obj, "material": _tinted(material, (0.2, 0.9, 0.4))})
     spec = _spec(pattern, objects, lights=[LAMP])
     renderer.setup(spec)
-    slots = [obj.material_slots[0].material for obj in renderer.content.collection.objects if obj.type == "MESH"]
+    meshes = [obj for obj in renderer.content.collection.objects if obj.type == "MESH"]
+    slots = [obj.material_slots[0].material for obj in meshes]
     frame = renderer.render_poses(list(spec.poses))[0]
     assert np.isfinite(frame["rgb"]).all() and frame["rgb"].mean() > 0
-    after = [obj.material_slots[0].material for obj in renderer.content.collection.objects if obj.type == "MESH"]
-    assert after == slots
+    assert [obj.material_slots[0].material for obj in meshes] == slots
