@@ -32,7 +32,7 @@ import numpy as np
 from bench.render_speed import add_side_by_side_options, bench_rig, bench_spec, scene_poses, write_inputs
 from dotsim.dataset import encode_frame
 from dotsim.rig.presets import get_preset
-from generator.post_render import frame_channels, make_frame
+from generator.post_render import frame_channels, frame_shapes, make_frame
 from generator.sample_scene import frame_streams
 from generator.scene_spec import SceneSpec
 
@@ -74,9 +74,8 @@ def one_round(renderer, spec: SceneSpec) -> tuple[dict[str, float], list[dict]]:
     frames = [make_frame(raw, spec, frame_streams(0, spec, k)) for k, raw in enumerate(raws)]
     post = time.perf_counter() - start
     start = time.perf_counter()
-    camera = spec.rig.camera
-    sizes = [len(encode_frame(frame, (camera.height, camera.width), frame_channels(spec),
-                              rig=spec.rig.to_dict())) for frame in frames]
+    sizes = [len(encode_frame(frame, frame_shapes(spec), frame_channels(spec), rig=spec.rig.to_dict()))
+             for frame in frames]
     encode = time.perf_counter() - start
     count = len(raws)
     return ({"render_s": render_wall / count, "render_cpu_s": render_cpu / count, "post_s": post / count,

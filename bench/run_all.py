@@ -25,6 +25,7 @@ BENCHMARKS = {
                       "--repeats", "1"],
     "second_pass": ["--sizes", "160", "--objects", "40", "--repeats", "1"],
     "stereo_cost": ["--sizes", "128", "--objects", "10", "--repeats", "2"],
+    "rgb_cost": ["--sizes", "128", "--objects", "10", "--repeats", "1"],
     "render_objects": ["--repeats", "1"],
     "render_memory": ["--minutes", "1"],
     "trainer_speed": ["--repeats", "1", "--no-published"],

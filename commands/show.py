@@ -9,7 +9,9 @@ of value / its own 99th percentile (ambient is often 50x darker than flood, and 
 colour-mapped (turbo) with a colour bar in their units under the grid (and a stereo pair's stereo
 disparity), the visibility and edge masks (and a stereo pair's stereo visibility) white where set;
 with labels, the instance and material labels a colour per value and the transparent_or_mirror mask;
-with normals, the three normal components as one colour tile.
+with normals, the three normal components as one colour tile; with a colour camera ([render] rgb), its
+image sRGB-encoded, white at its 99th percentile, fitted into the IR camera's tile (its own size and
+aspect; the margin left grey).
 Black in a colour-mapped tile means no value there (no hit / invalid).
 numpy + OpenCV only.
 """
@@ -31,6 +33,7 @@ from dotsim.false_colour import (
     FONT,
     LINE,
     TEXT_SCALE,
+    colour_image,
     colourise,
     label_colours,
     normal_colours,
@@ -174,6 +177,8 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
             caption = "a colour per label, black = 0"
         elif CHANNEL[name].display == "normal":
             caption = "RGB = (xyz + 1) / 2"
+        elif CHANNEL[name].display == "colour image":
+            caption = f"sRGB, white = 99th pct, {frames[0][name].shape[1]} x {frames[0][name].shape[0]}"
         else:
             caption = "mask 0 / 1"
         put_text(sheet, caption, x, 4 * LINE - 4, SUBTLE_COLOUR, width=tile_w)
@@ -188,6 +193,10 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
                 tile = label_colours(image)
             elif CHANNEL[name].display == "normal":
                 tile = normal_colours(*(frame[axis] for axis in NORMAL_CHANNELS))
+            elif CHANNEL[name].display == "colour image":  # its own camera's size: fitted, not stretched
+                sheet[y:y + tile_h, x:x + tile_w] = _fitted(colour_image(image), tile_w, tile_h)
+                tiles[(k, name)] = (x, y, tile_w, tile_h)
+                continue
             elif CHANNEL[name].display == "linear":
                 tile = _grey(image, scales[name])
             else:  # radiance falls off as 1 / r^2: a square root shows far walls beside near objects
@@ -216,6 +225,16 @@ def contact_sheet(frames: list[dict[str, np.ndarray]], title: str, tile_width: i
         put_text(sheet, line, GAP, y)
         y += LINE
     return sheet, SheetLayout(tiles=tiles, tile_size=(tile_w, tile_h))
+
+
+def _fitted(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """`image` (BGR) scaled to fit a width x height tile, its aspect kept, centred on the background."""
+    scale = min(width / image.shape[1], height / image.shape[0])
+    w, h = max(1, round(image.shape[1] * scale)), max(1, round(image.shape[0] * scale))
+    tile = np.full((height, width, 3), BACKGROUND, np.uint8)
+    y, x = (height - h) // 2, (width - w) // 2
+    tile[y:y + h, x:x + w] = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+    return tile
 
 
 def scene_path_of(path: str | Path, scene_index: int | None = None) -> Path:

@@ -19,6 +19,10 @@ What is logged (timeline `frame` = frame index; world frame z up, metres, as doc
   labels `.../instance` and `.../material` (segmentation images: a colour per label) and
   `.../transparent_or_mirror`, with normals `.../normal_x` (the three components as one RGB image,
   (n + 1) / 2): the frame's channels (VIEWED, those the scene has), the IR sequence over frames;
+- with a colour camera ([render] rgb; scene.json `colour_camera`): its frustum `world/pose_K/colour_camera`
+  (placed by its pose on the rig), and `world/colour_camera`, the colour camera of the current frame
+  (its own Pinhole and pose) with its image `world/colour_camera/rgb` (sRGB, white at its 99th
+  percentile, as `dotsim show` draws it);
 - with predictions (a folder of `dotsim infer` outputs, scene_SSSSSSS_frame_K.exr, for any of the
   scene's frames): the predicted cloud `world/pose_K/prediction` beside the truth (up to the rig's
   max_depth), coloured by its disparity error, and `world/camera/error`, that error as an image
@@ -36,11 +40,12 @@ from commands.show import grey_for_display, scene_path_of
 from dotsim import dataset as ds
 from dotsim.channels import CHANNEL, CHANNELS, NORMAL_CHANNELS
 from dotsim.command_options import add_output
-from dotsim.false_colour import colourise, normal_colours
+from dotsim.false_colour import colour_image, colourise, normal_colours
 from dotsim.file_io import atomic_write_bytes
 from dotsim.option_types import integer
 from dotsim.pointcloud import depth_points, grey_levels
 from dotsim.prediction_file import PREDICTION_ATTRIBUTE, prediction_path, prediction_source
+from dotsim.rig.colour_camera import ColourCamera
 from dotsim.rig.geometry import Rig, is_ground_truth
 
 # The channels logged under camera/ (dotsim.channels): the grey ones and the masks, and depth in metres
@@ -51,6 +56,10 @@ VIEWED = tuple(c.name for c in CHANNELS
 ERROR_RANGE_PX = 5.0  # the error image's colour scale, as `dotsim eval`'s error images
 FRUSTUM_DEPTH = 0.3  # metres from the centre to the drawn image plane
 CAMERA = "world/camera"  # the current frame's camera: its Pinhole, with the frame's images under it
+# The current frame's colour camera ([render] rgb): its own Pinhole and pose, its image under it.
+COLOUR_CAMERA = "world/colour_camera"
+# The channels of the colour camera (their own size), shown under COLOUR_CAMERA.
+COLOUR_VIEWED = tuple(c.name for c in CHANNELS if c.camera == "colour" and c.display == "colour image")
 
 
 class ViewError(ValueError):
@@ -104,9 +113,10 @@ def viewer_image(rr, frame: dict[str, np.ndarray], name: str):
     return rr.DepthImage(np.where(np.isfinite(image), image, 0), meter=1.0)
 
 
-def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False) -> None:
-    """Static: the rig at pose K with its camera and projector frusta, and with `stereo` its right
-    camera's."""
+def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False,
+            colour: ColourCamera | None = None) -> None:
+    """Static: the rig at pose K with its camera and projector frusta, with `stereo` its right camera's,
+    and with `colour` its colour camera's."""
     pose = _pose(pose)
     base = f"world/pose_{k}"
     rec.log(base, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
@@ -119,17 +129,24 @@ def log_rig(rr, rec, k: int, pose, rig: Rig, stereo: bool = False) -> None:
         if name == "projector":  # X_proj = R (X_cam - t): camera_from_projector = (R^T, t)
             rec.log(f"{base}/projector", rr.Transform3D(translation=rig.t, mat3x3=rig.R.T), static=True)
         rec.log(f"{base}/{name}", _pinhole(rr, intr), static=True)
+    if colour is not None:
+        rec.log(f"{base}/colour_camera", rr.Transform3D(translation=colour.translation,
+                                                         mat3x3=np.array(colour.rotation)), static=True)
+        rec.log(f"{base}/colour_camera", _pinhole(rr, colour.intrinsics), static=True)
 
 
-def layout(rr, passes: list[str], with_predictions: bool):
-    """The viewer's opening layout: the 3D world large, the scene's `passes` in a grid beside it."""
+def layout(rr, passes: list[str], with_predictions: bool, colour_passes: list[str] = ()):
+    """The viewer's opening layout: the 3D world large, the scene's `passes` (and its colour camera's
+    `colour_passes`) in a grid beside it."""
     import rerun.blueprint as rrb
 
     passes = passes + (["error"] if with_predictions else [])
+    views = [rrb.Spatial2DView(origin=f"/{CAMERA}/{p}", name=p) for p in passes]
+    views += [rrb.Spatial2DView(origin=f"/{COLOUR_CAMERA}/{p}", name=p) for p in colour_passes]
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial3DView(origin="/world", name=("ground truth and predictions" if with_predictions
                                                  else "ground truth") + " in the world (z up)"),
-        rrb.Grid(*(rrb.Spatial2DView(origin=f"/{CAMERA}/{p}", name=p) for p in passes)),
+        rrb.Grid(*views),
         column_shares=[3, 2]), collapse_panels=True)
 
 
@@ -180,12 +197,16 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
             raise ViewError(f"{scene_path}: no frame {k}; it has {count}")
     predicted = {} if predictions is None else predicted_frames(scene_path, meta, frames, predictions)
     passes = [name for name in VIEWED if name in meta["channels"]]
-    rec.send_blueprint(layout(rr, passes, predictions is not None))
+    colour_passes = [name for name in COLOUR_VIEWED if name in meta["channels"]]
+    colour = ColourCamera.from_dict(meta["colour_camera"]) if meta.get("colour_camera") else None
+    rec.send_blueprint(layout(rr, passes, predictions is not None, colour_passes))
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log(CAMERA, _pinhole(rr, rig.camera), static=True)
+    if colour is not None:
+        rec.log(COLOUR_CAMERA, _pinhole(rr, colour.intrinsics), static=True)
     sizes = {}
     for k in frames:
-        log_rig(rr, rec, k, meta["poses"][k], rig, stereo="ir_right" in meta["channels"])
+        log_rig(rr, rec, k, meta["poses"][k], rig, stereo="ir_right" in meta["channels"], colour=colour)
     for k in frames:
         f = ds.read_frame(scene_path / ds.frame_name(k), verify=verify, meta=meta)
         rec.set_time("frame", sequence=k)
@@ -193,6 +214,12 @@ def log_scene(rec, scene_path: Path, frames: list[int] | None = None, prediction
         rec.log(CAMERA, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
         for name in (name for name in VIEWED if name in f):
             rec.log(f"{CAMERA}/{name}", viewer_image(rr, f, name))
+        if colour is not None:
+            colour_pose = colour.pose(pose)
+            rec.log(COLOUR_CAMERA, rr.Transform3D(translation=colour_pose[:3, 3], mat3x3=colour_pose[:3, :3]))
+            for name in (name for name in colour_passes if name in f):
+                rec.log(f"{COLOUR_CAMERA}/{name}", rr.Image(_rgb(colour_image(f[name]))))
+                sizes[f"{COLOUR_CAMERA}/{name}"] = int(np.prod(f[name].shape[:2]))
         # shaded by the flood pass where there is one: the IR's dots leave most points black
         grey = grey_for_display(f["flood"], "flood") if "flood" in f else grey_levels(f["ir"])
         if "depth" in f:  # a capture has no ground truth: its frames show the passes alone

@@ -38,6 +38,14 @@ DISPLAYS = {
     "labels": "a colour of its own per label (dotsim.false_colour.label_colours), black for 0",
     "normal": "the three normal components as one colour tile, (n + 1) / 2 as red, green, blue, black "
               "where there is no surface; drawn in the column of normal_x",
+    "colour image": "the colour image itself: linear radiance / its 99th percentile, sRGB-encoded, resized "
+                    "to the IR camera's tile",
+}
+# The cameras whose images a frame's channels are, each with where its image size is read from. Channels
+# of the IR camera share its (height, width); the colour camera's have their own (docs/FORMAT.md).
+CAMERAS = {
+    "ir": "the rig's IR camera: scene.json rig.camera",
+    "colour": "the rig's colour camera ([render] rgb): scene.json colour_camera.intrinsics",
 }
 # The switches of the generator's config that add channels to a rendered frame, and what turns each on.
 SWITCHES = {
@@ -45,6 +53,7 @@ SWITCHES = {
     "normals": "[render] normals = true",
     "device_depth": "[device_depth] engine other than \"off\": the simulated device's depth "
                     "(dotsim.device_depth)",
+    "rgb": "[render] rgb = true: the rig preset's colour camera (dotsim.rig.colour_camera)",
 }
 
 
@@ -57,7 +66,9 @@ class Channel:
     unit: of a colour-mapped channel; stereo: only frames rendered from the rig's stereo pair have
     it; since: the format version that added it (a frame records the oldest version that has all
     of its channels, dotsim.dataset.frames.frame_format_version); switch: the switch (SWITCHES) without
-    which the generator does not write it ("" for none).
+    which the generator does not write it ("" for none); camera: whose image it is (CAMERAS), so whose
+    (height, width) it has; components: the names of its last axis's entries ("RGB": an (H, W, 3) image),
+    "" for a plain (H, W) channel.
     """
 
     name: str
@@ -70,6 +81,13 @@ class Channel:
     stereo: bool = False
     since: str = "1.0"
     switch: str = ""
+    camera: str = "ir"
+    components: str = ""
+
+    @property
+    def shape_suffix(self) -> tuple[int, ...]:
+        """What its arrays' shape adds to its camera's (height, width): (3,) for an RGB image."""
+        return (len(self.components),) if self.components else ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dtype", np.dtype(self.dtype))
@@ -84,6 +102,8 @@ class Channel:
             raise ValueError(f"channel {self.name!r}: labels, and only labels, are int32")
         if self.switch and self.switch not in SWITCHES:
             raise ValueError(f"channel {self.name!r}: switch {self.switch!r}; allowed: {', '.join(SWITCHES)}")
+        if self.camera not in CAMERAS:
+            raise ValueError(f"channel {self.name!r}: camera {self.camera!r}; allowed: {', '.join(CAMERAS)}")
         if (self.display == "colour") != bool(self.unit):
             raise ValueError(f"channel {self.name!r}: a colour-mapped channel, and only one, has a unit")
 
@@ -123,6 +143,9 @@ CHANNELS: tuple[Channel, ...] = (
             switch="normals"),
     Channel("normal_z", np.float16, "render", None, "normal z", "camera frame", since="2.2",
             switch="normals"),
+    # The rig's colour camera ([render] rgb): its own image size and pose, visible light, no projector.
+    Channel("rgb", np.float16, "render", "colour image", "colour", "visible light, own camera", since="2.3",
+            switch="rgb", camera="colour", components="RGB"),
 )
 CHANNEL: dict[str, Channel] = {c.name: c for c in CHANNELS}
 
@@ -134,6 +157,8 @@ MASK_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "mask")
 LABEL_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "labels")
 DERIVED_CHANNELS = tuple(c.name for c in CHANNELS if c.source == "derived")
 NORMAL_CHANNELS = ("normal_x", "normal_y", "normal_z")
+# The channels with an image size of their own (another camera's than the IR camera's).
+OWN_SHAPE_CHANNELS = tuple(c.name for c in CHANNELS if c.camera != "ir")
 
 
 def rendered_channels(stereo: bool, switches=()) -> tuple[str, ...]:

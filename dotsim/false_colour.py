@@ -66,6 +66,21 @@ def normal_colours(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     return bgr
 
 
+def colour_image(rgb: np.ndarray, white: float | None = None) -> np.ndarray:
+    """A colour camera's linear (H, W, 3) radiance as an image to look at (BGR uint8): value / `white`
+    (default: its 99th percentile over all channels, so a lamp seen directly does not darken the rest),
+    clipped to 1, sRGB-encoded (IEC 61966-2-1) as a screen expects.
+
+    >>> colour_image(np.array([[[0.0, 0.5, 1.0]]]), white=1.0)[0, 0].tolist()  # BGR
+    [255, 188, 0]
+    """
+    rgb = np.nan_to_num(np.asarray(rgb, np.float64))
+    white = float(np.percentile(rgb, 99)) if white is None else float(white)
+    linear = np.clip(rgb / white, 0.0, 1.0) if white > 0 else np.zeros_like(rgb)
+    encoded = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    return np.rint(encoded[..., ::-1] * 255).astype(np.uint8)
+
+
 def put_text(img, text, x, y, colour=TEXT_COLOUR, scale=TEXT_SCALE, width: int | None = None):
     """Draw text at (x, y); with `width`, in a smaller font where it would be wider than that."""
     if width is not None:

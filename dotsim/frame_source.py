@@ -32,6 +32,7 @@ from dotsim.dataset import (
     read_scene_meta,
 )
 from dotsim.patterns import PatternError, load_pattern
+from dotsim.rig.colour_camera import ColourCamera
 from dotsim.rig.geometry import Rig
 from dotsim.shards.format import PATTERN_NAME
 from dotsim.shards.reader import (
@@ -107,6 +108,13 @@ class FrameSource:
     def channels(self) -> tuple[str, ...]:
         """The channels its (first) frame stores."""
         return self.frames[0].channels()
+
+    @cached_property
+    def colour_camera(self) -> ColourCamera | None:
+        """The colour camera of its (first) frame's scene, whose images its `rgb` channel holds (scene.json
+        `colour_camera`, docs/FORMAT.md), or None."""
+        entry = self.frames[0].scene_meta().get("colour_camera")
+        return None if entry is None else ColourCamera.from_dict(entry, f"{self.name}: colour_camera")
 
     @property
     def stereo(self) -> bool:

@@ -30,8 +30,10 @@ from dotsim.dataset.frames import EXR_COMPRESSIONS
 from dotsim.device_depth import DeviceDepthConfig
 from dotsim.file_io import WriteError, json_bytes
 from dotsim.output_folder import DATASET, RENDERED, check_output_folder
+from dotsim.rig.colour_camera import ColourCamera
 from dotsim.rig.config import RigConfig, with_own_max_depth
 from dotsim.rig.options import checked_rig
+from dotsim.rig.presets import PRESET_COLOUR_CAMERAS
 from dotsim.sensor.settings import SensorConfig
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
@@ -246,6 +248,24 @@ class Config:
         and the rig travels with the config (pickled along) into every worker and scene."""
         return checked_rig(self.rig, self.source)
 
+    @cached_property
+    def colour_camera(self) -> ColourCamera | None:
+        """The colour camera [render] rgb renders: the [rig] preset's (PRESET_COLOUR_CAMERAS) at [rig]
+        scale, as the IR camera; None with rgb off. ConfigError naming the config when rgb is on and the
+        rig has none (a preset without one, or a rig from files, which carry no colour camera)."""
+        if not self.render.rgb:
+            return None
+        if self.rig.file or self.rig.camera_file or self.rig.projector_file:
+            raise ConfigError(f"{self.source}: [render] rgb = true with a [rig] from files: a rig file holds "
+                              f"no colour camera; allowed: [rig] preset = one of "
+                              f"{', '.join(sorted(PRESET_COLOUR_CAMERAS))}, without file, camera_file or "
+                              f"projector_file")
+        if self.rig.preset not in PRESET_COLOUR_CAMERAS:
+            raise ConfigError(f"{self.source}: [render] rgb = true with [rig] preset = {self.rig.preset!r}, "
+                              f"which has no colour camera; allowed: presets "
+                              f"{', '.join(sorted(PRESET_COLOUR_CAMERAS))}")
+        return PRESET_COLOUR_CAMERAS[self.rig.preset].scaled(self.rig.scale)
+
 
 def config_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = None) -> Config:
     """Validate a nested dict (as read from TOML) into a Config; missing keys take their defaults.
@@ -276,6 +296,7 @@ def _check_cross_fields(config: Config) -> None:
             raise ConfigError(f"{src}: [pattern] path = {path!r}: {problem}; allowed: an existing "
                               "pattern image (PNG or EXR)")
     config.calibrated_rig  # noqa: B018 (resolved now, so a bad rig stops the load; the Config keeps it)
+    config.colour_camera  # noqa: B018 (likewise: [render] rgb on a rig without a colour camera stops it)
     if config.device_depth.engine == "stereo" and not config.rig.stereo:
         raise ConfigError(f"{src}: [device_depth] engine = \"stereo\" matches the left IR against the "
                           f"right one, which [rig] stereo = false does not render; allowed: [rig] stereo = "
@@ -360,7 +381,7 @@ def config_reference_markdown() -> str:
         "built-in config's, named by `--config NAME`: the current directory). The full resolved config "
         "is stored in every scene's `scene.json` under `config`.\n\n"
         "How the keys work together (shaping the depth of the visible pixels, GigaDepth's Table 2 "
-        "conditions, materials that break sensors, laser speckle): docs/CONFIG_GUIDE.md."))
+        "conditions, materials that break sensors, a colour camera, laser speckle): docs/CONFIG_GUIDE.md."))
 
 
 if __name__ == "__main__":

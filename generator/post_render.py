@@ -31,7 +31,8 @@ rendered ones it stores):
   cameras' depth). stereo_disparity is derived on read like disparity (format 2.1).
   With [render] labels (format 2.2): instance, material and transparent_or_mirror from the object index
   pass (dotsim.labels), and the visibility mask 0 where the first surface is transparent or a mirror
-  (the dots seen there lie on another surface); with [render] normals: normal_x, normal_y, normal_z.
+  (the dots seen there lie on another surface); with [render] normals: normal_x, normal_y, normal_z;
+  with [render] rgb (format 2.3): rgb, the colour camera's image as rendered (linear radiance, float16).
   With the spec's device_depth engine on, also device_depth: the depth the simulated device's chip
   reports (dotsim.device_depth; docs/DEVICE_DEPTH.md), NaN where it reports none: the stereo engine
   matches ir against ir_right, the structured-light engine ir against the reference image of the
@@ -63,7 +64,8 @@ def raw_pass_names(spec: SceneSpec) -> tuple[str, ...]:
     the object index and normal passes its [render] labels and normals ask for."""
     switched = ((spec.render.labels, LABEL_PASSES), (spec.render.normals, NORMAL_PASSES))
     data = tuple(name for on, passes in switched if on for _, name in passes)
-    return tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES + data)
+    return (tuple(name + camera.suffix for camera in spec.cameras for name in RAW_PASSES + data)
+            + (("rgb",) if spec.render.rgb else ()))
 
 
 def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
@@ -71,22 +73,32 @@ def frame_channels(spec: SceneSpec) -> tuple[str, ...]:
     stereo pair when it renders the rig's second camera too, and those of its switches that are on
     (dotsim.channels.SWITCHES: [render] labels and normals, the device depth engine)."""
     switches = {"labels": spec.render.labels, "normals": spec.render.normals,
-                "device_depth": spec.device_depth.on}
+                "device_depth": spec.device_depth.on, "rgb": spec.render.rgb}
     return rendered_channels(len(spec.cameras) > 1, tuple(name for name, on in switches.items() if on))
 
 
+def frame_shapes(spec: SceneSpec) -> dict[str, tuple[int, int]]:
+    """{camera: (height, width)} of the frames of `spec` (dotsim.channels.CAMERAS): the IR camera's, and
+    with render.rgb the colour camera's; what dotsim.dataset.encode_frame takes as its shape."""
+    camera = spec.cameras[0].intrinsics
+    shapes = {"ir": (camera.height, camera.width)}
+    if spec.colour_camera is not None:
+        shapes["colour"] = (spec.colour_camera.intrinsics.height, spec.colour_camera.intrinsics.width)
+    return shapes
+
+
 def check_raw_passes(raw: dict, spec: SceneSpec, where: str) -> dict[str, np.ndarray]:
-    """The raw passes of a frame of `spec` as float32 arrays of the camera's shape; ValueError naming
-    what is wrong."""
+    """The raw passes of a frame of `spec` as float32 arrays of the camera's shape (the colour camera's
+    "rgb": its (h, w, 3)); ValueError naming what is wrong."""
     names = raw_pass_names(spec)
     missing = [name for name in names if name not in raw]
     if missing:
         raise ValueError(f"{where}: raw passes lack {missing}; expected {list(names)}")
-    camera = spec.cameras[0].intrinsics
-    shape = (camera.height, camera.width)
+    shapes = frame_shapes(spec)
     out = {}
     for name in names:
         array = np.asarray(raw[name], dtype=np.float32)
+        shape = shapes["colour"] + (3,) if name == "rgb" else shapes["ir"]
         if array.shape != shape:
             raise ValueError(f"{where}: raw pass {name!r} has shape {array.shape}, the camera is {shape}")
         out[name] = array
@@ -140,6 +152,8 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
         made.update(object_labels(raw["object_index"], [obj.material.kind for obj in spec.objects],
                                   [obj.name for obj in spec.objects], where))
         visibility &= ~made["transparent_or_mirror"]
+    if spec.render.rgb:
+        made["rgb"] = stored_radiance(raw["rgb"])
     if spec.render.normals:
         # nan where the depth (the first sample) hit nothing, though another sample of the pixel did
         made.update({name: np.where(np.isfinite(depth), raw[name], np.nan) for name in NORMAL_CHANNELS})

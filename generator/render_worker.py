@@ -116,11 +116,12 @@ def scene_meta(job: RenderJob, spec: SceneSpec) -> dict:
             obj = replace(obj, material=replace(obj.material, texture=texture))
         objects.append(obj)
     stored = replace(spec, objects=tuple(objects)).to_dict()
+    colour = {"colour_camera": stored["colour_camera"]} if "colour_camera" in stored else {}
     return {"split": job.split, "seed": spec.seed, "base_seed": job.seed, "config": job.config.to_dict(),
             "rig": stored["rig"], "pattern": job.pattern_meta, "poses": stored["poses"],
             "objects": stored["objects"], "lights": stored["lights"], "projector": stored["projector"],
             "flood": stored["flood"], "world": stored["world"], "render": stored["render"],
-            "versions": job.versions}
+            "versions": job.versions} | colour
 
 
 def read_raw_npz(path: Path, spec: SceneSpec) -> list[dict[str, np.ndarray]]:

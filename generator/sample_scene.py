@@ -12,6 +12,7 @@ The room is the axis-aligned box [-W/2, W/2] x [-D/2, D/2] x [0, H] of the spec'
 
 from __future__ import annotations
 
+import colorsys
 import math
 from dataclasses import asdict, dataclass, replace
 
@@ -39,6 +40,9 @@ from generator.scene_spec import (
 # Random streams drawn from one scene's SeedSequence: sampling the scene, and the sensor noise.
 STREAM_SCENE = 0
 STREAM_SENSOR = 1
+STREAM_COLOUR = 2  # the surfaces' visible colours ([render] rgb), drawn apart: no other draw changes
+# The saturation of the surfaces' visible colours is drawn up to this (0: grey, 1: a pure hue).
+MAX_TINT_SATURATION = 0.7
 
 # Keep the camera this far from every room surface (m): objects sampled between camera and wall
 # need some room, and the rig moves a few centimetres between frames.
@@ -231,6 +235,21 @@ def _material(rng: np.random.Generator, config: Config, textures: tuple[TextureA
     return Material(albedo=albedo, roughness=roughness, specular=specular, texture=texture, kind=kind)
 
 
+def _tinted(objects: tuple[SceneObject, ...], rng: np.random.Generator) -> tuple[SceneObject, ...]:
+    """`objects` with a visible colour (Material.tint) on every opaque and IR-dark surface: the IR
+    textures are grey, so each surface gets a hue (uniform), a saturation (uniform up to
+    MAX_TINT_SATURATION) and full value (HSV), which scale its IR reflectance in the colour camera's
+    render. Glass and metal stay grey."""
+    tinted = []
+    for obj in objects:
+        if obj.material.kind in ("opaque", "ir_dark"):
+            hue, saturation = float(rng.random()), float(rng.uniform(0.0, MAX_TINT_SATURATION))
+            tint = tuple(float(v) for v in colorsys.hsv_to_rgb(hue, saturation, 1.0))
+            obj = replace(obj, material=replace(obj.material, tint=tint))
+        tinted.append(obj)
+    return tuple(tinted)
+
+
 def _material_kind(rng: np.random.Generator, config: Config) -> str:
     """An object's material kind, drawn by the [scene] shares; "opaque" without a draw when they are all
     0, so the scenes of a config without them stay as they were."""
@@ -389,10 +408,12 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         lights=lights,
         poses=_poses(rng, config, base_pose),
         cameras=camera_views(rig, config.rig.stereo),
-        objects=tuple(objects),
+        objects=(_tinted(tuple(objects), scene_rng(base_seed, scene_index, STREAM_COLOUR))
+                 if config.render.rgb else tuple(objects)),
         sensor=config.sensor.at_scale(config.rig.scale),
         masks=config.masks,
         device_depth=config.device_depth,
+        colour_camera=config.colour_camera,
     )
     # drawn last, and only when asked for, so that every other draw (and so today's scenes) stays as it was
     if li.ambient_ratio[1] <= 0:

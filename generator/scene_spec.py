@@ -35,6 +35,7 @@ import numpy as np
 from dotsim.config_schema import REQUIRED, Checked, ConfigError, check, check_field, record_from_dict, setting
 from dotsim.device_depth import DeviceDepthConfig
 from dotsim.labels import MATERIAL_KINDS, SEE_THROUGH_KINDS
+from dotsim.rig.colour_camera import ColourCamera
 from dotsim.rig.geometry import Intrinsics, Rig
 from dotsim.sensor.settings import SensorSpec
 
@@ -79,18 +80,26 @@ class RenderConfig(Checked):
                            "[scene] transparent_share or metal_share > 0, whose mask needs it")
     normals: bool = setting(False, "per-pixel surface normals in the camera frame from the render's normal "
                             "pass: `normal_x`, `normal_y`, `normal_z` (docs/FORMAT.md)")
+    rgb: bool = setting(False, "render the rig preset's colour camera too (RGB-D rigs: realsense_d415, "
+                        "realsense_d435, kinect_v1): the `rgb` channel, its own size (scaled by [rig] scale) "
+                        "and pose, under the scene's visible light (its extra lights and world, white; the "
+                        "surfaces' drawn colours) with the IR projector off (docs/RENDERING.md \"Colour "
+                        "camera\")")
+    rgb_samples: int = setting(0, "Cycles samples per pixel of the colour camera's render (0 = `samples`); "
+                               "its image is path-traced visible light, noisy at 1 sample", low=0, high=4096)
 
 
 @dataclass(frozen=True)
 class SceneRenderSettings(RenderConfig):
     """One scene's Cycles settings, SceneSpec.render: the config's [render] (RenderConfig) and the
-    scene's seed (specs from before `direct_light`, `labels` or `normals` read as "separate", False,
-    False)."""
+    scene's seed (specs from before `direct_light`, `labels`, `normals`, `rgb` or `rgb_samples` read as
+    "separate", False, False, False, 0)."""
     seed: int = setting(0, "Cycles seed (the scene's seed)", low=0)
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SceneRenderSettings:
-        return record_from_dict(cls, d, where, optional=("direct_light", "labels", "normals"))
+        return record_from_dict(cls, d, where,
+                                optional=("direct_light", "labels", "normals", "rgb", "rgb_samples"))
 
 
 @dataclass(frozen=True)
@@ -139,9 +148,16 @@ class Material(Checked):
     texture: Texture | None = None
     kind: str = setting("opaque", "what the surface is made of", choices=MATERIAL_KINDS)
     ior: float = setting(1.5, "index of refraction of a transparent surface", low=1.0, high=3.0)
+    # Only a scene with a colour camera (render.rgb) has them: the IR is grey, visible light is not.
+    tint: Vector3 | None = setting(None, "visible-light colour of an opaque or IR-dark surface: its base "
+                                   "colour in the colour camera's render is the IR reflectance times this "
+                                   "(r, g, b), each 0 to 1; None: grey (the IR reflectance)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.tint is not None and not all(0.0 <= v <= 1.0 for v in self.tint):
+            raise ConfigError(f"material: tint = {list(self.tint)}: out of range; allowed: three numbers, "
+                              f"each 0 <= x <= 1")
         if self.texture is not None and self.kind in SEE_THROUGH_KINDS:
             raise ConfigError(f"material: kind {self.kind!r} with a texture; allowed: a texture on opaque "
                               f"and ir_dark surfaces only")
@@ -151,11 +167,12 @@ class Material(Checked):
         scene.json stays as it was."""
         d = {"albedo": self.albedo, "texture": None if self.texture is None else self.texture.to_dict(),
              "roughness": self.roughness, "specular": self.specular}
-        return d if self.kind == "opaque" else {**d, "kind": self.kind, "ior": self.ior}
+        d = d if self.kind == "opaque" else {**d, "kind": self.kind, "ior": self.ior}
+        return d if self.tint is None else {**d, "tint": list(self.tint)}
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> Material:
-        return record_from_dict(cls, d, where, optional=("kind", "ior"), texture=_texture_from_dict)
+        return record_from_dict(cls, d, where, optional=("kind", "ior", "tint"), texture=_texture_from_dict)
 
 
 @dataclass(frozen=True)
@@ -318,10 +335,12 @@ def _items(value: Any, where: str) -> list:
 # The spec dict's keys; projector, flood and world are one-key mappings of projector_power,
 # flood_power and world_strength.
 _TOP_LEVEL = ("scene_index", "split", "seed", "render", "rig", "pattern", "projector", "flood", "world",
-              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth", "ambient_ratio")
+              "lights", "poses", "cameras", "objects", "sensor", "masks", "device_depth", "ambient_ratio",
+              "colour_camera")
 # Keys a spec dict may leave out (specs from before them): the cameras are then the rig's own alone, the
-# device's depth engine off, and without ambient_ratio the ambient stays as rendered.
-_OPTIONAL = ("cameras", "device_depth", "ambient_ratio")
+# device's depth engine off, without ambient_ratio the ambient stays as rendered, and without
+# colour_camera there is none (render.rgb false).
+_OPTIONAL = ("cameras", "device_depth", "ambient_ratio", "colour_camera")
 _ONE_KEY = {"projector": ("power", "projector_power"), "flood": ("power", "flood_power"),
             "world": ("strength", "world_strength")}
 
@@ -357,6 +376,8 @@ class SceneSpec(Checked):
     # passes to (generator.post_render); None: the ambient as rendered.
     ambient_ratio: float | None = setting(None, "ambient over projector light where the projector reaches",
                                           low=0.0, low_open=True, high=1e6)
+    # The rig's colour camera, rendered when render.rgb is on (and only then given).
+    colour_camera: ColourCamera | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -365,6 +386,18 @@ class SceneSpec(Checked):
         if self.render.labels and len(self.objects) > MAX_LABELLED_OBJECTS:
             raise ConfigError(f"SceneSpec.objects: {len(self.objects)} objects with render.labels = true; "
                               f"allowed: at most {MAX_LABELLED_OBJECTS} (Blender's object pass index)")
+        untinted = [k for k, obj in enumerate(self.objects) if self.render.rgb
+                    and obj.material.kind in ("opaque", "ir_dark") and obj.material.tint is None]
+        if untinted:
+            raise ConfigError(f"SceneSpec.objects[{untinted[0]}].material.tint is missing with render.rgb = "
+                              f"true; allowed: a tint on every opaque and ir_dark surface (its visible "
+                              f"colour)")
+        if self.render.rgb != (self.colour_camera is not None):
+            raise ConfigError(f"SceneSpec.colour_camera = {self.colour_camera!r} with render.rgb = "
+                              f"{str(self.render.rgb).lower()}; allowed: a colour camera exactly when "
+                              f"render.rgb is true")
+        if self.colour_camera is not None and not isinstance(self.colour_camera, ColourCamera):
+            raise ConfigError(f"SceneSpec.colour_camera = {self.colour_camera!r}: not a ColourCamera")
         see_through = [k for k, obj in enumerate(self.objects) if obj.material.kind in SEE_THROUGH_KINDS]
         if see_through and not self.render.labels:
             k = see_through[0]
@@ -395,7 +428,8 @@ class SceneSpec(Checked):
             "sensor": self.sensor.to_dict(),
             "masks": self.masks.to_dict(),
             "device_depth": self.device_depth.to_dict(),
-        } | ({} if self.ambient_ratio is None else {"ambient_ratio": self.ambient_ratio})
+        } | ({} if self.ambient_ratio is None else {"ambient_ratio": self.ambient_ratio}) | (
+            {} if self.colour_camera is None else {"colour_camera": self.colour_camera.to_dict()})
 
     @classmethod
     def from_dict(cls, d: Any) -> SceneSpec:
@@ -437,5 +471,7 @@ class SceneSpec(Checked):
                                                      f"{_WHERE}: device_depth"),
             ambient_ratio=check_field(cls, "ambient_ratio", d.get("ambient_ratio"),
                                       f"{_WHERE}: ambient_ratio"),
+            colour_camera=(None if d.get("colour_camera") is None
+                           else ColourCamera.from_dict(d["colour_camera"], f"{_WHERE}: colour_camera")),
             **one_key,
         )

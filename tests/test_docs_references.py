@@ -212,6 +212,9 @@ def test_documented_bench_modules_make_targets_and_configs_are_real():
                 problems.append(f"{where}: no module {tokens[0]}")
                 continue
             source = module.read_text()
+            # options a bench declares with a helper of another bench module (add_side_by_side_options)
+            for imported in re.findall(r"^from (bench\.\w+) import", source, re.MULTILINE):
+                source += (REPO / (imported.replace(".", "/") + ".py")).read_text()
             for token in tokens[1:]:
                 option = token.strip("[],").split("=")[0]
                 if option.startswith("--") and f'"{option}"' not in source:

@@ -75,6 +75,7 @@ from dotsim.dataset.scene_meta import (
     camera_size,
     holds_captures,
     parse_scene_meta,
+    scene_shapes,
 )
 from dotsim.dataset.seal import DatasetChangingError, SealResult, seal_dataset
 from dotsim.dataset.verify import Problem, RepairResult, VerifyReport, repair_dataset, verify_dataset
@@ -105,6 +106,6 @@ __all__ = [
     "open_dataset", "parse_scene_meta",
     "pattern_path", "read_frame", "read_layout", "read_scene", "read_scene_meta", "remove_partial_scenes",
     "remove_partial_scenes_in_range", "remove_scene", "repair_dataset", "scene_dir", "scene_name",
-    "seal_dataset", "shard_name", "verify_dataset", "write_dataset_file",
+    "scene_shapes", "seal_dataset", "shard_name", "verify_dataset", "write_dataset_file",
     "write_frame_file", "write_scene",
 ]

@@ -1,4 +1,9 @@
-"""Frame files: one single-part scanline OpenEXR per frame, one channel per stored pass.
+"""Frame files: one scanline OpenEXR per frame, one channel per stored pass.
+
+The channels of the IR camera share one part (a single-part file when that is all a frame has); the
+channels of another camera (dotsim.channels.CAMERAS: the colour camera's `rgb`) have their own image
+size and lie in a part of their own named after the camera, an (H, W, C) channel as the EXR channels
+NAME.R, NAME.G, NAME.B (its components).
 
 FRAME_CHANNELS gives each channel's dtype as read (why each: docs/FORMAT.md). write_frame_file
 validates and converts a frame dict and writes it; decode_frame checks a file's channels, shapes
@@ -19,11 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from dotsim.channels import (
+    CAMERAS,
     CHANNEL,
     CHANNELS,
     DERIVED_CHANNELS,
     LABEL_CHANNELS,
     MASK_CHANNELS,
+    OWN_SHAPE_CHANNELS,
     RENDERED_CHANNELS,
     stored_channels,
 )
@@ -90,12 +97,35 @@ def frame_format_version(channels) -> str:
     return max([OLDEST_WRITTEN, *(CHANNEL[name].since for name in channels)], key=key)
 
 
+def camera_shapes(shape) -> dict[str, tuple[int, int]]:
+    """{camera: (height, width)} of a frame's cameras (dotsim.channels.CAMERAS) from `shape`: such a
+    dict, or the IR camera's (height, width) alone (a frame of that camera's channels only).
+
+    >>> camera_shapes((4, 6)), camera_shapes({"ir": (4, 6), "colour": (2, 3)})["colour"]
+    ({'ir': (4, 6)}, (2, 3))
+    """
+    if isinstance(shape, dict):
+        return {camera: tuple(size) for camera, size in shape.items()}
+    return {"ir": tuple(shape)}
+
+
+def _channel_shape(name: str, shapes: dict, where: str) -> tuple[int, ...]:
+    """The shape channel `name`'s arrays have: its camera's (height, width) and its components."""
+    channel = CHANNEL[name]
+    if channel.camera not in shapes:
+        raise FormatError(f"{where}: channel {name!r} is an image of the {channel.camera} camera, whose size "
+                          f"the scene does not give ({CAMERAS[channel.camera]})")
+    return shapes[channel.camera] + channel.shape_suffix
+
+
 def _to_stored(name: str, array, where: str) -> np.ndarray:
     """Convert a caller's array to the stored dtype of channel `name`, refusing lossy surprises."""
     a = np.asarray(array)
     dtype = FRAME_CHANNELS[name]
-    if a.ndim != 2:
-        raise FormatError(f"{where}: channel {name!r} must be 2-D (H, W), found shape {a.shape}")
+    dims = 2 + len(CHANNEL[name].shape_suffix)
+    if a.ndim != dims:
+        layout = "(H, W)" if dims == 2 else f"(H, W, {len(CHANNEL[name].components)})"
+        raise FormatError(f"{where}: channel {name!r} must be {dims}-D {layout}, found shape {a.shape}")
     if name in MASK_CHANNELS:
         if a.dtype == bool:
             return a.astype(np.uint32)
@@ -127,7 +157,7 @@ def _to_stored(name: str, array, where: str) -> np.ndarray:
     return stored
 
 
-def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int], where: str,
+def _frame_pixels(frame: dict, channels: tuple[str, ...], shapes: dict, where: str,
                   rig: Rig | None) -> dict:
     """Validate a frame dict and convert it to {channel: contiguous array in EXR pixel dtype}: the
     stored channels of `channels`; a derived one the frame carries must match what the reader
@@ -145,9 +175,11 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     pixels = {}
     for name in stored:
         array = _to_stored(name, frame[name], where)
+        shape = _channel_shape(name, shapes, where)
         if array.shape != shape:
-            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the rig camera is "
-                              f"{shape} (height, width)")
+            layout = "height, width, components" if len(shape) > 2 else "height, width"
+            raise FormatError(f"{where}: channel {name!r} has shape {array.shape}, the "
+                              f"{CHANNEL[name].camera} camera's is {shape} ({layout})")
         pixels[name] = np.ascontiguousarray(array)
     for name in (c for c in channels if c in DERIVED_CHANNELS):
         if "depth" not in channels or rig is None:
@@ -167,11 +199,13 @@ def _frame_pixels(frame: dict, channels: tuple[str, ...], shape: tuple[int, int]
     return pixels
 
 
-def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] | None = None,
+def encode_frame(frame: dict, shape, channels: tuple[str, ...] | None = None,
                  compression: str = EXR_COMPRESSION, where: str = "frame",
                  rig: dict | None = None) -> bytes:
     """The bytes of one frame EXR (validated and converted to the stored dtypes first).
 
+    shape: the IR camera's (height, width), or {camera: (height, width)} (camera_shapes) when the frame
+    has channels of another camera (the colour camera's `rgb`), which then lie in a part of their own.
     channels: the channel set the frame must carry (default RENDERED_CHANNELS; the derived ones,
     DERIVED_CHANNELS, may be left out); compression: an OpenEXR compression name (docs/FORMAT.md
     and bench/read_shards.py compare them); rig: the scene's Rig.to_dict(), stored in the header
@@ -182,14 +216,50 @@ def encode_frame(frame: dict, shape: tuple[int, int], channels: tuple[str, ...] 
     channels = RENDERED_CHANNELS if channels is None else tuple(channels)
     derives = any(c in DERIVED_CHANNELS for c in channels)
     parsed = _parse_rig(rig, where) if rig is not None and derives else None
-    pixels = _frame_pixels(frame, channels, shape, where, parsed)
+    pixels = _frame_pixels(frame, channels, camera_shapes(shape), where, parsed)
     header = {"compression": getattr(OpenEXR, compression), "type": OpenEXR.scanlineimage,
               VERSION_ATTRIBUTE: frame_format_version(channels)}
     if parsed is not None:
         header[RIG_ATTRIBUTE] = json.dumps(rig, sort_keys=True)
+    own = {name: pixels.pop(name) for name in OWN_SHAPE_CHANNELS if name in pixels}
     stream = io.BytesIO()
-    OpenEXR.File(header, pixels).write(stream)
+    if not own:  # a single-part file, byte for byte what format 2.2 and before wrote
+        OpenEXR.File(header, pixels).write(stream)
+        return stream.getvalue()
+    parts = [OpenEXR.Part(header, pixels, "ir")]
+    for camera in dict.fromkeys(CHANNEL[name].camera for name in own):
+        # every part of a multi-part file shares the first one's display window (OpenEXR's rule); its
+        # data window is the camera's own image
+        part_header = {"compression": header["compression"], "type": OpenEXR.scanlineimage,
+                       "displayWindow": parts[0].header["displayWindow"]}
+        part_pixels = {f"{name}.{component}": np.ascontiguousarray(own[name][..., k])
+                       for name in own if CHANNEL[name].camera == camera
+                       for k, component in enumerate(CHANNEL[name].components or "Y")}
+        parts.append(OpenEXR.Part(part_header, part_pixels, camera))
+    OpenEXR.File(parts).write(stream)
     return stream.getvalue()
+
+
+def _own_part_channels(parts, path: Path) -> dict[str, np.ndarray]:
+    """{channel: (H, W[, C]) array} of the parts after the first (the channels of a camera of their own):
+    NAME.COMPONENT EXR channels stacked in the order of the channel's components."""
+    found: dict[str, dict[str, np.ndarray]] = {}
+    for part in parts[1:]:
+        for key, channel in part.channels.items():
+            name, _, component = key.rpartition(".")
+            if name not in OWN_SHAPE_CHANNELS:
+                raise FormatError(f"{path}: part {part.name()!r} holds {key!r}, no channel of a camera of "
+                                  f"its own; known: {list(OWN_SHAPE_CHANNELS)}")
+            found.setdefault(name, {})[component] = channel.pixels
+    out = {}
+    for name, components in found.items():
+        want = CHANNEL[name].components or "Y"
+        if sorted(components) != sorted(want):
+            raise FormatError(f"{path}: channel {name!r} stored with components {sorted(components)}, "
+                              f"expected {list(want)}")
+        stacked = [components[c] for c in want]
+        out[name] = np.stack(stacked, axis=-1) if CHANNEL[name].components else stacked[0]
+    return out
 
 
 def _parse_rig(rig: dict, where) -> Rig:
@@ -212,17 +282,22 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
     """Decode the bytes of frame file `path` -> {channel: array in its FRAME_CHANNELS dtype}.
 
     channels: the ones to return, all required (None: every dotsim channel in the file, and in
-    format 2.x the derived ones its header allows); shape: (height, width) every channel must
-    have (None: all of one shape). FormatError naming the file.
+    format 2.x the derived ones its header allows); shape: (height, width) every channel of the IR
+    camera must have, or {camera: (height, width)} (camera_shapes) for the channels of each camera
+    (None: all of one camera of one shape). FormatError naming the file.
     """
     import OpenEXR
 
     try:
         exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
         # A truncated file opens with no parts; header() then raises a ValueError naming no file.
-        header, stored = exr.header(), exr.channels()
+        header, stored = exr.header(), dict(exr.channels())
+        own = _own_part_channels(exr.parts, path)
+    except FormatError:
+        raise
     except Exception as e:  # OpenEXR raises plain RuntimeError/ValueError for corrupt files
         raise FormatError(f"{path}: not a readable OpenEXR file ({e})") from None
+    shapes = {} if shape is None else camera_shapes(shape)
     version = header.get(VERSION_ATTRIBUTE)
     if version is not None:
         check_format_version(version, path)
@@ -231,20 +306,25 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
     derivable = derivable_channels(stored, rig is not None and "depth" in stored)
     source = "height, width of the rig camera in scene.json"
     if channels is None:
-        channels = [c for c in FRAME_CHANNELS if c in stored or c in derivable]
+        channels = [c for c in FRAME_CHANNELS if c in stored or c in derivable or c in own]
         if not channels:
             raise FormatError(f"{path}: no dotsim channel found (has {sorted(stored)}; "
                               f"known: {list(FRAME_CHANNELS)})")
-    missing = [c for c in channels if c not in stored and c not in derivable]
+    missing = [c for c in channels if c not in stored and c not in derivable and c not in own]
     if missing:
-        raise FormatError(f"{path}: missing channel(s) {missing}; file has {sorted(stored)}")
+        raise FormatError(f"{path}: missing channel(s) {missing}; file has {sorted([*stored, *own])}")
     out = {}
     for name in channels:
         if name not in FRAME_CHANNELS:
             raise FormatError(f"{path}: unknown channel {name!r}; known: {list(FRAME_CHANNELS)}")
+        if name in own:
+            out[name] = _own_shape_channel(name, own[name], shapes, path)
+            continue
         a = stored[name].pixels if name in stored else stored["depth"].pixels
+        shape = shapes.get("ir")
         if shape is None:
             shape, source = a.shape, f"the shape of channel {name!r}"
+            shapes["ir"] = shape
         if a.shape != tuple(shape):
             raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected {tuple(shape)} "
                               f"({source})")
@@ -268,6 +348,17 @@ def decode_frame(data: bytes, path: Path, channels=None, shape=None) -> dict[str
             raise FormatError(f"{path}: channel {name!r} stored as {a.dtype}, expected {want}")
         out[name] = a
     return out
+
+
+def _own_shape_channel(name: str, a: np.ndarray, shapes: dict, path: Path) -> np.ndarray:
+    """A channel of a camera of its own (its own part), checked against that camera's size when known."""
+    camera = CHANNEL[name].camera
+    if camera in shapes and a.shape != shapes[camera] + CHANNEL[name].shape_suffix:
+        raise FormatError(f"{path}: channel {name!r} has shape {a.shape}, expected "
+                          f"{shapes[camera] + CHANNEL[name].shape_suffix} ({CAMERAS[camera]})")
+    if a.dtype != FRAME_CHANNELS[name]:
+        raise FormatError(f"{path}: channel {name!r} stored as {a.dtype}, expected {FRAME_CHANNELS[name]}")
+    return a
 
 
 def _derived(name: str, depth: np.ndarray, rig_json: str, path: Path) -> np.ndarray:

@@ -16,7 +16,7 @@ from dotsim.version import __version__ as DOTSIM_VERSION
 
 # What this writer writes into dataset.json, shard.json and index.json; a frame and its scene.json
 # record the oldest version that has their channels (dotsim.dataset.frames.frame_format_version).
-FORMAT_VERSION = "2.2"
+FORMAT_VERSION = "2.3"
 # Major versions this reader reads: 1.x (every channel stored, ZIP) and 2.x (docs/FORMAT.md "Versioning").
 READABLE_MAJORS = ("1", "2")
 DEFAULT_SCENES_PER_SHARD = 100

@@ -24,7 +24,7 @@ from dotsim.dataset.layout import (
     parse_shard,
     shard_dirs,
 )
-from dotsim.dataset.scene_meta import camera_size, parse_scene_meta
+from dotsim.dataset.scene_meta import parse_scene_meta, scene_shapes
 from dotsim.file_io import sha256_bytes, sha256_file
 
 
@@ -163,7 +163,7 @@ def read_frame(path: str | os.PathLike, verify: bool = True, channels=None,
         meta = read_scene_meta(path.parent, verify=verify)
     shape = None
     if meta is not None:
-        shape = camera_size(meta, path.parent / SCENE_FILE)
+        shape = scene_shapes(meta, path.parent / SCENE_FILE)
         listed = list(meta["channels"])
         if channels is None:
             channels = listed

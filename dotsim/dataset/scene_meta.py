@@ -6,6 +6,7 @@ import json
 import os
 from pathlib import Path
 
+from dotsim.channels import CAMERAS, CHANNEL
 from dotsim.dataset.frames import FRAME_CHANNELS
 from dotsim.dataset.layout import (
     SCENE_FILE,
@@ -51,6 +52,22 @@ def camera_size(meta: dict, where="scene meta") -> tuple[int, int]:
     return h, w
 
 
+def scene_shapes(meta: dict, where="scene meta") -> dict[str, tuple[int, int]]:
+    """{camera: (height, width)} of a scene's cameras (dotsim.channels.CAMERAS): the rig's IR camera
+    (camera_size) and, in scenes with a colour camera (format 2.3 on), its `colour_camera.intrinsics`."""
+    shapes = {"ir": camera_size(meta, where)}
+    if meta.get("colour_camera") is not None:
+        try:
+            size = meta["colour_camera"]["intrinsics"]
+            h, w = size["height"], size["width"]
+        except (KeyError, TypeError):
+            raise FormatError(f"{where}: colour_camera.intrinsics.width/height missing") from None
+        if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
+            raise FormatError(f"{where}: colour_camera size must be positive integers, found {w} x {h}")
+        shapes["colour"] = (h, w)
+    return shapes
+
+
 def parse_scene_meta(path: Path, data: bytes) -> dict:
     """Validate scene.json bytes: JSON object, known major version, every required key, the
     channel list, the frame list, the rig camera size. Returns the dict."""
@@ -69,5 +86,9 @@ def parse_scene_meta(path: Path, data: bytes) -> dict:
             and e["file"] not in ("", ".", "..") and isinstance(e.get("sha256"), str) for e in frames):
         raise FormatError(f"{path}: 'frames' must list frame_count entries {{file: a file name in the "
                           f"scene folder, sha256}}")
-    camera_size(meta, path)
+    shapes = scene_shapes(meta, path)
+    without = [c for c in channels if CHANNEL[c].camera not in shapes]
+    if without:
+        raise FormatError(f"{path}: channel(s) {without} of a camera whose size scene.json does not give; "
+                          f"required: {CAMERAS[CHANNEL[without[0]].camera]}")
     return meta

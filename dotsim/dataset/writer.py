@@ -35,7 +35,7 @@ from dotsim.dataset.layout import (
     scene_dir,
     shard_name,
 )
-from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, camera_size
+from dotsim.dataset.scene_meta import REQUIRED_META_KEYS, WRITER_META_KEYS, scene_shapes
 from dotsim.file_io import (
     TMP_PREFIX,
     atomic_write_bytes,
@@ -70,7 +70,8 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
     meta: JSON-safe dict with at least REQUIRED_META_KEYS ("rig" is Rig.to_dict(); its camera size
     is the required frame shape; "poses" has one 4x4 world_from_camera per frame). The writer adds
     format_version, dotsim_version, scene_index, frame_count, channels and frames (file + sha256).
-    frames: one dict per frame, channel name -> (H, W) array, converted to FRAME_CHANNELS dtypes
+    frames: one dict per frame, channel name -> (H, W) array (a colour camera's `rgb`: (h, w, 3) of the
+    meta's "colour_camera" intrinsics), converted to FRAME_CHANNELS dtypes
     (masks: bool or 0/1 ints); `disparity` is derived from depth and the rig (it may be left out;
     one given must match it to float32 rounding). channels: the channel set every frame carries (default:
     RENDERED_CHANNELS; real captures without ground truth pass a subset, which must include "ir").
@@ -102,7 +103,7 @@ def write_scene(dataset_dir: str | os.PathLike, scene_index: int, meta: dict, fr
         raise FormatError(f"{where}: no frames")
     if len(meta["poses"]) != len(frames):
         raise FormatError(f"{where}: meta has {len(meta['poses'])} poses for {len(frames)} frames")
-    shape = camera_size(meta, f"{where} meta")
+    shape = scene_shapes(meta, f"{where} meta")
 
     final = scene_dir(dataset_dir, scene_index, scenes_per_shard)
     if final.exists():

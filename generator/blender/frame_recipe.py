@@ -118,6 +118,11 @@ DIRECT_LIGHT_RENDER = Render(
     bounces=False, extra_lights=False, red_green=None, light_passes=frozenset(),
     image=(("R", "projector_direct"), ("R", "projector"), ("G", "flood_direct"), ("G", "flood")))
 
+# The colour camera's render ([render] rgb): the scene as the recipe's first render has it (bounces, extra
+# lights), no light pass and no compositing: the image is Cycles' combined light, whose R, G, B the
+# renderer reads (render.py; the spot and the light colours are set for visible light around it).
+COLOUR_RENDER = Render(bounces=True, extra_lights=True, red_green=None, light_passes=frozenset(), image=())
+
 # The raw passes of each frame of a dataset, which generator/post_render.py turns into the stored
 # channels: those of the one render above (the two-render recipe gives the same, tested).
 RAW_PASSES = FrameRecipe((ALL_LIGHT_RENDER,), 1.0).raw_passes

@@ -10,6 +10,11 @@ Per-object values (albedo, roughness, specular, texture scale and contrast) live
 properties read by Attribute nodes, so one material per texture image serves every object and
 scene: few node trees to build, nothing to grow between scenes.
 
+The colour camera's render ([render] rgb, docs/RENDERING.md "Colour camera") swaps an opaque surface's
+material for its visible-light twin (build_material with `tinted`): the same grey reflectance times the
+object's tint (dotsim_tint, an RGB custom property), since the textures are grey IR reflectance and a
+surface's visible colour is drawn apart (generator.sample_scene). Glass and metal stay grey.
+
 Transparent and metal objects (docs/CONFIG.md "Materials") have one material each, grey too: glass
 (Cycles' Glass BSDF: Fresnel reflection and refraction by the object's index of refraction, its
 albedo the transmittance) and metal (a fully metallic Principled BSDF, its albedo the reflectance at
@@ -29,7 +34,7 @@ import bpy
 
 # Object custom-property names read by the shared materials.
 PROPERTIES = ("dotsim_albedo", "dotsim_roughness", "dotsim_specular", "dotsim_tex_scale", "dotsim_contrast",
-              "dotsim_ior", "dotsim_shadow_transmittance")
+              "dotsim_ior", "dotsim_shadow_transmittance", "dotsim_tint")
 
 
 def shadow_transmittance(transmittance: float, ior: float) -> float:
@@ -44,11 +49,11 @@ def shadow_transmittance(transmittance: float, ior: float) -> float:
     return transmittance * (1.0 - reflectance) ** 2
 
 
-def _attribute(nodes, name: str):
+def _attribute(nodes, name: str, output: str = "Fac"):
     node = nodes.new("ShaderNodeAttribute")
     node.attribute_type = "OBJECT"
     node.attribute_name = name
-    return node.outputs["Fac"]
+    return node.outputs[output]
 
 
 def _math(tree, operation: str, a, b, c=None):
@@ -65,9 +70,10 @@ def _math(tree, operation: str, a, b, c=None):
     return node.outputs[0]
 
 
-def build_material(name: str, image: bpy.types.Image | None) -> bpy.types.Material:
+def build_material(name: str, image: bpy.types.Image | None, tinted: bool = False) -> bpy.types.Material:
     """A Principled BSDF material reading the per-object PROPERTIES; `image` (Non-Color) is the
-    reflectance texture or None for a uniform albedo."""
+    reflectance texture or None for a uniform albedo; `tinted`: the visible-light twin, its base colour
+    the grey reflectance times the object's dotsim_tint."""
     material = bpy.data.materials.new(name)
     tree = material.node_tree
     tree.nodes.clear()
@@ -102,6 +108,12 @@ def build_material(name: str, image: bpy.types.Image | None) -> bpy.types.Materi
         )
         reflectance = _math(tree, "MULTIPLY", gain, albedo)
         reflectance.node.use_clamp = True
+    if tinted:
+        colour = tree.nodes.new("ShaderNodeVectorMath")
+        colour.operation = "MULTIPLY"
+        tree.links.new(reflectance, colour.inputs[0])  # float -> (r, r, r)
+        tree.links.new(_attribute(tree.nodes, "dotsim_tint", "Vector"), colour.inputs[1])
+        reflectance = colour.outputs["Vector"]
     tree.links.new(reflectance, bsdf.inputs["Base Color"])  # float -> grey colour
     tree.links.new(_attribute(tree.nodes, "dotsim_roughness"), bsdf.inputs["Roughness"])
     tree.links.new(_attribute(tree.nodes, "dotsim_specular"), bsdf.inputs["Specular IOR Level"])
@@ -157,16 +169,16 @@ class MaterialCache:
         self.capacity = capacity
         self._materials: OrderedDict[str, bpy.types.Material] = OrderedDict()
 
-    def get(self, texture_path: str | None, kind: str = "opaque") -> bpy.types.Material:
+    def get(self, texture_path: str | None, kind: str = "opaque", tinted: bool = False) -> bpy.types.Material:
         """The material of a surface of `kind` (a SPECIAL_MATERIALS one has no texture), textured by
-        `texture_path` or not."""
+        `texture_path` or not; `tinted`: an opaque surface's visible-light twin (build_material)."""
         if kind in SPECIAL_MATERIALS:
             key = f"<{kind}>"
             if key not in self._materials:
                 self._materials[key] = SPECIAL_MATERIALS[kind](f"dotsim_{kind}")
             self._materials.move_to_end(key)
             return self._materials[key]
-        key = texture_path or ""
+        key = (texture_path or "") + ("<tinted>" if tinted else "")
         if key in self._materials:
             self._materials.move_to_end(key)
             return self._materials[key]
@@ -179,7 +191,9 @@ class MaterialCache:
             except RuntimeError as error:
                 raise ValueError(f"texture {texture_path} cannot be read: {error}") from None
             image.colorspace_settings.name = "Non-Color"
-        material = build_material(f"dotsim_{len(self._materials)}_{Path(key).stem or 'plain'}", image)
+        stem = Path(texture_path or "").stem or "plain"
+        material = build_material(f"dotsim_{len(self._materials)}_{stem}{'_tinted' if tinted else ''}", image,
+                                  tinted)
         self._materials[key] = material
         while len(self._materials) > self.capacity:
             self._remove(self._materials.popitem(last=False)[1])

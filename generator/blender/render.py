@@ -20,6 +20,12 @@ its own camera, and for a stereo pair its second one. One Blender camera is plac
 the projector staying on the rig; the raw passes of a camera other than the rig's own are named with
 its suffix ("projector_right").
 
+Colour camera ([render] rgb; docs/RENDERING.md "Colour camera"): after the recipe's renders, every pose
+is rendered once more from the rig's colour camera (its own intrinsics and pose on the rig) under
+visible light: the projector's spot (which carries both the dots and the flood rectangle) hidden from
+the render, the world and the extra lights white, tinted surfaces in their visible-light materials
+(SceneContent.visible_light); no compositing, the image as Cycles gives it (its R, G, B).
+
 Reuse: one bpy scene for the life of the renderer; between the frames of a scene only the camera and
 projector poses change and Cycles keeps its scene (persistent data); between scenes objects are
 replaced and meshes, materials and the pattern image are cached, so memory stays flat.
@@ -43,7 +49,7 @@ import numpy as np
 from generator.scene_spec import CameraView, SceneRenderSettings, SceneSpec
 
 from .exr import read_exr
-from .frame_recipe import DATA_PASSES, LIGHT_PASSES, FrameRecipe, Render, frame_recipe
+from .frame_recipe import COLOUR_RENDER, DATA_PASSES, LIGHT_PASSES, FrameRecipe, Render, frame_recipe
 from .geometry import NO_HIT_DEPTH, blender_matrix_from_opencv_pose, camera_frame_normals, projector_pose
 from .pattern_filter import footprint_width
 from .projector import ProjectorLight
@@ -244,6 +250,8 @@ class SceneRenderer:
         self._composited: Render | None = None
         self.recipe: FrameRecipe | None = None  # the built spec's, set by setup()
         self.cameras: tuple[CameraView, ...] = ()  # the built spec's, set by setup()
+        self.colour_camera = None  # the built spec's colour camera (render.rgb) or None, set by setup()
+        self._colour_samples = 0  # its render's samples (0: the spec's), set by setup()
         self._intrinsics = None  # of the Blender camera now
         self.content = SceneContent(self.scene)
         self.projector = ProjectorLight(self.scene.collection)
@@ -338,6 +346,8 @@ class SceneRenderer:
         self.projector.sampling_boost = recipe.sampling_boost
         rig = spec.rig
         self.cameras = spec.cameras
+        self.colour_camera = spec.colour_camera
+        self._colour_samples = spec.render.rgb_samples
         self._intrinsics = self.cameras[0].intrinsics
         self.content.set_camera(self._intrinsics)
         self.projector.set_intrinsics(astuple(rig.projector))
@@ -403,6 +413,28 @@ class SceneRenderer:
                                 data["G"], data["B"], data["A"], camera.pose(pose))
                         _add_passes(frame, data, render.data_file, camera.suffix)
 
+    def _render_colour(self, poses, frames: list[dict[str, np.ndarray]]) -> None:
+        """Render every pose from the colour camera under visible light (the module docstring) and add
+        its image to the frame as the raw pass "rgb", (h, w, 3) float32 linear radiance."""
+        camera = self.colour_camera
+        projector_hidden = self.projector.object.hide_render
+        samples = self.scene.cycles.samples
+        self.scene.cycles.samples = self._colour_samples or samples
+        self._intrinsics = camera.intrinsics  # place_rig sets the IR camera's again
+        self.content.set_camera(camera.intrinsics)
+        self.projector.object.hide_render = True  # its dots and its flood rectangle: both infrared
+        try:
+            with self._set_for(COLOUR_RENDER), self.content.visible_light():
+                self.refresh()  # materials, lights and the world changed: Cycles syncs the scene anew
+                for frame, pose in zip(frames, poses, strict=True):
+                    self.content.set_camera_pose(camera.pose(pose))
+                    image = self._render_channels()
+                    frame["rgb"] = np.stack([image["R"], image["G"], image["B"]], axis=-1)
+        finally:
+            self.projector.object.hide_render = projector_hidden
+            self.scene.cycles.samples = samples
+            self.refresh()
+
     def render_frame(self, world_from_camera: np.ndarray) -> dict[str, np.ndarray]:
         """Render the built scene from one rig pose: {projector, flood, ambient, depth,
         projector_direct, flood_direct} float32 (H, W); depth is planar (metres), inf where nothing
@@ -411,7 +443,8 @@ class SceneRenderer:
         render.labels object_index (the first surface's object's place in spec.objects + 1, 0 where
         none is hit), with render.normals normal_x, normal_y, normal_z (its unit normal in the camera's
         OpenCV frame, nan where none is hit); the same of each further camera of the spec, named with its
-        suffix (CameraView.suffix)."""
+        suffix (CameraView.suffix); with render.rgb "rgb", the colour camera's image (its own (h, w, 3),
+        linear radiance of visible light, the projector off)."""
         return self.render_poses([world_from_camera])[0]
 
     def render_poses(self, poses: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
@@ -420,6 +453,8 @@ class SceneRenderer:
         frames: list[dict[str, np.ndarray]] = [{} for _ in poses]
         for render in self.recipe.renders:
             self._render_through(render, poses, frames)
+        if self.colour_camera is not None:
+            self._render_colour(poses, frames)
         for frame in frames:
             for camera in self.cameras:
                 depth = frame["depth" + camera.suffix]

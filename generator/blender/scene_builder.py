@@ -11,6 +11,7 @@ accumulates over many scenes in one process.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections import OrderedDict
 from pathlib import Path
@@ -115,6 +116,12 @@ class SceneContent:
         scene.collection.children.link(self.collection)
         self.meshes = MeshCache()
         self.materials = MaterialCache()
+        # The visible-light twins of the materials (the colour camera's render), a cache of their own:
+        # they never push an infrared material out of `materials`.
+        self.twins = MaterialCache()
+        # (object, texture path or None, material kind) of the built scene's tinted surfaces
+        self._tinted: list[tuple[bpy.types.Object, str | None, str]] = []
+        self._world_strength = 0.0
 
     def set_camera(self, camera: Intrinsics) -> None:
         self.scene.render.resolution_x = camera.width
@@ -136,6 +143,8 @@ class SceneContent:
     def build(self, spec: SceneSpec) -> None:
         """World, extra lights and objects of `spec`."""
         self.clear()
+        self._tinted = []
+        self._world_strength = spec.world_strength
         self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], spec.world_strength, 1.0)
         self.background.inputs["Strength"].default_value = 1.0
         for k, light in enumerate(spec.lights):
@@ -189,6 +198,8 @@ class SceneContent:
         if material.texture is not None:
             obj["dotsim_tex_scale"] = material.texture.scale
             obj["dotsim_contrast"] = material.texture.contrast
+        if material.tint is not None:
+            obj["dotsim_tint"] = list(material.tint)
         if material.kind == "transparent":
             obj["dotsim_ior"] = material.ior
             obj["dotsim_shadow_transmittance"] = shadow_transmittance(material.albedo, material.ior)
@@ -200,10 +211,39 @@ class SceneContent:
         self.collection.objects.link(obj)
         obj.material_slots[0].link = "OBJECT"
         obj.material_slots[0].material = blender_material
+        if material.tint is not None:
+            texture = None if material.texture is None else material.texture.path
+            self._tinted.append((obj, texture, material.kind))
         return obj
+
+    @contextlib.contextmanager
+    def visible_light(self):
+        """The built scene as the colour camera sees it while inside: tinted surfaces in their visible-
+        light materials, the world and the extra lights white (their light is in blue alone for the IR
+        passes, AMBIENT_COLOUR); as before after. The projector is the renderer's to switch off."""
+        lights = [obj.data for obj in self.collection.objects if obj.type == "LIGHT"]
+        # as the IR renders saw them (None where the build dropped a material: MaterialCache.capacity)
+        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]
+        # room for every twin the scene uses, so none is dropped while another surface still shows it
+        used = {(texture, kind) for _, texture, kind in self._tinted}
+        self.twins.capacity = max(self.twins.capacity, len(used))
+        for obj, texture, kind in self._tinted:
+            obj.material_slots[0].material = self.twins.get(texture, kind, tinted=True)
+        for light in lights:
+            light.color = (1.0, 1.0, 1.0)
+        self.background.inputs["Color"].default_value = (*(self._world_strength,) * 3, 1.0)
+        try:
+            yield
+        finally:
+            for (obj, _, _), material in zip(self._tinted, infrared, strict=True):
+                obj.material_slots[0].material = material
+            for light in lights:
+                light.color = AMBIENT_COLOUR
+            self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], self._world_strength, 1.0)
 
     def release(self) -> None:
         """Remove everything this object created (used when the renderer closes)."""
         self.clear()
         self.meshes.clear()
         self.materials.clear()
+        self.twins.clear()

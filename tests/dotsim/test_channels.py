@@ -23,6 +23,7 @@ def test_examples_run():
     ({"display": "colour"}, "a colour-mapped channel, and only one, has a unit"),
     ({"source": "labels"}, "labels, and only labels, are int32"),
     ({"switch": "colour"}, "switch 'colour'; allowed: labels, normals"),
+    ({"camera": "thermal"}, "camera 'thermal'; allowed: ir, colour"),
 ])
 def test_a_bad_channel_is_refused_naming_it(kwargs, message):
     fields = {"name": "x", "dtype": np.float16, "source": "render", "display": "linear", "title": "x",
@@ -41,5 +42,7 @@ def test_the_format_follows_the_declaration():
         "ir_right", "stereo_visibility", "stereo_disparity")
     assert channels.rendered_channels(False, ("labels", "normals")) == ds.RENDERED_CHANNELS + (
         "instance", "material", "transparent_or_mirror", "normal_x", "normal_y", "normal_z")
-    with pytest.raises(ValueError, match="switch 'rgb'; allowed: labels, normals"):
-        channels.rendered_channels(False, ("rgb",))
+    assert channels.rendered_channels(False, ("rgb",)) == ds.RENDERED_CHANNELS + ("rgb",)
+    assert channels.OWN_SHAPE_CHANNELS == ("rgb",) and channels.CHANNEL["rgb"].shape_suffix == (3,)
+    with pytest.raises(ValueError, match="switch 'colour'; allowed: labels, normals"):
+        channels.rendered_channels(False, ("colour",))

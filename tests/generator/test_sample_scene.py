@@ -47,7 +47,7 @@ def check_contract(d: dict) -> None:
     assert isinstance(d["seed"], int)
     r = d["render"]
     assert set(r) == {"samples", "seed", "max_bounces", "device", "threads", "direct_light", "labels",
-                      "normals"}
+                      "normals", "rgb", "rgb_samples"}
     assert r["samples"] >= 1 and r["device"] in ("CPU", "GPU") and r["threads"] >= 0
     assert r["direct_light"] in ("separate", "shared")
     assert set(d["device_depth"]) == {"engine", "num_disparities", "disparity_shift", "block_size",

@@ -244,3 +244,50 @@ def test_label_and_normal_channels_are_format_2_2_labels_exact(tmp_path):
         wrong = {**sent, "instance": np.full((H, W), bad)}
         with pytest.raises(ds.FormatError, match="label channel 'instance' must hold integers"):
             ds.write_frame_file(tmp_path / "bad.exr", wrong, (H, W), channels, rig=RIG.to_dict())
+
+
+def test_a_colour_cameras_image_has_its_own_shape_in_a_part_of_its_own(tmp_path):
+    """rgb (format 2.3) is stored at the colour camera's size that scene.json gives, in a second part
+    `colour` (rgb.R, rgb.G, rgb.B), read back as float16 (h, w, 3) within half's rounding, the IR channels
+    as without it; a lone frame reads it at its own size. Refused in one line: an rgb of the IR camera's
+    shape, a scene whose scene.json gives no colour camera, a frame without its part."""
+    colour = (27, 40)  # not the IR camera's 45 x 61
+    rng = np.random.default_rng(7)
+    sent = frame_inputs(rng)
+    sent["rgb"] = rng.uniform(0, 3, colour + (3,))
+    channels = rendered_channels(False, ("rgb",))
+    identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    intrinsics = {"width": 40, "height": 27, "fx": 30.0, "fy": 30.0, "cx": 19.5, "cy": 13.0}
+    with_colour = {**meta(), "colour_camera": {"intrinsics": intrinsics, "translation": [-0.015, 0.0, 0.0],
+                                               "rotation": identity}}
+    scene = ds.write_scene(tmp_path / "a", 0, with_colour, [sent], channels=channels)
+    got = ds.read_frame(scene / "frame_0.exr")
+    assert got["rgb"].dtype == np.float16 and got["rgb"].shape == colour + (3,)
+    assert (np.abs(got["rgb"].astype(np.float64) - sent["rgb"]) <= half_error_bound(sent["rgb"])).all()
+    plain = ds.read_frame(ds.write_scene(tmp_path / "b", 0, meta(), [frame_inputs(np.random.default_rng(7))])
+                          / "frame_0.exr")
+    for name in plain:
+        np.testing.assert_array_equal(got[name], plain[name])
+    exr = OpenEXR.File(str(scene / "frame_0.exr"), separate_channels=True)
+    assert [p.name() for p in exr.parts] == ["ir", "colour"]
+    assert sorted(exr.parts[1].channels) == ["rgb.B", "rgb.G", "rgb.R"]
+    assert exr.header()["dotsim_format_version"] == "2.3" == ds.read_scene_meta(scene)["format_version"]
+    lone = tmp_path / "lone.exr"
+    lone.write_bytes((scene / "frame_0.exr").read_bytes())
+    np.testing.assert_array_equal(ds.read_frame(lone)["rgb"], got["rgb"])
+
+    with pytest.raises(ds.FormatError, match=r"channel 'rgb' has shape \(45, 61, 3\), the colour camera's is "
+                                             r"\(27, 40, 3\)"):
+        ds.write_scene(tmp_path / "c", 0, with_colour, [{**sent, "rgb": np.zeros((H, W, 3))}],
+                       channels=channels)
+    with pytest.raises(ds.FormatError, match="channel 'rgb' is an image of the colour camera, whose size the "
+                                             "scene does not give"):
+        ds.write_scene(tmp_path / "d", 0, meta(), [sent], channels=channels)
+    with pytest.raises(ds.FormatError, match=r"channel\(s\) \['rgb'\] of a camera whose size scene.json "
+                                             "does not give"):
+        ds.parse_scene_meta(scene / "scene.json", json.dumps(
+            {k: v for k, v in ds.read_scene_meta(scene).items() if k != "colour_camera"}).encode())
+    single = ds.encode_frame(frame_inputs(rng), (H, W), rendered_channels(False), rig=RIG.to_dict())
+    (tmp_path / "single.exr").write_bytes(single)
+    with pytest.raises(ds.FormatError, match=r"missing channel\(s\) \['rgb'\]"):
+        ds.read_frame(tmp_path / "single.exr", channels=("rgb",))
