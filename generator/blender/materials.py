@@ -163,22 +163,31 @@ SPECIAL_MATERIALS = {"transparent": build_glass_material, "metal": build_metal_m
 
 class MaterialCache:
     """One material per texture path (plus one untextured), least recently used dropped beyond
-    `capacity` together with its image, so memory stays bounded over many scenes."""
+    `capacity` together with its image, so memory stays bounded over many scenes. A material the
+    scene being built uses is never dropped (the scene may use more than `capacity`): removing it
+    from Blender would leave its objects in Blender's default material."""
 
     def __init__(self, capacity: int = 64):
         self.capacity = capacity
         self._materials: OrderedDict[str, bpy.types.Material] = OrderedDict()
+        self._in_use: set[str] = set()  # keys the scene being built has asked for
+
+    def start_scene(self) -> None:
+        """A new scene is built: the materials the previous one used may be dropped from now on."""
+        self._in_use = set()
 
     def get(self, texture_path: str | None, kind: str = "opaque", tinted: bool = False) -> bpy.types.Material:
         """The material of a surface of `kind` (a SPECIAL_MATERIALS one has no texture), textured by
         `texture_path` or not; `tinted`: an opaque surface's visible-light twin (build_material)."""
         if kind in SPECIAL_MATERIALS:
             key = f"<{kind}>"
+            self._in_use.add(key)
             if key not in self._materials:
                 self._materials[key] = SPECIAL_MATERIALS[kind](f"dotsim_{kind}")
             self._materials.move_to_end(key)
             return self._materials[key]
         key = (texture_path or "") + ("<tinted>" if tinted else "")
+        self._in_use.add(key)
         if key in self._materials:
             self._materials.move_to_end(key)
             return self._materials[key]
@@ -195,8 +204,9 @@ class MaterialCache:
         material = build_material(f"dotsim_{len(self._materials)}_{stem}{'_tinted' if tinted else ''}", image,
                                   tinted)
         self._materials[key] = material
-        while len(self._materials) > self.capacity:
-            self._remove(self._materials.popitem(last=False)[1])
+        excess = max(0, len(self._materials) - self.capacity)
+        for old in [key for key in self._materials if key not in self._in_use][:excess]:
+            self._remove(self._materials.pop(old))
         return material
 
     @staticmethod

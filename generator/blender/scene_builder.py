@@ -143,6 +143,7 @@ class SceneContent:
     def build(self, spec: SceneSpec) -> None:
         """World, extra lights and objects of `spec`."""
         self.clear()
+        self.materials.start_scene()
         self._tinted = []
         self._world_strength = spec.world_strength
         self.background.inputs["Color"].default_value = (*AMBIENT_COLOUR[:2], spec.world_strength, 1.0)
@@ -222,11 +223,8 @@ class SceneContent:
         light materials, the world and the extra lights white (their light is in blue alone for the IR
         passes, AMBIENT_COLOUR); as before after. The projector is the renderer's to switch off."""
         lights = [obj.data for obj in self.collection.objects if obj.type == "LIGHT"]
-        # as the IR renders saw them (None where the build dropped a material: MaterialCache.capacity)
-        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]
-        # room for every twin the scene uses, so none is dropped while another surface still shows it
-        used = {(texture, kind) for _, texture, kind in self._tinted}
-        self.twins.capacity = max(self.twins.capacity, len(used))
+        infrared = [obj.material_slots[0].material for obj, _, _ in self._tinted]  # as the IR passes saw
+        self.twins.start_scene()
         for obj, texture, kind in self._tinted:
             obj.material_slots[0].material = self.twins.get(texture, kind, tinted=True)
         for light in lights:
