@@ -260,9 +260,10 @@ class SensorModel:
         sigma = defocus_sigma(depth, fx, s.projector_aperture, s.projector_focus)
         lit = flood_direct > 0
         if not lit.any():
-            return depth_blur(direct, sigma).astype(np.float32)
+            return np.maximum(depth_blur(direct, sigma), 0.0).astype(np.float32)
         pattern = np.divide(direct, flood_direct, out=np.zeros(direct.shape, np.float64), where=lit)
-        return (depth_blur(pattern, sigma) * flood_direct).astype(np.float32)
+        # the FFT's rounding leaves about 1e-7 below 0 where there is no light
+        return (np.maximum(depth_blur(pattern, sigma), 0.0) * flood_direct).astype(np.float32)
 
     def speckle(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
         """The laser speckle factor (H, W) of one frame (speckle_field at the render scale); rng: a
