@@ -2,8 +2,10 @@
 vendored capture (tests/data/real/kinect_v1_ctd: its README gives source and licence) and still
 renderings of the config docs/CONFIG.md gives for the Kinect (dotsim/configs/kinect.toml) through the
 capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), with the config's
-[sensor], with the [sensor] table fit-sensor fits to the real frame, and with that table in a room lit
-to the real frame's ambient / projector ratio ([lighting] ambient_ratio). Prints each table
+[sensor], with the [sensor] table fit-sensor fits to the real frame (its noise from the frame alone,
+then its blur_sigma and speckle_contrast with --compare against a still rendering of the config with
+that noise and no blur or speckle of its own), and with that table in a room lit to the real frame's
+ambient / projector ratio ([lighting] ambient_ratio). Prints each table
 (statistic, recording, rendering, ratio) and writes the pictures.
 
     python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
@@ -66,8 +68,20 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="dotsim-realism-") as tmp:
         folder = args.out or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
+        # fitted as docs/CAPTURE.md "Fitting the sensor" says: the noise from the frame alone, then the
+        # camera's blur and the speckle against a still rendering of the config with that noise and
+        # neither blur nor speckle of its own (the projector's defocus is the config's)
+        noise = folder / "kinect_noise.toml"
+        if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "-o", str(noise)]) != 0:
+            return 1
+        reference = folder / "rendering_reference"
+        if not (reference / "index.json").is_file():
+            unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0, "speckle_contrast": 0.0}
+            generate(still_config(args.scale, args.samples, args.threads, args.assets, unblurred), reference,
+                     "train", args.scenes, seed=1, workers=1, progress=False)
         fitted = folder / "kinect_fitted.toml"
-        if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "-o", str(fitted)]) != 0:
+        if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "--compare", str(reference),
+                   "-o", str(fitted)]) != 0:
             return 1
         table = tomllib.loads(fitted.read_text())["sensor"]
         status, real_ratio = 0, None

@@ -21,7 +21,7 @@ RECORDING = (40, 150, 255)  # orange (BGR)
 RENDERING = (255, 160, 60)  # blue
 MIN_DEPTH_PIXELS = 1000  # a depth bin is listed from this many pixels of that depth on
 ORDER = ("read_noise", "shot_noise", "bit_depth", "exposure", "auto_percentile", "auto_target", "blur_sigma",
-         "speckle_contrast", "speckle_grain")
+         "projector_aperture", "projector_focus", "speckle_contrast", "speckle_grain")
 
 
 def _estimate(estimate: Estimate | None, digits: int = 3) -> str:

@@ -11,8 +11,10 @@ measure reads a static recording (capture.static_recording) twice, scene by scen
    depth.
 fit turns them into [sensor] values: read and shot noise, bit depth and the exposure's target from
 the noise and levels alone; blur and speckle from the dots, against a rendering of the user's
-config (--compare) when there is one: blur_sigma makes the rendered dots as wide as the recorded
-ones, and speckle_contrast is calibrated on that rendering's own dots (the rendering's mean frames
+config (--compare) when there is one: the projector's defocus (projector_aperture, projector_focus)
+from the recorded dots' widths against depth where the recording has depth (defocus_fit; else the
+rendering's, kept), blur_sigma makes the rendered dots as wide as the recorded ones (in focus where
+the defocus is fitted), and speckle_contrast is calibrated on that rendering's own dots (the rendering's mean frames
 blurred to the recorded width, with and without a speckle field of contrast 1, measured the same
 way), so the renderer's own spread of dot brightness and the measurement's are taken out.
 """
@@ -23,7 +25,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, minimum_filter
+from scipy.ndimage import minimum_filter
 
 from capture.dot_statistics import (
     brightness_contrast,
@@ -54,7 +56,7 @@ from capture.photon_transfer import (
     temporal_noise_bins,
 )
 from capture.static_recording import StaticRecording, StaticScene
-from dotsim.sensor.model import FWHM_PER_SIGMA, speckle_field
+from dotsim.sensor.model import DEFOCUS_SIGMA_PER_DIAMETER, FWHM_PER_SIGMA, optical_blur, speckle_field
 from dotsim.sensor.settings import SensorConfig
 
 # Frames of a static scene the photon transfer needs (one frame: flat regions instead).
@@ -67,13 +69,22 @@ DEPTH_EDGES = np.arange(0.0, 10.01, 0.5)
 CALIBRATION_SEED = 35
 CALIBRATION_STEPS = 6
 CALIBRATION_TOLERANCE = 0.02
+# The projector's defocus is fitted from the isolated dots' widths against inverse depth where the
+# recording has the depth of DEFOCUS_MIN_DOTS dots or more: their squared widths' medians in
+# DEFOCUS_BINS bins of equal count, at least 4 bins of 3 dots or more spanning DEFOCUS_MIN_SPAN 1/m.
+DEFOCUS_MIN_DOTS = 40
+DEFOCUS_BINS = 8
+DEFOCUS_MIN_SPAN = 0.15
+# A focus farther than this (m) is written as infinity (0), as [sensor] projector_focus allows.
+FARTHEST_FOCUS = 100.0
 
 
 @dataclass
 class SceneDots:
     """What one scene's isolated dots on flat regions measure: widths (px), brightness ratios (each
     over what it would be without speckle, scaled to median 1) and their noise variances, single-frame
-    peak signal-to-noise ratios; and all detected dots and pixels per depth bin."""
+    peak signal-to-noise ratios; and all detected dots and pixels per depth bin; the depth (m) at each
+    isolated dot (nan where the scene has none)."""
     sigma: np.ndarray
     ratio: np.ndarray
     ratio_noise: np.ndarray
@@ -81,6 +92,7 @@ class SceneDots:
     detected: int
     depth_dots: np.ndarray
     depth_pixels: np.ndarray
+    depth: np.ndarray
 
 
 @dataclass
@@ -104,6 +116,7 @@ class SensorStatistics:
     depth_pixels: np.ndarray
     notes: list[str] = field(default_factory=list)
     scene_ambient_ratios: tuple[float, ...] = ()
+    dot_depths: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def read_noise(self) -> Estimate:
@@ -132,6 +145,19 @@ class SensorStatistics:
     @property
     def dots(self) -> int:
         return int(self.snr.size)
+
+
+@dataclass(frozen=True)
+class DefocusFit:
+    """The dots' widths against depth, as the thin-lens projector of the sensor model makes them
+    (dotsim.sensor.model.defocus_sigma): sigma^2 = in_focus^2 + (k fx aperture)^2 (1/z - 1/focus)^2,
+    k = DEFOCUS_SIGMA_PER_DIAMETER; in_focus in px, aperture in m (errors: one standard error), focus
+    in m (0: at infinity); dots and the inverse depths (1/m) they span."""
+    in_focus: Estimate
+    aperture: Estimate
+    focus: float
+    dots: int
+    span: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -206,7 +232,7 @@ def measure(recording: StaticRecording) -> SensorStatistics:
                             np.concatenate([d.ratio_noise for d in dots])),
         np.concatenate([d.snr for d in dots]), sum(d.detected for d in dots),
         np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes,
-        tuple(ratios))
+        tuple(ratios), np.concatenate([d.depth for d in dots]))
 
 
 def _step(depth: int | None) -> float:
@@ -270,7 +296,7 @@ def _scene_dots(scene: StaticScene, curve: NoiseCurve, saturation: float | None,
         depth_dots, depth_pixels = dots_by_depth(centres, scene.depth, DEPTH_EDGES)
     if len(fits.sigma) == 0:
         empty = np.zeros(0)
-        return SceneDots(empty, empty, empty, empty, len(centres), depth_dots, depth_pixels)
+        return SceneDots(empty, empty, empty, empty, len(centres), depth_dots, depth_pixels, empty)
     width = float(np.median(fits.sigma))
     brightness, variance = matched_brightness(signal, fits, width, noise)
     if scene.flood is not None:
@@ -282,8 +308,10 @@ def _scene_dots(scene: StaticScene, curve: NoiseCurve, saturation: float | None,
     usable = np.isfinite(ratio) & (expected > 0)
     scale = np.median(ratio[usable]) if usable.any() else 1.0
     peak = on_mean[fits.pixel[:, 1], fits.pixel[:, 0]]
+    dot_depth = (np.full(len(fits.sigma), np.nan) if scene.depth is None
+                 else scene.depth[fits.pixel[:, 1], fits.pixel[:, 0]].astype(np.float64))
     return SceneDots(fits.sigma, ratio[usable] / scale, ratio_noise[usable] / scale**2,
-                     fits.amplitude / curve.sigma(peak), len(centres), depth_dots, depth_pixels)
+                     fits.amplitude / curve.sigma(peak), len(centres), depth_dots, depth_pixels, dot_depth)
 
 
 def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
@@ -319,15 +347,118 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         notes["speckle_contrast"] = ("from the dots' brightness spread alone; --compare with a rendering of "
                                      "your config takes out the renderer's own spread and sets blur_sigma")
     else:
-        blur, contrast = _calibrated(stats, reference, grain)
+        widths = _defocus(stats, reference, values, errors, notes)
+        blur, contrast = _calibrated(stats, reference, grain, widths)
         values["blur_sigma"], errors["blur_sigma"] = _rounded(blur)
-        notes["blur_sigma"] = "rendered dots as wide as the recorded ones"
+        notes["blur_sigma"] = ("rendered dots as wide as the recorded ones" if widths is None else
+                               "rendered dots in focus as wide as the recorded ones in focus")
         notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
     values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
     SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
     ratios = stats.scene_ambient_ratios
     ambient = (_significant(min(ratios), 3), _significant(max(ratios), 3)) if ratios else None
     return SensorFit(values, errors, notes, ambient)
+
+
+def defocus_fit(sigmas: np.ndarray, depths: np.ndarray, fx: float) -> DefocusFit | None:
+    """The thin-lens defocus (DefocusFit) that the dots' Gaussian widths `sigmas` (px) at `depths` (m;
+    nan where unknown) show through a camera of focal length fx (px), or None where too few dots have a
+    depth, or their depths span too little (DEFOCUS_MIN_DOTS, DEFOCUS_MIN_SPAN).
+
+    With u = 1/z the law is a parabola in u, sigma^2 = p0 + p1 u + p2 u^2, fitted by weighted least
+    squares to the medians of sigma^2 in bins of u (medians: a few merged dots fit wide): its curvature
+    p2 = (k fx A)^2 gives the aperture, its vertex -p1 / (2 p2) the inverse focus distance, its value
+    there the in-focus width. A vertex below 0 (beyond infinity) is refitted as a focus at infinity
+    (p1 = 0); no curvature (p2 <= 0) is a pinhole (aperture 0).
+
+    >>> z = np.repeat(np.linspace(0.5, 4.0, 8), 10)
+    >>> sigma = np.sqrt(0.6**2 + (0.25 * 500 * 0.004 * np.abs(1 / z - 1 / 2.0)) ** 2)
+    >>> found = defocus_fit(sigma, z, 500.0)
+    >>> round(found.aperture.value, 4), round(found.focus, 2), round(found.in_focus.value, 3)
+    (0.004, 2.0, 0.6)
+    """
+    sigmas, depths = np.asarray(sigmas, np.float64), np.asarray(depths, np.float64)
+    known = np.isfinite(depths) & (depths > 0) & np.isfinite(sigmas)
+    if known.sum() < DEFOCUS_MIN_DOTS:
+        return None
+    u, squared = 1.0 / depths[known], sigmas[known] ** 2
+    order = np.argsort(u)
+    centres, medians, weights = [], [], []
+    for part in np.array_split(order, DEFOCUS_BINS):
+        if part.size < 3:
+            continue
+        centres.append(float(np.median(u[part])))
+        medians.append(float(np.median(squared[part])))
+        # a median's standard error: sqrt(pi / 2) standard deviations over sqrt(n)
+        spread = 1.2533 * float(np.std(squared[part])) / math.sqrt(part.size)
+        weights.append(1.0 / max(spread, 1e-6 * medians[-1], 1e-12))
+    centres, medians, weights = np.array(centres), np.array(medians), np.array(weights)
+    if centres.size < 4 or centres[-1] - centres[0] < DEFOCUS_MIN_SPAN:
+        return None
+    k_fx = DEFOCUS_SIGMA_PER_DIAMETER * fx
+
+    def solve(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        design = np.stack(columns, axis=1)
+        weighted = design * weights[:, None]
+        params, *_ = np.linalg.lstsq(weighted, medians * weights, rcond=None)
+        dof = max(centres.size - design.shape[1], 1)
+        chi2 = float(np.sum(((design @ params - medians) * weights) ** 2) / dof)
+        covariance = np.linalg.pinv(weighted.T @ weighted) * max(chi2, 1.0)
+        return params, covariance
+
+    ones = np.ones_like(centres)
+    params, cov = solve([ones, centres, centres**2])
+    p0, p1, p2 = params
+    focus, gradient_a = 0.0, None
+    if p2 > 0 and -p1 / (2 * p2) > 0:
+        vertex = -p1 / (2 * p2)
+        focus = 1.0 / vertex
+        a = p0 - p1**2 / (4 * p2)
+        gradient_a = np.array([1.0, -p1 / (2 * p2), p1**2 / (4 * p2**2)])
+        curvature, curvature_var = p2, cov[2, 2]
+    else:
+        params, cov = solve([ones, centres**2])
+        a, curvature = params
+        gradient_a, curvature_var = np.array([1.0, 0.0]), cov[1, 1]
+        if curvature <= 0:  # no widening with nearness: a pinhole
+            params, cov = solve([ones])
+            a, curvature, gradient_a, curvature_var = params[0], 0.0, np.array([1.0]), 0.0
+    a_var = float(gradient_a @ cov @ gradient_a)
+    in_focus = math.sqrt(max(a, 0.0))
+    in_focus_error = math.sqrt(max(a_var, 0.0)) / (2 * in_focus) if in_focus > 0 else math.sqrt(max(a_var, 0.0))
+    aperture = math.sqrt(curvature) / k_fx if curvature > 0 else 0.0
+    aperture_error = (math.sqrt(curvature_var) / (2 * math.sqrt(curvature)) / k_fx if curvature > 0
+                      else math.sqrt(max(curvature_var, 0.0)) / k_fx)
+    return DefocusFit(Estimate(in_focus, in_focus_error), Estimate(aperture, aperture_error),
+                      focus if focus <= FARTHEST_FOCUS else 0.0, int(known.sum()),
+                      (float(u.min()), float(u.max())))
+
+
+def _defocus(stats: SensorStatistics, reference: SensorStatistics, values: dict, errors: dict,
+             notes: dict) -> tuple[Estimate, Estimate] | None:
+    """Set projector_aperture and projector_focus: fitted to the recording's dots against their depth
+    (defocus_fit; a recording with depth: a rendering, or a capture with its device's depth), else the
+    rendering's, kept. Returns the in-focus widths (recording's, rendering's; each its own px) that the
+    camera's blur is then fitted to, or None (the blur from all dots' median widths)."""
+    rendering = SensorConfig.from_recorded(reference.recording.sensor)
+    camera = stats.recording.camera
+    recorded = defocus_fit(stats.dot_sigmas, stats.dot_depths, camera["fx"]) if camera else None
+    if recorded is None:
+        values["projector_aperture"] = rendering.projector_aperture
+        values["projector_focus"] = rendering.projector_focus
+        notes["projector_aperture"] = notes["projector_focus"] = (
+            f"the rendering's, kept: the recording has the depth of too few of its dots, or over too "
+            f"little depth (needs {DEFOCUS_MIN_DOTS} dots over {DEFOCUS_MIN_SPAN:g} 1/m)")
+        return None
+    values["projector_aperture"], errors["projector_aperture"] = _rounded(recorded.aperture)
+    values["projector_focus"] = _significant(recorded.focus, 3)
+    low, high = recorded.span
+    notes["projector_aperture"] = notes["projector_focus"] = (
+        f"the dots' widths against depth ({recorded.dots} dots, {1 / high:.2g} to {1 / low:.2g} m; "
+        f"0 = at infinity)")
+    camera = reference.recording.camera
+    rendered = defocus_fit(reference.dot_sigmas, reference.dot_depths, camera["fx"]) if camera else None
+    return None if rendered is None else (recorded.in_focus, rendered.in_focus)
 
 
 def _significant(x: float, digits: int) -> float:
@@ -339,9 +470,10 @@ def _rounded(estimate: Estimate) -> tuple[float, float]:
     return _significant(estimate.value, 3), _significant(estimate.error, 2)
 
 
-def _calibrated(stats: SensorStatistics, reference: SensorStatistics,
-                grain: float) -> tuple[Estimate, Estimate]:
-    """(blur_sigma, speckle_contrast) that make the reference rendering's dots match the recording's.
+def _calibrated(stats: SensorStatistics, reference: SensorStatistics, grain: float,
+                widths: tuple[Estimate, Estimate] | None = None) -> tuple[Estimate, Estimate]:
+    """(blur_sigma, speckle_contrast) that make the reference rendering's dots match the recording's
+    (widths: the two's dot widths to match, recording's and rendering's; default their median widths).
 
     Widths add in quadrature: the rendering's dots (its blur b_r, render px) widened by an extra blur
     b_x are as wide as the recorded ones (in render px: their width times the rendering's image width
@@ -358,9 +490,10 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics,
     scale = rendering.pixel_scale
     ratio = rendering.size[0] / stats.recording.size[0]
     b_r = sensor.blur_sigma * scale
-    s_c, s_r = stats.dot_sigma.value * ratio, reference.dot_sigma.value
+    recorded, rendered = widths or (stats.dot_sigma, reference.dot_sigma)
+    s_c, s_r = recorded.value * ratio, rendered.value
     squared = b_r**2 + s_c**2 - s_r**2
-    squared_error = math.hypot(2 * s_c * ratio * stats.dot_sigma.error, 2 * s_r * reference.dot_sigma.error)
+    squared_error = math.hypot(2 * s_c * ratio * recorded.error, 2 * s_r * rendered.error)
     blur = math.sqrt(max(squared, 0.0))
     blur_error = squared_error / (2 * blur) if blur > 0 else math.sqrt(squared_error)
     extra = math.sqrt(max(squared - b_r**2, 0.0))
@@ -410,8 +543,7 @@ def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: f
         field = speckle_field(signal.shape, contrast, grain_px, rng)
         above = signal - minimum_filter(signal, size=DEFAULT_DOT_WINDOW, mode="nearest")
         image = signal + above * (field - 1)
-        if blur_px > 0:
-            image = gaussian_filter(image, blur_px, mode="nearest")
+        image = optical_blur(image, blur_px)
         dots = _scene_dots(scene, reference.noise, reference.saturation, image)
         ratios.append(dots.ratio)
         noises.append(dots.ratio_noise)

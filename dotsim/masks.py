@@ -13,6 +13,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from dotsim.sensor.model import optical_blur
+
 # Percentile taken as an image's exposure scale: robust to a few specular highlights or a hot
 # light, unlike the maximum.
 EXPOSURE_PERCENTILE = 99.0
@@ -107,8 +109,7 @@ def direct_visibility_mask(projector_direct: np.ndarray, flood_direct: np.ndarra
     if int(window) != window or window < 1 or window % 2 == 0:
         raise ValueError(f"window must be an odd integer >= 1 (pixels), got {window}")
     dots = np.nan_to_num(gain * np.asarray(projector_direct, np.float64), nan=0.0, posinf=0.0)
-    if blur_sigma > 0:
-        dots = cv2.GaussianBlur(dots, (0, 0), blur_sigma, borderType=cv2.BORDER_REPLICATE)
+    dots = optical_blur(dots, blur_sigma)  # the sensor model's blur: a sampled kernel misses sub-pixel blur
     nearby = cv2.dilate(dots, np.ones((int(window), int(window)), np.uint8), borderType=cv2.BORDER_REPLICATE)
     level = gain * np.asarray(background, np.float64)
     with np.errstate(invalid="ignore"):

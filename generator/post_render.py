@@ -15,7 +15,8 @@ and so the device_depth engine (it models the device seeing that IR); labels and
 depend on light.
 Stored channels (dotsim.channels, the channels' one declaration: make_frame gives exactly the
 rendered ones it stores):
-  ir = sensor model (ambient + projector, its direct light x laser speckle); ambient as rendered
+  ir = sensor model (ambient + projector, its direct light blurred by the projector's defocus at each
+  pixel's depth and times the laser speckle); ambient as rendered
   (or scaled, above);
   flood = ambient + flood (the projector replaced by a rectangle, as in GigaDepth's Unity sim; no
   sensor effects on either);
@@ -140,7 +141,7 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
     if sensor.has_speckle and any(s.speckle is None for s in streams):
         raise ValueError(f"{where}: the sensor has laser speckle (speckle_contrast > 0): every camera's "
                          f"SensorStreams needs a speckle stream")
-    projector, projector_direct = _speckled(raw, "", sensor, streams[0])
+    projector, projector_direct = _projector_light(raw, "", sensor, streams[0], depth, rig.camera.fx)
     signal = ambient + projector
     gain = sensor.exposure_gain(signal)  # once: the sensor model and the mask share it
     visibility = direct_visibility_mask(
@@ -169,10 +170,12 @@ def make_frame(raw: dict, spec: SceneSpec, streams: Sequence[SensorStreams], whe
     if len(spec.cameras) > 1:
         right = spec.cameras[1]
         right_ambient = raw["ambient_right"] * room if room != 1.0 else raw["ambient_right"]
-        right_signal = right_ambient + _speckled(raw, right.suffix, sensor, streams[1])[0]
+        right_depth = _depth(raw["depth_right"])
+        right_signal = right_ambient + _projector_light(raw, right.suffix, sensor, streams[1], right_depth,
+                                                        right.intrinsics.fx)[0]
         made["ir_right"] = sensor.apply(right_signal, streams[1].noise, gain)
         made["stereo_visibility"] = (raw["flood_direct"] > 0) & seen_by_right(
-            depth, _depth(raw["depth_right"]), right.intrinsics.fx, right.translation[0])
+            depth, right_depth, right.intrinsics.fx, right.translation[0])
     if spec.device_depth.on:
         made["device_depth"] = device_depth.as_channel(simulated_device_depth(spec, made))
     return {name: made[name] for name in stored_channels(frame_channels(spec))}
@@ -233,16 +236,22 @@ def ambient_scale(ambient: np.ndarray, projector: np.ndarray, reached: np.ndarra
     return ratio / current if current else 1.0
 
 
-def _speckled(raw: dict, suffix: str, sensor: SensorModel, streams: SensorStreams):
-    """(projector, projector_direct) of one camera (its raw passes' `suffix`) with the laser speckle
-    on the direct light, or as rendered without speckle. Each camera has a field of its own: speckle
+def _projector_light(raw: dict, suffix: str, sensor: SensorModel, streams: SensorStreams,
+                     depth: np.ndarray, fx: float):
+    """(projector, projector_direct) of one camera (its raw passes' `suffix`; its planar depth and focal
+    length, render px) with the projector's defocus (SensorModel.defocus) and then the laser speckle on
+    the direct light, or as rendered without either. Each camera has a speckle field of its own: speckle
     is seen through the camera's own aperture, and two imagers centimetres apart see uncorrelated
     speckle (Goodman 2007)."""
     projector, direct = raw["projector" + suffix], raw["projector_direct" + suffix]
-    if not sensor.has_speckle:
+    changed = direct
+    if sensor.has_defocus:
+        changed = sensor.defocus(direct, raw["flood_direct" + suffix], depth, fx)
+    if sensor.has_speckle:
+        changed = changed * sensor.speckle(direct.shape, streams.speckle)
+    if changed is direct:
         return projector, direct
-    speckled = direct * sensor.speckle(direct.shape, streams.speckle)
-    return projector + (speckled - direct), speckled
+    return projector + (changed - direct), changed
 
 
 def _depth(raw_depth: np.ndarray) -> np.ndarray:

@@ -2,8 +2,10 @@
 and the noise it adds.
 
 Pure numpy/scipy and seeded. Levels are fractions of the sensor's full scale (1.0 = saturation).
-Steps, in the order light meets a sensor: laser speckle on the projector's direct light
-(speckle_field, applied by the post-render to the projector's passes), exposure, bloom (over-bright
+Steps, in the order light meets a sensor: the projector's defocus (a thin lens: dots widen away from
+its focus, defocus_sigma; the post-render blurs the projector's direct light by it, by depth), laser
+speckle on the projector's direct light (speckle_field, applied by the post-render to the projector's
+passes), exposure, bloom (over-bright
 light spreading into its surroundings), optical blur, shot and read noise, clipping, quantisation to
 the bit depth.
 The ambient and flood passes get none of this (as in GigaDepth's renders).
@@ -71,6 +73,114 @@ def speckle_field(shape: tuple[int, int], contrast: float, grain_px: float,
     return 1.0 - contrast + contrast * intensity
 
 
+# A uniform disc of diameter c (the geometric blur circle) has the second moment of a Gaussian of
+# sigma c / 4 along each axis (radius R: variance R^2 / 4); the defocus is taken as that Gaussian, so
+# widths add in quadrature with the pattern's dots and the camera's blur.
+DEFOCUS_SIGMA_PER_DIAMETER = 0.25
+# Gaussian blurs of the depth-dependent defocus: one image per level, levels this far apart (px of
+# sigma), each pixel a mixture of the two levels around its own sigma (depth_blur).
+DEFOCUS_LEVEL_STEP = 0.25
+
+
+def blur_circle(depth: np.ndarray, aperture: float, focus: float) -> np.ndarray:
+    """The angular diameter (radians) of a thin-lens projector's blur circle on a surface at `depth`
+    (m): aperture x |1/depth - 1/focus|; focus 0 = focused at infinity.
+
+    Why: a lens of aperture A focused at distance F sends each pattern point's light through the
+    aperture into a cone that meets at F; at distance d the cone's cross-section is, by similar
+    triangles, a disc of diameter A |d - F| / F, which seen from the projector (and, a baseline apart,
+    from the camera) spans A |d - F| / (F d) = A |1/d - 1/F| radians. A collimated laser beam of
+    diameter A through a diffractive element is the case F = infinity: each dot is a beam about A wide
+    at every distance, A / d radians. Depth is the camera's planar depth, the projector's too when the
+    two look the same way (every preset).
+
+    >>> round(float(blur_circle(np.array(1.0), 0.002, 0.0)), 4)   # 2 mm at 1 m, focus at infinity
+    0.002
+    >>> float(blur_circle(np.array(2.0), 0.002, 2.0))              # in focus
+    0.0
+    """
+    inverse_focus = 1.0 / focus if focus > 0 else 0.0
+    with np.errstate(divide="ignore"):
+        return aperture * np.abs(1.0 / np.asarray(depth, np.float64) - inverse_focus)
+
+
+def defocus_sigma(depth: np.ndarray, fx: float, aperture: float, focus: float) -> np.ndarray:
+    """The projector's defocus as a Gaussian sigma in camera px (fx: the camera's focal length, px) on
+    surfaces at `depth` (m): the blur circle's diameter in px (blur_circle x fx) times
+    DEFOCUS_SIGMA_PER_DIAMETER; where nothing is hit (depth inf) the value at infinity.
+
+    >>> round(float(defocus_sigma(np.array(0.5), 1000.0, 0.002, 0.0)), 3)   # 4 px circle
+    1.0
+    """
+    return DEFOCUS_SIGMA_PER_DIAMETER * fx * blur_circle(depth, aperture, focus)
+
+
+def gaussian_levels(image: np.ndarray, sigmas: np.ndarray):
+    """`image` (H, W) blurred by a Gaussian of each sigma (px) in turn (a generator of float64 images),
+    through the Gaussian's frequency response exp(-2 pi^2 sigma^2 f^2) (one FFT of the image, padded
+    by its edge values against wrap-around). Why not a sampled kernel: a Gaussian sampled at whole
+    pixels loses its variance below about a pixel (sigma 0.25 px: almost none, 0.5 px: a fifth), where
+    the frequency response blurs the pixels as the continuous Gaussian blurs the light they sample.
+
+    >>> image = np.zeros((32, 32)); image[16, 16] = 1.0
+    >>> out = next(gaussian_levels(image, np.array([0.5])))
+    >>> round(float((out.sum(axis=0) * (np.arange(32) - 16) ** 2).sum()), 2)   # sigma^2
+    0.25
+    """
+    image = np.asarray(image, np.float64)
+    pad = int(np.ceil(4 * float(np.max(sigmas, initial=0.0)))) + 2
+    padded = np.pad(image, pad, mode="edge")
+    spectrum = np.fft.rfft2(padded)
+    fy = np.fft.fftfreq(padded.shape[0])[:, None]
+    fx = np.fft.rfftfreq(padded.shape[1])[None, :]
+    squared = fx**2 + fy**2
+    for sigma in sigmas:
+        blurred = np.fft.irfft2(spectrum * np.exp(-2 * np.pi**2 * sigma**2 * squared), s=padded.shape)
+        yield blurred[pad:pad + image.shape[0], pad:pad + image.shape[1]]
+
+
+def optical_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """`image` (H, W) blurred by a Gaussian of `sigma` px (the camera's blur): through its frequency
+    response (gaussian_levels), so a blur below a pixel widens dots by what it says.
+
+    >>> image = np.zeros((32, 32)); image[16, 16] = 1.0
+    >>> round(float(optical_blur(image, 0.25).max()), 2)   # a sampled kernel leaves 1.0: no blur
+    0.82
+    """
+    return next(gaussian_levels(image, np.array([float(sigma)]))) if sigma > 0 else np.asarray(image, np.float64)
+
+
+def depth_blur(image: np.ndarray, sigma: np.ndarray, step: float = DEFOCUS_LEVEL_STEP) -> np.ndarray:
+    """`image` (H, W) blurred by a Gaussian whose sigma (px) varies per pixel (`sigma`, (H, W)): the
+    image blurred (gaussian_levels) at levels `step` px apart, each pixel the mixture of the two levels around its own
+    sigma whose variance is its sigma^2 (weights linear in sigma^2), so a dot's width follows the
+    level of the pixels it lies on. Blurred in the image plane: at a depth edge the nearer and the
+    farther surface's light mix over the blur's width.
+
+    >>> image = np.zeros((21, 21)); image[10, 10] = 1.0
+    >>> out = depth_blur(image, np.full(image.shape, 1.1))
+    >>> y, x = np.mgrid[:21, :21]
+    >>> round(float((out * (x - 10) ** 2).sum() / out.sum()), 2)   # variance 1.1^2
+    1.21
+    """
+    image = np.asarray(image, np.float64)
+    sigma = np.clip(np.nan_to_num(np.asarray(sigma, np.float64), nan=0.0, posinf=0.0), 0.0, None)
+    top = float(sigma.max())
+    if top == 0:
+        return image
+    levels = np.arange(0.0, top + step, step)
+    index = np.minimum((sigma / step).astype(np.intp), len(levels) - 2)
+    low, high = levels[index], levels[index + 1]
+    weight = (sigma**2 - low**2) / (high**2 - low**2)
+    out = np.zeros_like(image)
+    blurred_low = image
+    for k, blurred_high in enumerate(gaussian_levels(image, levels[1:])):
+        here = index == k
+        out[here] = ((1 - weight[here]) * blurred_low[here] + weight[here] * blurred_high[here])
+        blurred_low = blurred_high
+    return out
+
+
 def quantise(level: np.ndarray, bit_depth: int) -> np.ndarray:
     """Clip to [0, 1] and round to the 2**bit_depth levels k / (2**bit_depth - 1)."""
     steps = 2**bit_depth - 1
@@ -135,6 +245,26 @@ class SensorModel:
     def has_speckle(self) -> bool:
         return self.settings.speckle_contrast > 0
 
+    @property
+    def has_defocus(self) -> bool:
+        return self.settings.projector_aperture > 0
+
+    def defocus(self, direct: np.ndarray, flood_direct: np.ndarray, depth: np.ndarray,
+                fx: float) -> np.ndarray:
+        """The projector's direct light (H, W) with the projector's defocus: the pattern it casts on the
+        surfaces (its direct light over the flood's, the same light with every pattern pixel lit: the
+        shading, albedo and shadows cancel) blurred by defocus_sigma at each pixel's depth (m; fx: the
+        render's camera focal length, px), then lit and shaded again, so the surfaces' texture stays
+        sharp under the blurred dots. Where the flood reaches nothing the light itself is blurred."""
+        s = self.settings
+        sigma = defocus_sigma(depth, fx, s.projector_aperture, s.projector_focus)
+        lit = flood_direct > 0
+        if not lit.any():
+            return np.maximum(depth_blur(direct, sigma), 0.0).astype(np.float32)
+        pattern = np.divide(direct, flood_direct, out=np.zeros(direct.shape, np.float64), where=lit)
+        # the FFT's rounding leaves about 1e-7 below 0 where there is no light
+        return (np.maximum(depth_blur(pattern, sigma), 0.0) * flood_direct).astype(np.float32)
+
     def speckle(self, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
         """The laser speckle factor (H, W) of one frame (speckle_field at the render scale); rng: a
         stream fixed for the scene and the pose (SensorStreams.speckle)."""
@@ -167,6 +297,6 @@ class SensorModel:
         level = expose(signal, self.exposure_gain(signal) if gain is None else gain)
         level = bloom(level, s.bloom_threshold, s.bloom_strength, s.bloom_sigma * s.pixel_scale)
         if s.blur_sigma > 0:
-            level = gaussian_filter(level, self.blur_px, mode="nearest")
+            level = optical_blur(level, self.blur_px)
         level = level + rng.standard_normal(level.shape) * self.sigma(level)
         return quantise(level, s.bit_depth).astype(np.float32)

@@ -49,6 +49,14 @@ class SensorConfig(Checked):
     speckle_grain: float = setting(2.0, "speckle grain: full width at half maximum of the speckle's "
                                    "intensity autocorrelation, full-resolution px", low=0.0, high=100.0,
                                    low_open=True)
+    projector_aperture: float = setting(0.0, "the projector's aperture, m (its lens's diameter; a "
+                                        "collimated beam's through a diffractive element): the projector's "
+                                        "defocus widens its dots away from projector_focus (thin lens: blur "
+                                        "circle angular diameter = aperture x abs(1/depth - 1/projector_focus); "
+                                        "docs/CONFIG_GUIDE.md \"Dot size\"); 0 = a pinhole, no defocus",
+                                        low=0.0, high=0.1)
+    projector_focus: float = setting(0.0, "the distance the projector is focused at, m; 0 = at infinity "
+                                     "(a collimated beam through a diffractive element)", low=0.0, high=100.0)
 
 
     def at_scale(self, pixel_scale: float) -> SensorSpec:
@@ -84,8 +92,9 @@ class SensorSpec(SensorConfig):
 
     @classmethod
     def from_dict(cls, d: Any, where: str) -> SensorSpec:
-        """Specs from before the speckle keys read as without speckle."""
-        return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain"))
+        """Specs from before the speckle and defocus keys read as without speckle and defocus."""
+        return record_from_dict(cls, d, where, optional=("speckle_contrast", "speckle_grain",
+                                                           "projector_aperture", "projector_focus"))
 
 
 def recorded_sensor(scene_meta: dict) -> dict | None:

@@ -141,3 +141,38 @@ def test_speckle_grain_scales_with_render_resolution():
     b = speckle_field((256, 256), 1.0, 4.0, np.random.default_rng(5))
     np.testing.assert_array_equal(a, b)
     assert not SensorModel(PLAIN).has_speckle and model.has_speckle
+
+
+def test_defocus_blurs_the_cast_pattern_by_depth_and_keeps_the_texture_sharp():
+    """Dots on a wall whose left half is 0.5 m away and right half 2 m (focus 2 m): the left dots widen
+    by the thin lens's sigma (computed here: fx A |1/z - 1/F| / 4), the right ones not at all; the
+    albedo's step (dark rows above, bright below) stays a step under the blurred dots."""
+    fx, aperture, focus = 500.0, 0.004, 2.0
+    height, width = 64, 128
+    y, x = np.mgrid[:height, :width].astype(np.float64)
+    centres = [(cx, cy) for cx in range(8, width, 16) for cy in range(8, height, 16)]
+    pattern = sum(np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * 0.8**2)) for cx, cy in centres)
+    albedo = np.where(y < 32, 0.2, 0.9)
+    depth = np.where(x < 64, 0.5, 2.0)
+    flood = albedo / depth**2
+    direct = pattern * flood
+    model = params(projector_aperture=aperture, projector_focus=focus)
+    out = model.defocus(direct.astype(np.float32), flood.astype(np.float32), depth, fx).astype(np.float64)
+    expected_left = np.hypot(0.8, fx * aperture * abs(1 / 0.5 - 1 / focus) / 4)   # 0.8 (+) 0.75 px
+
+    def width_of(image, cx, cy):
+        # the second moment of the dot's light across its row, over the albedo and falloff it stands on
+        window = (image / flood)[cy, cx - 6:cx + 7]
+        offsets = np.arange(-6, 7)
+        return float(np.sqrt((window * offsets**2).sum() / window.sum()))
+
+    for cx, cy in centres:
+        measured = width_of(out, cx, cy)
+        assert measured == pytest.approx(expected_left if cx < 64 else 0.8, rel=0.03), (cx, cy)
+    # the texture is not blurred: the image over the flood is the same as on an untextured wall (the
+    # albedo's step at row 32 crosses dots at rows 24 and 40 within their reach)
+    plain_flood = 1.0 / depth**2
+    plain = model.defocus((pattern * plain_flood).astype(np.float32), plain_flood.astype(np.float32), depth,
+                          fx).astype(np.float64)
+    np.testing.assert_allclose(out / flood, plain / plain_flood, atol=2e-6)
+    assert out.min() >= 0
