@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         reference = folder / "rendering_reference"
         if not (reference / "index.json").is_file():
-            unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0, "speckle_contrast": 0.0}
+            unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0,
+                         "speckle_contrast": 0.0}
             generate(still_config(args.scale, args.samples, args.threads, args.assets, unblurred), reference,
                      "train", args.scenes, seed=1, workers=1, progress=False)
         fitted = folder / "kinect_fitted.toml"

@@ -291,8 +291,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                      help="a rendering of your config with still scenes (`dotsim generate` with [motion] "
                      "translation = 0 and rotation = 0) with the recording's rig, at any scale (its camera "
                      "is checked: field of view, or aspect ratio for image files): its statistics beside "
-                     "the recording's, and blur_sigma and speckle_contrast fitted against it (and projector_aperture "
-                     "and projector_focus from the dots' widths against depth where the recording has depth)")
+                     "the recording's, and blur_sigma and speckle_contrast fitted against it (and "
+                     "projector_aperture and projector_focus from the dots' widths against depth where the "
+                     "recording has depth)")
     fit.add_argument("--speckle-grain", type=number(0.0, 100.0, low_open=True),
                      help="the speckle grain assumed, full-resolution px ([sensor] speckle_grain; default: "
                      "the --compare rendering's, else 2)")

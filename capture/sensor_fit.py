@@ -14,9 +14,10 @@ the noise and levels alone; blur and speckle from the dots, against a rendering 
 config (--compare) when there is one: the projector's defocus (projector_aperture, projector_focus)
 from the recorded dots' widths against depth where the recording has depth (defocus_fit; else the
 rendering's, kept), blur_sigma makes the rendered dots as wide as the recorded ones (in focus where
-the defocus is fitted), and speckle_contrast is calibrated on that rendering's own dots (the rendering's mean frames
-blurred to the recorded width, with and without a speckle field of contrast 1, measured the same
-way), so the renderer's own spread of dot brightness and the measurement's are taken out.
+the defocus is fitted), and speckle_contrast is calibrated on that rendering's own dots (the
+rendering's mean frames blurred to the recorded width, with and without a speckle field of
+contrast 1, measured the same way), so the renderer's own spread of dot brightness and the
+measurement's are taken out.
 """
 
 from __future__ import annotations
@@ -425,7 +426,8 @@ def defocus_fit(sigmas: np.ndarray, depths: np.ndarray, fx: float) -> DefocusFit
             a, curvature, gradient_a, curvature_var = params[0], 0.0, np.array([1.0]), 0.0
     a_var = float(gradient_a @ cov @ gradient_a)
     in_focus = math.sqrt(max(a, 0.0))
-    in_focus_error = math.sqrt(max(a_var, 0.0)) / (2 * in_focus) if in_focus > 0 else math.sqrt(max(a_var, 0.0))
+    a_error = math.sqrt(max(a_var, 0.0))
+    in_focus_error = a_error / (2 * in_focus) if in_focus > 0 else a_error
     aperture = math.sqrt(curvature) / k_fx if curvature > 0 else 0.0
     aperture_error = (math.sqrt(curvature_var) / (2 * math.sqrt(curvature)) / k_fx if curvature > 0
                       else math.sqrt(max(curvature_var, 0.0)) / k_fx)

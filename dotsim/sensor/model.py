@@ -147,15 +147,17 @@ def optical_blur(image: np.ndarray, sigma: float) -> np.ndarray:
     >>> round(float(optical_blur(image, 0.25).max()), 2)   # a sampled kernel leaves 1.0: no blur
     0.82
     """
-    return next(gaussian_levels(image, np.array([float(sigma)]))) if sigma > 0 else np.asarray(image, np.float64)
+    if sigma <= 0:
+        return np.asarray(image, np.float64)
+    return next(gaussian_levels(image, np.array([float(sigma)])))
 
 
 def depth_blur(image: np.ndarray, sigma: np.ndarray, step: float = DEFOCUS_LEVEL_STEP) -> np.ndarray:
     """`image` (H, W) blurred by a Gaussian whose sigma (px) varies per pixel (`sigma`, (H, W)): the
-    image blurred (gaussian_levels) at levels `step` px apart, each pixel the mixture of the two levels around its own
-    sigma whose variance is its sigma^2 (weights linear in sigma^2), so a dot's width follows the
-    level of the pixels it lies on. Blurred in the image plane: at a depth edge the nearer and the
-    farther surface's light mix over the blur's width.
+    image blurred (gaussian_levels) at levels `step` px apart, each pixel the mixture of the two
+    levels around its own sigma whose variance is its sigma^2 (weights linear in sigma^2), so a
+    dot's width follows the level of the pixels it lies on. Blurred in the image plane: at a depth
+    edge the nearer and the farther surface's light mix over the blur's width.
 
     >>> image = np.zeros((21, 21)); image[10, 10] = 1.0
     >>> out = depth_blur(image, np.full(image.shape, 1.1))

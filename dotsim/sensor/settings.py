@@ -52,7 +52,8 @@ class SensorConfig(Checked):
     projector_aperture: float = setting(0.0, "the projector's aperture, m (its lens's diameter; a "
                                         "collimated beam's through a diffractive element): the projector's "
                                         "defocus widens its dots away from projector_focus (thin lens: blur "
-                                        "circle angular diameter = aperture x abs(1/depth - 1/projector_focus); "
+                                        "circle angular diameter = aperture x abs(1/depth - "
+                     "1/projector_focus); "
                                         "docs/CONFIG_GUIDE.md \"Dot size\"); 0 = a pinhole, no defocus",
                                         low=0.0, high=0.1)
     projector_focus: float = setting(0.0, "the distance the projector is focused at, m; 0 = at infinity "

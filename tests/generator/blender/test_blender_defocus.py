@@ -44,8 +44,9 @@ def sparse_pattern(tmp_path_factory):
 
 
 def _ir(frame: dict, spec_dict: dict, aperture: float) -> np.ndarray:
-    """The stored IR of a rendered frame through a noiseless sensor (exposed so that no dot clips) with the projector's defocus of
-    `aperture` (m, focus FOCUS) and no camera blur: the dots' width is the pattern's and the defocus."""
+    """The stored IR of a rendered frame through a noiseless sensor (exposed so that no dot clips) with
+    the projector's defocus of `aperture` (m, focus FOCUS) and no camera blur: the dots' width is the
+    pattern's and the defocus."""
     sensor = {**spec_dict["sensor"], "read_noise": 0.0, "shot_noise": 0.0, "blur_sigma": 0.0,
               "bloom_strength": 0.0, "bit_depth": 16, "auto_target": 0.1,
               "projector_aperture": aperture,
