@@ -37,7 +37,6 @@ from generator.sample_scene import frame_streams
 from generator.scene_spec import SceneSpec
 
 FULL = get_preset("structure_core")
-WAYS = ("plain", "labels", "normals", "materials")
 # Every fifth object from the first (after the wall) glass, from the second metal, from the third IR-dark.
 KINDS = {0: "transparent", 1: "metal", 2: "ir_dark"}
 
@@ -82,6 +81,33 @@ def one_round(renderer, spec: SceneSpec) -> tuple[dict[str, float], list[dict]]:
              "encode_s": encode / count, "bytes": float(np.mean(sizes))}, raws)
 
 
+def side_by_side(renderer, specs: dict[str, SceneSpec], repeats: int) -> tuple[dict, dict]:
+    """`repeats` rounds of one_round for each way of `specs` (the ways taking turns in rotating order,
+    so drift over the run falls on all alike): (way -> measure -> median over rounds, way -> the
+    last round's raw passes)."""
+    ways = list(specs)
+    runs, raws = {way: [] for way in ways}, {}
+    for round_index in range(repeats):
+        shift = round_index % len(ways)
+        for way in ways[shift:] + ways[:shift]:
+            run, raws[way] = one_round(renderer, specs[way])
+            runs[way].append(run)
+    medians = {way: {key: statistics.median(run[key] for run in runs[way]) for key in runs[way][0]}
+               for way in ways}
+    return medians, raws
+
+
+def print_ratios(medians: dict) -> None:
+    """One line per measure: the first way's median, then each other way's with its ratio to it."""
+    plain_way, *others = medians
+    for key, label in (("render_s", "render, wall s"), ("render_cpu_s", "render, CPU s"),
+                       ("post_s", "post-render, wall s"), ("encode_s", "encode, wall s"),
+                       ("bytes", "frame file, bytes")):
+        plain = medians[plain_way][key]
+        cells = [f"{way} {medians[way][key]:.4g} ({medians[way][key] / plain:.2f}x)" for way in others]
+        print(f"  {label:>20}: {plain_way} {plain:.4g}  " + "  ".join(cells), flush=True)
+
+
 def same_raw(plain: list[dict], other: list[dict]) -> bool:
     """Whether every raw pass of the plain way is bit for bit the same in the other way's frames."""
     return all(np.array_equal(a[name], b[name]) for a, b in zip(plain, other, strict=True) for name in a)
@@ -100,26 +126,11 @@ def main(argv: list[str] | None = None) -> int:
         for width in (int(w) for w in args.sizes.split(",")):
             rig = bench_rig(width)
             inputs = write_inputs(rig, Path(tmp))
-            specs = scenes(rig, inputs, args.objects, lights)
-            runs = {way: [] for way in WAYS}
-            raws = {}
-            for round_index in range(args.repeats):
-                shift = round_index % len(WAYS)
-                for way in WAYS[shift:] + WAYS[:shift]:
-                    run, raws[way] = one_round(renderer, specs[way])
-                    runs[way].append(run)
+            medians, raws = side_by_side(renderer, scenes(rig, inputs, args.objects, lights), args.repeats)
             print(f"\n{rig.camera.width} x {rig.camera.height}, {args.objects} objects, "
                   f"{'two extra lights' if lights else 'no extra light'}, median of {args.repeats} "
                   f"rounds (per frame):")
-            medians = {way: {key: statistics.median(run[key] for run in runs[way]) for key in runs[way][0]}
-                       for way in WAYS}
-            for key, label in (("render_s", "render, wall s"), ("render_cpu_s", "render, CPU s"),
-                               ("post_s", "post-render, wall s"), ("encode_s", "encode, wall s"),
-                               ("bytes", "frame file, bytes")):
-                plain = medians["plain"][key]
-                cells = [f"{way} {medians[way][key]:.4g} ({medians[way][key] / plain:.2f}x)"
-                         for way in WAYS[1:]]
-                print(f"  {label:>20}: plain {plain:.4g}  " + "  ".join(cells), flush=True)
+            print_ratios(medians)
             for way in ("labels", "normals"):
                 verdict = "bit for bit the same" if same_raw(raws["plain"], raws[way]) else "DIFFERENT"
                 print(f"  plain raw passes with {way} on: {verdict}")

@@ -21,12 +21,11 @@ way's raw passes bit for bit as they were (it should: its render comes after the
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from bench.materials_cost import one_round, same_raw
+from bench.materials_cost import print_ratios, same_raw, side_by_side
 from bench.render_speed import add_side_by_side_options, bench_rig, bench_spec, scene_poses, write_inputs
 from dotsim.rig.presets import PRESET_COLOUR_CAMERAS, get_preset
 from generator.scene_spec import SceneSpec
@@ -63,26 +62,12 @@ def main(argv: list[str] | None = None) -> int:
             rig = bench_rig(width, PRESET)
             inputs = write_inputs(rig, Path(tmp))
             specs = scenes(rig, inputs, args.objects, lights)
-            runs = {way: [] for way in WAYS}
-            raws = {}
-            for round_index in range(args.repeats):
-                shift = round_index % len(WAYS)
-                for way in WAYS[shift:] + WAYS[:shift]:
-                    run, raws[way] = one_round(renderer, specs[way])
-                    runs[way].append(run)
+            medians, raws = side_by_side(renderer, specs, args.repeats)
             colour = specs["rgb"].colour_camera.intrinsics
             print(f"\nIR {rig.camera.width} x {rig.camera.height}, colour {colour.width} x {colour.height}, "
                   f"{args.objects} objects, {'two extra lights' if lights else 'no extra light'}, median of "
                   f"{args.repeats} rounds (per frame):")
-            medians = {way: {key: statistics.median(run[key] for run in runs[way]) for key in runs[way][0]}
-                       for way in WAYS}
-            for key, label in (("render_s", "render, wall s"), ("render_cpu_s", "render, CPU s"),
-                               ("post_s", "post-render, wall s"), ("encode_s", "encode, wall s"),
-                               ("bytes", "frame file, bytes")):
-                plain = medians["plain"][key]
-                cells = [f"{way} {medians[way][key]:.4g} ({medians[way][key] / plain:.2f}x)"
-                         for way in WAYS[1:]]
-                print(f"  {label:>20}: plain {plain:.4g}  " + "  ".join(cells), flush=True)
+            print_ratios(medians)
             for way in WAYS[1:]:
                 ir = [{name: a for name, a in raw.items() if name != "rgb"} for raw in raws[way]]
                 verdict = "bit for bit the same" if same_raw(raws["plain"], ir) else "DIFFERENT"
