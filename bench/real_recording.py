@@ -247,8 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         "rows": rows, "rendered_test_rows": rows_rendered,
         "versions": {"dotsim": __version__, "torch": torch.__version__, "numpy": np.__version__,
                      "opencv": cv2.__version__, "python": platform.python_version()}})
-    print(f"\nreal frame ({REAL / 'ir.png'}), flat regions of flat_regions.json; disparity in full-resolution "
-          f"px; plausible {plausible[0]:.2f} .. {plausible[1]:.2f} px "
+    print(f"\nreal frame ({REAL / 'ir.png'}), flat regions of flat_regions.json; disparity in "
+          f"full-resolution px; plausible {plausible[0]:.2f} .. {plausible[1]:.2f} px "
           f"(depth {min_depth:g} .. {rig.max_depth:g} m)"
           f"\n{table}\n\nrendered: {rendered}\ntrained: {trained}\nwrote {work / 'real_recording.json'} and "
           f"{work / 'real_recording.png'}")
