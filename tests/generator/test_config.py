@@ -22,7 +22,8 @@ from generator.config import ConfigError, check_output_dir, config_json, load_co
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
-                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml", "kinect_real.toml"]
+                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml",
+                     "kinect_real.toml"]
 TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml", "train_table2.toml",
                    "train_kinect_real.toml"]
 # (config module, its reference page)
