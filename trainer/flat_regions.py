@@ -12,9 +12,9 @@ a constant offset): this checks flatness, not depth.
 
 score_regions gives, per region and over all of them: the pixels, the share left without a plausible
 value (nan, or a disparity outside the depths the rig can hold), the RMS residual of the plausible ones,
-the share of them within `threshold` px of the plane. The regions come from a JSON file of hand-drawn
-polygons (read_regions; tests/data/real/kinect_v1_ctd/flat_regions.json is one), drawn in the frame's
-full-resolution pixels and scaled to any size of it. numpy + OpenCV only.
+the share of them within `threshold` px of the plane and the RMS of those. The regions come from a
+JSON file of hand-drawn polygons (read_regions; tests/data/real/kinect_v1_ctd/flat_regions.json is
+one), drawn in the frame's full-resolution pixels and scaled to any size of it. numpy + OpenCV only.
 
 >>> import numpy as np
 >>> v, u = np.mgrid[0:40, 0:60].astype(np.float64)
@@ -136,7 +136,8 @@ def score_regions(disparity: np.ndarray, labels: np.ndarray, names: list[str],
     One dict per region, then "all" (every region's pixels, each about its own plane): region, pixels,
     "no value" (share of the pixels without a plausible disparity), rms (px, of the plausible pixels'
     residuals; nan when fewer than 3 are plausible), within (share of the plausible pixels within
-    `threshold` px of the plane), plane ((a, b, c), or None).
+    `threshold` px of the plane), "rms within" (px, the RMS of those: the noise of the pixels that
+    match, apart from the gross mismatches that dominate rms), plane ((a, b, c), or None).
     """
     if disparity.shape != labels.shape:
         raise ValueError(f"disparity {disparity.shape} and labels {labels.shape} must have the same shape")
@@ -170,10 +171,12 @@ def region_residuals(disparity: np.ndarray, labels: np.ndarray, regions: int, pl
 def _row(name: str, residuals: np.ndarray, threshold: float) -> dict:
     plausible = np.isfinite(residuals)
     n = int(plausible.sum())
+    close = residuals[plausible][np.abs(residuals[plausible]) <= threshold]
     return {"region": name, "pixels": int(residuals.size),
             "no value": float(1 - n / residuals.size) if residuals.size else float("nan"),
             "rms": float(np.sqrt(np.mean(residuals[plausible] ** 2))) if n >= 3 else float("nan"),
-            "within": float(np.mean(np.abs(residuals[plausible]) <= threshold)) if n else float("nan")}
+            "within": float(np.mean(np.abs(residuals[plausible]) <= threshold)) if n else float("nan"),
+            "rms within": float(np.sqrt(np.mean(close ** 2))) if len(close) else float("nan")}
 
 
 def read_regions(path: str | Path, shape: tuple[int, int]) -> tuple[np.ndarray, list[str]]:

@@ -45,6 +45,8 @@ def test_noise_and_outliers_are_measured_about_the_true_plane():
     independent = np.sqrt(np.mean((spoiled - true) ** 2))
     assert row["rms"] == pytest.approx(independent, rel=0.01)
     assert row["within"] == pytest.approx(np.mean(np.abs(spoiled - true) <= 1.0), abs=0.005)
+    close = np.abs(spoiled - true) <= 1.0
+    assert row["rms within"] == pytest.approx(np.sqrt(np.mean((spoiled - true)[close] ** 2)), rel=0.02)
     clean = score_regions(noisy, labels, ["wall"], plausible=(5.0, 200.0))[0]
     assert clean["rms"] == pytest.approx(sigma, rel=0.03)
 
