@@ -2,12 +2,13 @@
 (tests/data/real/kinect_v1_ctd, its README: source and licence), against OpenCV SGBM on the same frame.
 
     python -m bench.real_recording [--train-scenes 40] [--test-scenes 4] [--workers 2] \
-        [--minutes 35] [--threads 1] [--out out/real_recording]
+        [--minutes 35 | --steps N] [--threads 1] [--out out/real_recording]
 
 1. renders --train-scenes train scenes and --test-scenes test scenes (test assets, seed 1) of
    dotsim/configs/kinect_real.toml: the capture's rig and real pattern, camera at half size (320 x 256);
-2. trains dotsim/configs/train_kinect_real.toml for --minutes: the steps that fill them are planned from
-   two short calibration runs (as bench.trainer_accuracy), so that the cosine schedule ends with the run;
+2. trains dotsim/configs/train_kinect_real.toml for --steps steps, or for --minutes: the steps that fill
+   them are planned from two short calibration runs (as bench.trainer_accuracy), so that the cosine
+   schedule ends with the run (on a shared machine the load changes and the run ends early or late);
 3. scores it on the rendered test split (`dotsim eval`'s table: ground truth there);
 4. runs `dotsim infer` on the real frame, shrunk to the network's 320 x 256 (2 x 2 means);
 5. runs SGBM (trainer/sgbm.py) against the pattern as seen from infinity, on the real frame at full size
@@ -61,6 +62,11 @@ def full_size_rig(rig):
     return Rig.from_dict({**rig.to_dict(), "camera": camera}, f"{REAL / 'rig.json'} camera")
 
 
+def epochs_for(steps: int, train_source, base: dict) -> int:
+    """The epochs `steps` steps of the config `base` (a dict) make over the frames of `train_source`."""
+    return max(1, round(steps / max(1, len(train_source.frames) // base["train"]["batch_size"])))
+
+
 def planned_run(work: Path, train_source, minutes: float, base: dict) -> tuple[int, int]:
     """(steps, epochs) that fill `minutes` of training: from plan.json when a previous run planned them,
     else from two calibration runs (bench.trainer_accuracy's way), then written to plan.json."""
@@ -76,7 +82,7 @@ def planned_run(work: Path, train_source, minutes: float, base: dict) -> tuple[i
                          work / f"calibration_{n}", progress=False)["seconds"] for n in (5, 25))
     steps = planned_steps(max(long - short, 1e-3) / 20, train_source.frames, train_source.rig,
                           sized_config(base, 1, 1, TRAIN_CONFIG), minutes * 60)
-    epochs = max(1, round(steps / max(1, len(train_source.frames) // base["train"]["batch_size"])))
+    epochs = epochs_for(steps, train_source, base)
     write_json(plan_file, {"steps": steps, "epochs": epochs, "minutes": minutes,
                            "calibration_s": {"5 steps": short, "25 steps": long}})
     return steps, epochs
@@ -159,7 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--train-scenes", type=int, default=40, help="rendered training scenes (default 40)")
     parser.add_argument("--test-scenes", type=int, default=4, help="rendered test scenes (default 4)")
     parser.add_argument("--workers", type=int, default=2, help="render processes (default 2)")
-    parser.add_argument("--minutes", type=float, default=35.0, help="training budget (default 35)")
+    parser.add_argument("--minutes", type=float, default=35.0,
+                        help="training budget (default 35): the steps that fill it are planned, and the run "
+                        "stops at 1.1 times it")
+    parser.add_argument("--steps", type=int, default=0,
+                        help="train this many steps instead of planning them from --minutes (a result that "
+                        "does not depend on the machine's load; --minutes x 1.1 still stops it)")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     parser.add_argument("--out", type=Path, default=Path("out/real_recording"), help="work folder")
     args = parser.parse_args(argv)
@@ -194,9 +205,13 @@ def main(argv: list[str] | None = None) -> int:
     rig = train_source.rig
 
     base = load_config(TRAIN_CONFIG).to_dict()
-    steps, epochs = planned_run(work, train_source, args.minutes, base)
+    if args.steps:
+        steps, epochs = args.steps, epochs_for(args.steps, train_source, base)
+    else:
+        steps, epochs = planned_run(work, train_source, args.minutes, base)
     print(f"{len(train_source.frames)} train frames at {rig.camera.width}x{rig.camera.height}: "
-          f"{steps} steps ({epochs} epochs) planned for {args.minutes:g} min", flush=True)
+          f"{steps} steps ({epochs} epochs)" + ("" if args.steps else f" planned for {args.minutes:g} min"),
+          flush=True)
     start = time.perf_counter()
     result = train(sized_config(base, steps, epochs, TRAIN_CONFIG), train_source, work / "run", resume=True,
                    max_seconds=args.minutes * 60 * 1.1)
