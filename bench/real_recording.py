@@ -42,7 +42,7 @@ REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kinect
 GENERATOR_CONFIG = "dotsim/configs/kinect_real.toml"
 TRAIN_CONFIG = "dotsim/configs/train_kinect_real.toml"
 RESIDUAL_LIMIT = 2.0  # full-resolution px at the ends of the residual pictures' colour scale
-PANEL_WIDTH = 320
+PANEL_WIDTH = 320  # px: the pictures' panels (the network's size; the full-size maps halved)
 
 
 def real_frame(shape: tuple[int, int]) -> np.ndarray:
@@ -117,19 +117,21 @@ def no_value_share(disparity: np.ndarray, plausible: tuple[float, float]) -> flo
 
 def picture(ir: np.ndarray, labels_full: np.ndarray, maps: dict[str, tuple[np.ndarray, np.ndarray]],
             low: float, high: float) -> np.ndarray:
-    """BGR: the real frame with the regions, then each method's disparity (full-resolution px); under
-    them each method's residuals about its planes, each with a legend."""
+    """BGR: the real frame, then each method's disparity (full-resolution px); under them the regions and
+    each method's residuals about its planes; two legends. Every panel PANEL_WIDTH wide (maps resized
+    by nearest neighbour)."""
     from dotsim.false_colour import colourise, label_colours, titled, with_legend
     from trainer.flat_regions import residual_image
     from trainer.scoring import grey
 
+    shape = (PANEL_WIDTH, round(PANEL_WIDTH * ir.shape[0] / ir.shape[1]))  # every panel this size (w, h)
+    ir = cv2.resize(ir, shape, interpolation=cv2.INTER_AREA)
+    labels_full = cv2.resize(labels_full, shape, interpolation=cv2.INTER_NEAREST)
     frame = cv2.cvtColor(grey(ir), cv2.COLOR_GRAY2BGR)
     regions = np.where(labels_full[..., None] > 0, (0.6 * frame + 0.4 * label_colours(labels_full)), frame)
-    top = [titled(frame, "real IR (640 x 512)", PANEL_WIDTH)]
+    top = [titled(frame, "real IR", PANEL_WIDTH)]
     bottom = [titled(regions.astype(np.uint8), "flat regions (drawn by hand)", PANEL_WIDTH)]
     for name, (disparity, residuals) in maps.items():
-        # every panel at the real frame's size, nearest: a half-size map's pixels doubled
-        shape = (ir.shape[1], ir.shape[0])
         top.append(titled(cv2.resize(colourise(disparity, low, high), shape, interpolation=cv2.INTER_NEAREST),
                           f"{name} disparity", PANEL_WIDTH))
         bottom.append(titled(cv2.resize(residual_image(residuals, RESIDUAL_LIMIT), shape,
