@@ -218,7 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     result = train(sized_config(base, steps, epochs, TRAIN_CONFIG), train_source, work / "run", resume=True,
                    max_seconds=args.minutes * 60 * 1.1)
     minutes = round((time.perf_counter() - start) / 60, 1)
-    trained = {"steps": result["step"], "planned": steps, "minutes": minutes, "threads": args.threads}
+    # minutes of this call: a rerun on a finished run trains nothing and says so
+    trained = {"steps": result["step"], "planned": steps, "minutes_this_call": minutes,
+               "threads": args.threads}
     checkpoint = work / "run" / "checkpoint.pt"
     rows_rendered = evaluate(checkpoint, test_source, work / "eval", validation=train_source, progress=False)
     eval_table = format_table([r for r in rows_rendered if r["range"] == "all"])
