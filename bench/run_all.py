@@ -36,6 +36,7 @@ BENCHMARKS = {
     "cluster_overhead": ["--scenes", "2", "--repeats", "1", "--scale", "0.1"],
     "generate_cost": ["--pairs", "1", "--scale", "0.05", "--objects", "5", "--threads", "1"],
     "sensor_fit": ["--scale", "0.2", "--scenes", "1"],
+    "real_recording": ["--train-scenes", "1", "--test-scenes", "1", "--workers", "1", "--minutes", "0.1"],
     "audit_probes": ["--only", "config"],  # issue 45's inputs; whole, it renders one tiny scene
 }
 

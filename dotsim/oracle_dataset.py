@@ -20,7 +20,7 @@ from dotsim.channels import rendered_channels
 from dotsim.dataset import pattern_path, seal_dataset, write_scene
 from dotsim.masks import edge_mask, visibility_mask
 from dotsim.oracle import expected_pattern_image
-from dotsim.patterns import generate_dot_pattern
+from dotsim.patterns import DotPattern, generate_dot_pattern
 from dotsim.rig.geometry import Rig, depth_to_disparity, depth_to_projector_column, pixel_grid, pixel_rays
 from dotsim.rig.presets import get_preset
 from dotsim.rig.stereo import stereo_disparity
@@ -82,23 +82,26 @@ def pair_frame(depth: np.ndarray, rig: Rig, pattern: np.ndarray, rng: np.random.
 
 def make_dataset(root: str | Path, scenes: int, frames_per_scene: int = 2, scale: float = TINY_SCALE,
                  seed: int = 0, test_scenes: int = 0, noise: float = 0.01, ir_bits: int = 12,
-                 pair: bool = False) -> Path:
+                 pair: bool = False, rig: Rig | None = None, pattern: DotPattern | None = None) -> Path:
     """Write `scenes` train scenes then `test_scenes` test scenes to root and seal it; returns root.
     pair: a RealSense D415's stereo pair (rendered_channels(stereo=True)) before planes with no x
-    tilt (pair_frame), else Structure Core before random_depth's scenes."""
+    tilt (pair_frame), else Structure Core before random_depth's scenes. rig: another mono rig,
+    used as it is (`scale` does not apply); pattern: a pattern of its projector's size instead of a
+    procedural one."""
     root = Path(root)
-    rig = get_preset("realsense_d415" if pair else "structure_core").scaled(scale)
-    dots = generate_dot_pattern(rig.projector.width, rig.projector.height, seed=seed)
+    if rig is None:
+        rig = get_preset("realsense_d415" if pair else "structure_core").scaled(scale)
+    dots = pattern or generate_dot_pattern(rig.projector.width, rig.projector.height, seed=seed)
     root.mkdir(parents=True, exist_ok=True)
     dots.save_png(pattern_path(root))
-    pattern = np.asarray(dots.image, np.float64)
+    image = np.asarray(dots.image, np.float64)
     for k in range(scenes + test_scenes):
         rng = np.random.default_rng([seed, k])
         if pair:
             frames = [pair_frame(planar_depth(rig, rng.uniform(0.4, 2.0), 0.0, rng.uniform(-0.3, 0.3)), rig,
-                                 pattern, rng, noise, ir_bits) for _ in range(frames_per_scene)]
+                                 image, rng, noise, ir_bits) for _ in range(frames_per_scene)]
         else:
-            frames = [synthetic_frame(random_depth(rig, rng), rig, pattern, rng, noise, ir_bits)
+            frames = [synthetic_frame(random_depth(rig, rng), rig, image, rng, noise, ir_bits)
                       for _ in range(frames_per_scene)]
         meta = {
             "split": "train" if k < scenes else "test", "seed": seed, "rig": rig.to_dict(),

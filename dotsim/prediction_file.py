@@ -63,3 +63,12 @@ def prediction_source(path: Path) -> dict | None:
     except ValueError:
         source = None
     return source if isinstance(source, dict) else {"written by": str(text)}
+
+
+def read_prediction(path: Path) -> dict[str, np.ndarray]:
+    """The channels of a prediction EXR (write_prediction's: disparity and depth, float32, nan where no
+    estimate). OpenEXR's errors for a file it cannot read pass through."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        return {name: np.asarray(channel.pixels, np.float32) for name, channel in exr.channels().items()}

@@ -22,8 +22,10 @@ from generator.config import ConfigError, check_output_dir, config_json, load_co
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
-                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml"]
-TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml", "train_table2.toml"]
+                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml",
+                     "kinect_real.toml"]
+TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml", "train_table2.toml",
+                   "train_kinect_real.toml"]
 # (config module, its reference page)
 CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]
 
@@ -67,18 +69,26 @@ def values_in_file(path: Path) -> dict:
     return flat
 
 
-@pytest.mark.parametrize("name", GENERATOR_CONFIGS)
-def test_shipped_generator_configs_load_as_written(name, tmp_path, monkeypatch):
-    # Built-in configs are loaded by name; their cache_dir ("assets_cache") is relative to the current
-    # directory, where `dotsim assets build` writes the cache (an empty one stands in for it here).
+@pytest.fixture
+def builtin_cwd(tmp_path, monkeypatch):
+    """A current directory as a built-in config expects it: its paths are relative to it, the cache_dir
+    ("assets_cache", where `dotsim assets build` writes the cache: an empty one stands in for it) and
+    kinect_real's rig and pattern files (the repository's tests/data, linked in)."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "assets_cache").mkdir()
+    (tmp_path / "tests").symlink_to(REPO / "tests")
+    return tmp_path
+
+
+@pytest.mark.parametrize("name", GENERATOR_CONFIGS)
+def test_shipped_generator_configs_load_as_written(name, builtin_cwd):
+    tmp_path = builtin_cwd  # built-in configs are loaded by name
     config = load_config(Path(name).stem)
     path = BUILTIN_DIR / name
     assert config.source == str(path)
     resolved = config.to_dict()
     for (table, key), value in values_in_file(path).items():
-        if key == "cache_dir":
+        if key in ("cache_dir", "file", "path"):
             assert resolved[table][key] == str((tmp_path / value).resolve())
         else:
             assert resolved[table][key] == value, (table, key)
@@ -103,11 +113,10 @@ def test_builtin_configs_by_name_and_config_show(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name", GENERATOR_CONFIGS)
-def test_a_saved_config_loads_back_equal(name, tmp_path, monkeypatch):
+def test_a_saved_config_loads_back_equal(name, builtin_cwd):
     """config_json -> load_config is the identity on every shipped config, `source` included; the
     saved file's own folder plays no part (its paths are absolute)."""
-    monkeypatch.chdir(tmp_path)  # an empty cache where the built-in configs look for one, as above
-    (tmp_path / "assets_cache").mkdir()
+    tmp_path = builtin_cwd
     config = load_config(BUILTIN_DIR / name)
     saved = tmp_path / "elsewhere" / "saved.json"
     saved.parent.mkdir()
