@@ -5,8 +5,8 @@
         [--minutes 35 | --steps N] [--threads 1] [--out out/real_recording]
 
 1. renders --train-scenes train scenes and --test-scenes test scenes (test assets, seed 1) of
-   dotsim/configs/kinect_real.toml: the capture's rig and real pattern, camera at half size (320 x 256);
-2. trains dotsim/configs/train_kinect_real.toml for --steps steps, or for --minutes: the steps that fill
+   bench/kinect_real.toml: the capture's rig and real pattern, camera at half size (320 x 256);
+2. trains bench/train_kinect_real.toml for --steps steps, or for --minutes: the steps that fill
    them are planned from two short calibration runs (as bench.trainer_accuracy), so that the cosine
    schedule ends with the run (on a shared machine the load changes and the run ends early or late);
 3. scores it on the rendered test split (`dotsim eval`'s table: ground truth there);
@@ -39,8 +39,8 @@ import cv2
 import numpy as np
 
 REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kinect_v1_ctd"
-GENERATOR_CONFIG = "dotsim/configs/kinect_real.toml"
-TRAIN_CONFIG = "dotsim/configs/train_kinect_real.toml"
+GENERATOR_CONFIG = Path(__file__).with_name("kinect_real.toml")
+TRAIN_CONFIG = Path(__file__).with_name("train_kinect_real.toml")
 RESIDUAL_LIMIT = 2.0  # full-resolution px at the ends of the residual pictures' colour scale
 PANEL_WIDTH = 320  # px: the pictures' panels (the network's size; the full-size maps halved)
 

@@ -1,7 +1,8 @@
-"""bench/real_recording.py's path on the vendored real Kinect frame, at a tiny size: the frame shrunk by
-whole-pixel means, `dotsim infer` of a tiny network trained on oracle renders of the capture's rig and
-real pattern (dotsim/configs/kinect_real.toml's [rig], a quarter of its size), and the plane score of
-what it predicts over the hand-drawn regions."""
+"""bench/real_recording.py's path on the vendored real Kinect frame, at a tiny size (its steps, with
+the product's functions: tests do not import benchmarks): the frame shrunk by whole-pixel means,
+`dotsim infer` of a tiny network trained on oracle renders of the capture's rig and real pattern
+(bench/kinect_real.toml's [rig], a quarter of its size), and the plane score of what it predicts over
+the hand-drawn regions."""
 
 from pathlib import Path
 
@@ -9,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.real_recording import REAL, real_frame
 from commands.cli import main as dotsim
 from dotsim.frame_source import open_source
 from dotsim.images import write_image
@@ -25,21 +25,22 @@ from trainer.flat_regions import read_regions, score_regions
 from trainer.train import train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
+REPO = Path(__file__).resolve().parents[2]
+REAL = REPO / "tests" / "data" / "real" / "kinect_v1_ctd"
 
 
-def test_the_real_frame_shrinks_by_whole_pixel_means():
-    """At half size each pixel is the mean of its 2 x 2 block of the 8-bit frame (over 255)."""
+def real_frame(shape: tuple[int, int]) -> np.ndarray:
+    """The vendored 640 x 512 IR frame in [0, 1], each pixel of `shape` the mean of its whole-pixel block."""
     ir = cv2.imread(str(REAL / "ir.png"), cv2.IMREAD_UNCHANGED).astype(np.float64) / 255
-    blocks = ir.reshape(256, 2, 320, 2).mean(axis=(1, 3))
-    assert np.abs(real_frame((256, 320)) - blocks).max() < 1e-6
-    assert np.array_equal(real_frame((512, 640)), ir.astype(np.float32))
+    h, w = shape
+    return ir.reshape(h, ir.shape[0] // h, w, ir.shape[1] // w).mean(axis=(1, 3))
 
 
 @pytest.fixture(scope="module")
 def tiny_network(tmp_path_factory):
     """A tiny network trained 20 steps on oracle renders through kinect_real's rig at a quarter of its size
     (camera 80 x 64, projector 160 x 128) with the capture's pattern shrunk to the projector."""
-    rig = checked_rig(*read_rig_config("kinect_real")).rig.scaled(0.25)
+    rig = checked_rig(*read_rig_config(REPO / "bench" / "kinect_real.toml")).rig.scaled(0.25)
     pattern = load_pattern(REAL / "pattern.png").image
     small = cv2.resize(pattern, (rig.projector.width, rig.projector.height), interpolation=cv2.INTER_AREA)
     dots = DotPattern(small / small.max(), source=str(REAL / "pattern.png"), params={"shrunk": 0.25})

@@ -22,10 +22,8 @@ from generator.config import ConfigError, check_output_dir, config_json, load_co
 
 REPO = Path(__file__).resolve().parents[2]
 GENERATOR_CONFIGS = ["default.toml", "structure_core.toml", "kinect.toml", "realsense_d415.toml",
-                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml",
-                     "kinect_real.toml"]
-TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml", "train_table2.toml",
-                   "train_kinect_real.toml"]
+                     "realsense_d435.toml", "tiny.toml", "bench_accuracy.toml", "table2.toml"]
+TRAINER_CONFIGS = ["train_tiny.toml", "train_cpu.toml", "train_gigadepth.toml", "train_table2.toml"]
 # (config module, its reference page)
 CONFIGS = [(generator_config, "CONFIG.md"), (trainer_config, "TRAIN_CONFIG.md")]
 
@@ -71,12 +69,10 @@ def values_in_file(path: Path) -> dict:
 
 @pytest.fixture
 def builtin_cwd(tmp_path, monkeypatch):
-    """A current directory as a built-in config expects it: its paths are relative to it, the cache_dir
-    ("assets_cache", where `dotsim assets build` writes the cache: an empty one stands in for it) and
-    kinect_real's rig and pattern files (the repository's tests/data, linked in)."""
+    """A current directory as a built-in config expects it: its paths are relative to it, as the
+    cache_dir ("assets_cache", where `dotsim assets build` writes the cache: an empty one stands in)."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "assets_cache").mkdir()
-    (tmp_path / "tests").symlink_to(REPO / "tests")
     return tmp_path
 
 
