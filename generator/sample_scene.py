@@ -371,7 +371,7 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         # Bounded by the distance: no object fills the view or swallows the camera when the rig moves.
         if resources.meshes:
             asset = resources.meshes[int(rng.integers(len(resources.meshes)))]
-            low, high = asset.size_range
+            low, high = asset.size_range if sc.mesh_size == "asset" else sc.object_size
         else:
             low, high = sc.object_size
         cap = sc.max_angular_size * distance

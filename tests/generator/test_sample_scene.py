@@ -13,6 +13,7 @@ from dotsim.config_schema import ConfigError
 from dotsim.rig.geometry import Rig
 from generator.config import config_from_dict
 from generator.sample_scene import (
+    MeshAsset,
     SceneResources,
     TextureAsset,
     build_rig,
@@ -309,3 +310,26 @@ def test_ambient_ratio_is_drawn_last_and_only_when_asked_for():
     assert all(0.1 <= r <= 20.0 for r in ratios) and min(ratios) < 1.0 < max(ratios)
     with pytest.raises(ConfigError, match=r"\[lighting\] ambient_ratio = \[0, 5\]: not allowed"):
         config_from_dict({"lighting": {"ambient_ratio": [0.0, 5.0]}})
+
+
+def test_mesh_size_draws_asset_meshes_within_their_own_range_or_object_size():
+    # A cached mesh stored 2 m across with a scale hint of 0.05-0.6 m: its drawn extent is the stored
+    # extent times its scale, inside the hint ("asset") or inside [scene] object_size ("object_size"),
+    # and never above max_angular_size x the distance of its centre from the camera in either case.
+    mesh = MeshAsset("/data/m.npz", "m", extent=2.0, size_range=(0.05, 0.6))
+    resources = replace(RESOURCES, meshes=(mesh,))
+    for mode, (low, high) in (("asset", (0.05, 0.6)), ("object_size", (0.5, 2.0))):
+        config = config_from_dict({"scene": {
+            "object_count": [300, 300], "mesh_size": mode, "object_size": [0.5, 2.0], "distance": [0.5, 3.0],
+            "max_angular_size": 0.8, "in_view_share": 1.0, "back_wall_distance": [4.0, 4.0],
+            "room_size": [8.0, 8.0], "room_height": [6.0, 6.0]}})
+        spec = sample_scene_spec(config, 0, 0, "train", resources)
+        cam = np.asarray(spec.poses[0])[:3, 3]
+        objects = [o for o in spec.objects if o.name.startswith("object_")]
+        extents = np.array([2.0 * o.scale[0] for o in objects])
+        caps = 0.8 * np.array([np.linalg.norm(np.asarray(o.location) - cam) for o in objects])
+        assert len(objects) == 300
+        assert np.all(extents <= np.minimum(high, caps) + 1e-9)
+        assert np.all(extents >= np.minimum(low, caps) - 1e-9)
+        uncapped = caps > high
+        assert extents[uncapped].max() > 0.8 * high  # the range is used, not only its low end
