@@ -58,6 +58,13 @@ def power_law_fit(budgets, rates) -> tuple[float, float] | None:
     >>> a, b = power_law_fit([1e6, 1e7, 1e8], [0.4, 0.2, 0.1])
     >>> round(b, 4), round(a * 1e8 ** -b, 4)
     (0.301, 0.1)
+    >>> a, b = power_law_fit([2e7, 5e7, 1.2e8, 3e8], [0.9 * n ** -0.35 for n in (2e7, 5e7, 1.2e8, 3e8)])
+    >>> round(a, 9), round(b, 9), round(0.9 * budget_for(0.0188, (a, b)) ** -0.35, 9)
+    (0.9, 0.35, 0.0188)
+    >>> power_law_fit([1e6, 1e7], [0.0, 0.3]) is None  # a rate of 0 has no logarithm: one point left
+    True
+    >>> budget_for(0.01, power_law_fit([1e6, 1e7], [0.2, 0.3])) is None  # worse with more: no budget
+    True
     """
     points = [(math.log(n), math.log(r)) for n, r in zip(budgets, rates, strict=True) if r > 0]
     if len(points) < 2:
@@ -92,7 +99,8 @@ def budgets_list(text: str) -> list[float]:
     try:
         values = sorted(float(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--budgets {text!r}: comma-separated numbers (pixel-samples)")
+        raise argparse.ArgumentTypeError(f"--budgets {text!r}: comma-separated numbers "
+                                         "(pixel-samples)") from None
     if not values or values[0] <= 0:
         raise argparse.ArgumentTypeError(f"--budgets {text!r}: every budget must be above 0")
     return values

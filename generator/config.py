@@ -86,8 +86,8 @@ class SceneConfig(Checked):
                                       " also at most max_angular_size x its distance)",
                                       low=0.001, high=20.0)
     mesh_size: str = setting("asset", "the extent an asset-cache mesh is drawn at: asset (each mesh's own "
-                             "size range, its scale hint) or object_size (every mesh within `object_size`, as "
-                             "DepthInSpace scales every chair alike); both at most max_angular_size x its "
+                             "size range, its scale hint) or object_size (every mesh within `object_size`, "
+                             "as DepthInSpace scales every chair alike); both at most max_angular_size x its "
                              "distance", choices=("asset", "object_size"))
     max_angular_size: float = setting(0.25, "largest object extent as a fraction of its distance: keeps "
                                       "near objects from filling the view (and from reaching the camera)",

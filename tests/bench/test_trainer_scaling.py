@@ -1,14 +1,12 @@
 """bench.trainer_scaling run as its docstring says (its own process): train_tiny at four budgets on
 oracle frames, scored on two test sets, a rerun skipping the budgets done, the report's fits; and the
-fit against a power law computed by hand."""
+fit against a power law computed by hand (its doctests)."""
 
 import json
-import math
 import os
 import subprocess
 import sys
 
-from bench.trainer_scaling import budget_for, power_law_fit
 from dotsim.oracle_dataset import make_dataset
 
 # One intra-op thread: on the shared 2-core machine two threads measured 3-10x slower per step.
@@ -22,14 +20,9 @@ def scaling(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_fit_recovers_a_power_law_and_names_the_budget_it_reaches_a_rate_at():
-    budgets = [2e7, 5e7, 1.2e8, 3e8]
-    rates = [0.9 * n ** -0.35 for n in budgets]
-    a, b = power_law_fit(budgets, rates)
-    assert math.isclose(a, 0.9, rel_tol=1e-9) and math.isclose(b, 0.35, rel_tol=1e-9)
-    need = budget_for(0.0188, (a, b))
-    assert math.isclose(0.9 * need ** -0.35, 0.0188, rel_tol=1e-9)
-    assert power_law_fit([1e6, 1e7], [0.0, 0.3]) is None  # a rate of 0 has no logarithm: one point left
-    assert budget_for(0.01, power_law_fit([1e6, 1e7], [0.2, 0.3])) is None  # worse with more: no budget
+    done = subprocess.run([sys.executable, "-m", "doctest", "-v", "bench/trainer_scaling.py"],
+                          capture_output=True, text=True, env=ENV)
+    assert done.returncode == 0 and "power_law_fit" in done.stdout, done.stdout[-2000:] + done.stderr
 
 
 def test_four_budgets_on_two_tests_then_a_rerun_skips_them(tmp_path):
