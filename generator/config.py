@@ -165,8 +165,8 @@ class LightingConfig(Checked):
     ambient_ratio: FloatRange = setting(
         (0.0, 0.0), "ambient light over the projector's light where the projector reaches (what `dotsim "
         "capture fit-sensor` measures: projector-off over on - off), log-uniform per scene: the ambient "
-        "passes are scaled to it (docs/CAPTURE.md \"Rooms lit as real rooms are\"); [0, 0]: off, the "
-        "ambient as world_strength and the lights give it", low=0.0, high=1000.0)
+        "passes are denoised and scaled to it (docs/CAPTURE.md \"Rooms lit as real rooms are\"); [0, 0]: "
+        "off, the ambient as world_strength and the lights give it", low=0.0, high=1000.0)
 
     def __post_init__(self) -> None:
         super().__post_init__()

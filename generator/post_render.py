@@ -9,7 +9,8 @@ Raw passes (generator/blender SceneRenderer.render, float32 (H, W), linear radia
   spec renders the stereo pair (SceneSpec.cameras).
 With the spec's ambient_ratio ([lighting] ambient_ratio) the ambient passes are first scaled so that
 the ambient light over the projector's, averaged where the projector reaches directly, is that ratio
-(ambient_scale; the right camera's by the same factor: one room). Every channel made from the
+(ambient_scale; the right camera's by the same factor: one room; the renderer denoised them first,
+frame_recipe.py). Every channel made from the
 ambient sees the scaled one: ir, ir_right, the stored ambient and flood, the visibility mask's noise,
 and so the device_depth engine (it models the device seeing that IR); labels and normals do not
 depend on light.

@@ -22,6 +22,12 @@ scene without them renders as before, byte for byte:
   surface a camera ray hits and which change no sample, written by a File Output node to a data EXR.
 - transparent objects: light seen through glass is transmission light, which Cycles keeps in passes
   of its own, so the light sums that make R and G (and the direct EXR) add the transmission passes.
+- [lighting] ambient_ratio: the ambient (B) alone goes through OpenImageDenoise, guided by the denoising
+  albedo and normal passes, before it is written. The post-render scales the ambient up to the ratio
+  (often hundreds of times), and at a few samples the path-traced room is speckled with single bright
+  pixels that would then set the exposure and read as dots; scaling the lamps instead scales their
+  noise alike (docs/RENDERING.md "Denoised ambient" has the measurements). R and G, the dots, are
+  never denoised.
 """
 
 from __future__ import annotations
@@ -63,7 +69,8 @@ class Render:
     colour); () for none. A raw pass that two renders give is their sum. data_file: (channel, raw
     pass) pairs a File Output node writes to a data EXR from the object index (R) and the normal (G, B,
     A: x, y, z in Blender's world frame) passes; () for none. transmission: the light sums add the
-    transmission passes (diffuse, glossy and transmission light x its colour).
+    transmission passes (diffuse, glossy and transmission light x its colour). denoise_ambient: the
+    image's B (the ambient) goes through OpenImageDenoise alone (the module docstring).
     """
     bounces: bool
     extra_lights: bool
@@ -73,6 +80,7 @@ class Render:
     direct_file: tuple[tuple[str, str], ...] = ()
     data_file: tuple[tuple[str, str], ...] = ()
     transmission: bool = False
+    denoise_ambient: bool = False
 
     @property
     def data_passes(self) -> frozenset[str]:
@@ -136,8 +144,8 @@ WITHOUT_DIRECT_LIGHT = FrameRecipe(
 
 def frame_recipe(spec: SceneSpec) -> FrameRecipe:
     """How the frames of `spec` are rendered (the module docstring): by its extra lights and its
-    render.direct_light (validated with the spec), its render.labels and render.normals, and whether it
-    has transparent objects."""
+    render.direct_light (validated with the spec), its render.labels and render.normals, whether it
+    has transparent objects, and whether its ambient is scaled to an ambient_ratio."""
     if not spec.lights:
         recipe = FrameRecipe((ALL_LIGHT_RENDER,), 1.0)
     else:
@@ -149,6 +157,8 @@ def frame_recipe(spec: SceneSpec) -> FrameRecipe:
         first = replace(first, data_file=data)
     if any(obj.material.kind == "transparent" for obj in spec.objects):
         first = with_transmission(first)
+    if spec.ambient_ratio is not None:
+        first = replace(first, denoise_ambient=True)
     return replace(recipe, renders=(first, *rest))
 
 

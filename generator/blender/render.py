@@ -9,7 +9,8 @@ rectangle in green (projector.py); the world and the extra lights are pure blue.
 gives projector = R, flood = G, ambient = B, and the Z pass gives planar depth. The compositor
 packs (R, G, B, Z) into one RGBA float EXR in a private temp folder, read back with a tiny numpy
 reader (exr.py). Clamping, denoising, adaptive sampling and view transforms are off, because each
-of them would mix channels or change values.
+of them would mix channels or change values; only a spec with an ambient_ratio has its ambient (B) alone
+denoised in the compositor (frame_recipe.py).
 
 Direct light: which renders a frame takes, which passes they switch on and what the compositor
 writes is the frame recipe's to say (frame_recipe.py, pure); the renderer sets the bpy scene up for
@@ -169,12 +170,28 @@ def _data_image(tree: bpy.types.NodeTree, layers: bpy.types.Node, data: tuple[tu
     return combine.outputs[0]
 
 
+def _denoised(tree: bpy.types.NodeTree, layers: bpy.types.Node, channel: bpy.types.NodeSocket
+              ) -> bpy.types.NodeSocket:
+    """`channel` through OpenImageDenoise on its own (grey: the denoiser sees no other channel's light),
+    guided by the denoising albedo and normal passes of the first surface."""
+    grey = tree.nodes.new("CompositorNodeCombineColor")
+    for k in range(3):
+        tree.links.new(channel, grey.inputs[k])
+    denoise = tree.nodes.new("CompositorNodeDenoise")
+    tree.links.new(grey.outputs[0], denoise.inputs["Image"])
+    tree.links.new(layers.outputs["Denoising Albedo"], denoise.inputs["Albedo"])
+    tree.links.new(layers.outputs["Denoising Normal"], denoise.inputs["Normal"])
+    back = tree.nodes.new("CompositorNodeSeparateColor")
+    tree.links.new(denoise.outputs[0], back.inputs[0])
+    return back.outputs[0]
+
+
 def _build_compositor(render: Render, direct_file: Path, data_file: Path) -> bpy.types.NodeTree:
     """Render Layers -> RGBA image with alpha = Z (depth), written as the render's output file.
     With render.red_green "indirect", R and G of that image hold only indirect light. With
     render.direct_file a File Output node also writes the direct light (R, G; B is the world's) as an
     RGB EXR at `direct_file`, with render.data_file another the data passes (_data_image) at
-    `data_file`."""
+    `data_file`. With render.denoise_ambient, B (the ambient) is denoised on its own (_denoised)."""
     tree = bpy.data.node_groups.new("dotsim_compositor", "CompositorNodeTree")
     tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
     layers = tree.nodes.new("CompositorNodeRLayers")
@@ -194,7 +211,10 @@ def _build_compositor(render: Render, direct_file: Path, data_file: Path) -> bpy
         tree.links.new(_data_image(tree, layers, render.data_file), data.inputs[0])
     tree.links.new(red_green.outputs[0], combine.inputs[0])
     tree.links.new(red_green.outputs[1], combine.inputs[1])
-    tree.links.new(combined.outputs[2], combine.inputs[2])
+    ambient = combined.outputs[2]
+    if render.denoise_ambient:
+        ambient = _denoised(tree, layers, ambient)
+    tree.links.new(ambient, combine.inputs[2])
     tree.links.new(layers.outputs["Depth"], combine.inputs[3])
     tree.links.new(combine.outputs[0], output.inputs[0])
     return tree
@@ -273,12 +293,14 @@ class SceneRenderer:
         self._tree, self._composited = tree, render
 
     def _set_light_passes(self, render: Render) -> None:
-        """Switch the LIGHT_PASSES and DATA_PASSES `render` uses on and the others off."""
+        """Switch the LIGHT_PASSES and DATA_PASSES `render` uses on and the others off, and the
+        denoising data passes (albedo, normal) on only where it denoises its ambient."""
         layer = self.scene.view_layers[0]
         for name in LIGHT_PASSES:
             setattr(layer, f"use_pass_{name}", name in render.light_passes)
         for name in DATA_PASSES:
             setattr(layer, f"use_pass_{name}", name in render.data_passes)
+        layer.cycles.denoising_store_passes = render.denoise_ambient
 
     @contextlib.contextmanager
     def _set_for(self, render: Render):

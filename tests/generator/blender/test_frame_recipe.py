@@ -176,3 +176,17 @@ def test_labels_normals_and_glass_change_the_first_render_alone(lights):
     added = first.light_passes - plain.renders[0].light_passes
     assert added == {name.replace("diffuse", "transmission") for name in plain.renders[0].light_passes
                      if "diffuse" in name}
+
+
+@pytest.mark.parametrize("lights", [0, 1])
+def test_an_ambient_ratio_denoises_the_first_renders_ambient_alone(lights):
+    """[lighting] ambient_ratio has the first render's ambient (B, which the later renders never read)
+    denoised; a scene without it keeps its recipe exactly."""
+    base = spec(lights, "separate")
+    plain = frame_recipe(base)
+    lit = frame_recipe(replace(base, ambient_ratio=5.0))
+    first, *rest = lit.renders
+    assert first == replace(plain.renders[0], denoise_ambient=True) and tuple(rest) == plain.renders[1:]
+    assert ("B", "ambient") in first.image
+    assert not any(("B", "ambient") in render.image for render in rest)
+    assert not any(render.denoise_ambient for render in plain.renders)
