@@ -4,14 +4,13 @@ pairs, and an FFV1 video through the OpenCV backend."""
 
 from __future__ import annotations
 
-import cv2
-import numpy as np
 import pytest
 
 from commands.cli import main
 from dotsim.oracle_dataset import make_dataset
 from dotsim.rig.files import rig_file_json
 from dotsim.rig.presets import get_preset
+from tests.capture_inputs import write_on_off_frames
 from tests.output_folders import assert_one_line_error, leftovers
 
 RIG = get_preset("structure_core").scaled(0.1)  # camera 122 x 90
@@ -21,18 +20,7 @@ RIG = get_preset("structure_core").scaled(0.1)  # camera 122 x 90
 def inputs(tmp_path_factory):
     """Two on/off PNG pairs, a 4-frame lossless video and the rig file, of RIG's camera."""
     root = tmp_path_factory.mktemp("inputs")
-    rng = np.random.default_rng(3)
-    shape = (RIG.camera.height, RIG.camera.width)
-    video = cv2.VideoWriter(str(root / "ir.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 30, shape[::-1],
-                            isColor=False)
-    assert video.isOpened()
-    for name in ("on", "off"):
-        (root / name).mkdir()
-        for k in range(2):
-            image = rng.integers(0, 256, shape, dtype=np.uint8)
-            assert cv2.imwrite(str(root / name / f"frame_{k}.png"), image)
-            video.write(image)
-    video.release()
+    write_on_off_frames(root, (RIG.camera.height, RIG.camera.width), seed=3, video=root / "ir.avi")
     (root / "rig.json").write_bytes(rig_file_json(RIG))
     return root
 

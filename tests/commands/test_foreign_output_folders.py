@@ -5,8 +5,6 @@ changes (`dotsim verify` of a dataset still passes)."""
 
 from __future__ import annotations
 
-import cv2
-import numpy as np
 import pytest
 
 from assets_manifest.cache import build_asset_cache
@@ -18,6 +16,7 @@ from dotsim.oracle_dataset import make_dataset
 from dotsim.rig.files import rig_file_json
 from dotsim.rig.presets import get_preset
 from dotsim.shards.writer import export_webdataset
+from tests.capture_inputs import write_on_off_frames
 from tests.output_folders import assert_one_line_error, snapshot
 from tests.trainer_fixtures import tiny_config
 
@@ -51,18 +50,8 @@ def world(tmp_path_factory):
     run = root / "run"
     train(tiny_config(1), open_source(data, "train"), run, progress=False)
     inputs = root / "inputs"
-    rng = np.random.default_rng(3)
-    shape = (RIG.camera.height, RIG.camera.width)
     inputs.mkdir()
-    video = cv2.VideoWriter(str(inputs / "ir.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 30, shape[::-1],
-                            isColor=False)
-    for name in ("on", "off"):
-        (inputs / name).mkdir()
-        for k in range(2):
-            image = rng.integers(0, 256, shape, dtype=np.uint8)
-            assert cv2.imwrite(str(inputs / name / f"frame_{k}.png"), image)
-            video.write(image)
-    video.release()
+    write_on_off_frames(inputs, (RIG.camera.height, RIG.camera.width), seed=3, video=inputs / "ir.avi")
     (inputs / "rig.json").write_bytes(rig_file_json(RIG))
     (inputs / "train.toml").write_text(MANIFEST)
     frame = next(data.glob("shard_*/scene_*/frame_0.exr"))

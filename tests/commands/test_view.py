@@ -16,6 +16,7 @@ from dotsim.oracle_dataset import random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.prediction_file import write_prediction
 from dotsim.rig.presets import get_preset
+from tests.capture_inputs import write_on_off_frames
 from tests.output_folders import assert_one_line_error
 
 rr = pytest.importorskip("rerun")  # the dev extra installs it (dotsim[view])
@@ -210,15 +211,8 @@ def test_labels_are_segmentation_images_and_normals_one_rgb_image():
 
 def test_a_capture_without_depth_shows_its_passes(tmp_path, capsys):
     """Issue 45 item 3: a `capture import` dataset has no depth; view showed a KeyError traceback."""
-    import cv2
-
     rig = get_preset("structure_core").scaled(0.1)
-    rng = np.random.default_rng(0)
-    for name in ("on", "off"):
-        (tmp_path / name).mkdir()
-        for k in range(2):
-            cv2.imwrite(str(tmp_path / name / f"f_{k}.png"),
-                        rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    write_on_off_frames(tmp_path, (rig.camera.height, rig.camera.width), seed=0)
     data = tmp_path / "captured"
     assert cli.main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
                      "--scale", "0.1", "--frames-per-scene", "2", "--out", str(data), "--no-progress"]) == 0

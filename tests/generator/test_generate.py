@@ -30,6 +30,7 @@ from generator.render_worker import LOG_DIR
 from generator.run_request import RunRequest
 from generator.sample_scene import SceneResources, sample_scene_spec
 from generator.scene_spec import camera_views
+from tests.capture_inputs import write_on_off_frames
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "dotsim" / "configs" / "tiny.toml"
@@ -553,12 +554,7 @@ def test_generate_refuses_a_dataset_of_real_captures(tmp_path, capsys):
     """A dataset holds one kind of data (issue 37, item 4): `generate` into a folder `capture import`
     made is one line, and the folder stays as it was."""
     rig = get_preset("structure_core").scaled(0.1)
-    rng = np.random.default_rng(0)
-    for name in ("on", "off"):
-        (tmp_path / name).mkdir()
-        for k in range(2):
-            cv2.imwrite(str(tmp_path / name / f"f_{k}.png"),
-                        rng.integers(0, 256, (rig.camera.height, rig.camera.width), dtype=np.uint8))
+    write_on_off_frames(tmp_path, (rig.camera.height, rig.camera.width), seed=0)
     out = tmp_path / "real"
     assert dotsim_main(["capture", "import", "--on", str(tmp_path / "on"), "--off", str(tmp_path / "off"),
                         "--scale", "0.1", "--frames-per-scene", "2", "--scenes-per-shard", "2",
