@@ -20,6 +20,7 @@ from generator.blender import demo_scenes as ds
 from generator.post_render import make_frame
 from generator.sample_scene import frame_streams
 from generator.scene_spec import SceneSpec
+from tests.generator.blender.box_rays import box_entry_distance, mask_core
 
 bpy = pytest.importorskip("bpy")
 
@@ -39,18 +40,7 @@ def _spec(pattern, objects, labels=True, normals=False, **kwargs) -> SceneSpec:
 
 def _box_t(lower, upper) -> np.ndarray:
     """Entry distance along the camera's rays into the box [lower, upper]; inf on a miss."""
-    origins, directions = np.zeros(3), RAYS
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (np.asarray(lower) - origins) / directions
-        t2 = (np.asarray(upper) - origins) / directions
-    near = np.nanmax(np.minimum(t1, t2), axis=-1)
-    far = np.nanmin(np.maximum(t1, t2), axis=-1)
-    return np.where((far >= near) & (far > 0), near, np.inf)
-
-
-def _core(mask: np.ndarray, pixels: int = 1) -> np.ndarray:
-    """The mask without its border (`pixels` wide): the pixels anti-aliasing cannot touch."""
-    return cv2.erode(mask.astype(np.uint8), np.ones((2 * pixels + 1,) * 2, np.uint8)).astype(bool)
+    return box_entry_distance(np.zeros(3), RAYS, lower, upper)
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> float:
@@ -144,13 +134,13 @@ def test_glass_plate_shows_the_walls_dots_and_is_the_ground_truth(renderer, patt
     frame = make_frame(raw, spec, frame_streams(0, spec, 0))
     t_glass = _box_t(lower, upper)
     on_glass = np.isfinite(t_glass)
-    core = _core(on_glass, 2)
+    core = mask_core(on_glass, 2)
     assert core.sum() > 1000
     np.testing.assert_allclose(frame["depth"][core], t_glass[core], rtol=1e-5)
-    np.testing.assert_array_equal(frame["transparent_or_mirror"].astype(bool)[_core(on_glass, 1)], True)
-    assert not frame["transparent_or_mirror"][_core(~on_glass, 1)].any()
+    np.testing.assert_array_equal(frame["transparent_or_mirror"].astype(bool)[mask_core(on_glass, 1)], True)
+    assert not frame["transparent_or_mirror"][mask_core(~on_glass, 1)].any()
     assert frame["visibility"][on_glass].sum() == 0
-    assert frame["visibility"][_core(~on_glass, 3)].mean() > 0.9
+    assert frame["visibility"][mask_core(~on_glass, 3)].mean() > 0.9
 
     dots = raw["projector"] / np.maximum(raw["flood"], 1e-9)
     at_wall = expected_pattern_image(np.full_like(frame["depth"], wall_z), RIG, pattern[0].image)
@@ -162,7 +152,7 @@ def test_glass_plate_shows_the_walls_dots_and_is_the_ground_truth(renderer, patt
     assert through > 0.8 and through > _ncc(dots[core], at_plate[core]) + 0.3
     # The light through the plate: dimmed by the Fresnel reflection of its four crossings (two
     # surfaces, there and back: (1 - R0)^4 with R0 = 0.04), not more.
-    flood_ratio = np.median(raw["flood"][core]) / np.median(raw["flood"][_core(~on_glass, 3)])
+    flood_ratio = np.median(raw["flood"][core]) / np.median(raw["flood"][mask_core(~on_glass, 3)])
     assert 0.75 < flood_ratio < 1.0, flood_ratio
 
 
@@ -177,7 +167,7 @@ def test_ir_dark_box_shows_no_dots(renderer, pattern):
     raw = renderer.render(spec)[0]
     frame = make_frame(raw, spec, frame_streams(0, spec, 0))
     on_box = np.isfinite(_box_t(lower, upper))
-    box, wall = _core(on_box, 2), _core(~on_box, 2) & (raw["flood_direct"] > 0)
+    box, wall = mask_core(on_box, 2), mask_core(~on_box, 2) & (raw["flood_direct"] > 0)
     expected = expected_pattern_image(frame["depth"], RIG, pattern[0].image)
     ir = frame["ir"].astype(np.float64)
 
@@ -213,7 +203,7 @@ def test_mirror_shows_the_dots_of_what_it_reflects(renderer, pattern):
     hits = RAYS * t[..., None]
     u_axis = np.array([1.0, 0.0, -1.0]) / math.sqrt(2)
     on_mirror = (np.abs((hits - centre) @ u_axis) < 0.25) & (np.abs(hits[..., 1]) < 0.25)
-    core = _core(on_mirror, 2)
+    core = mask_core(on_mirror, 2)
     assert core.sum() > 300
     np.testing.assert_allclose(frame["depth"][core], t[core], rtol=1e-5)
     assert frame["transparent_or_mirror"][core].all() and not frame["visibility"][core].any()

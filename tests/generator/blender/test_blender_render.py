@@ -22,6 +22,7 @@ from generator.blender import demo_scenes as ds
 from generator.blender.frame_recipe import RAW_PASSES, WITHOUT_DIRECT_LIGHT
 from generator.post_render import make_frame
 from generator.scene_spec import SceneSpec
+from tests.generator.blender.box_rays import box_entry_distance, mask_core
 
 bpy = pytest.importorskip("bpy")
 
@@ -62,20 +63,6 @@ def test_wall_depth_exact_and_dots_shift_by_fb_over_z(renderer, pattern, z):
     assert dy == pytest.approx(0.0, abs=0.1)
 
 
-def _box_intersections(origins: np.ndarray, directions: np.ndarray, lower, upper):
-    """Slab test: entry distance t (along `directions`) of rays into an axis-aligned box; inf on a miss."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (np.asarray(lower) - origins) / directions
-        t2 = (np.asarray(upper) - origins) / directions
-    near = np.nanmax(np.minimum(t1, t2), axis=-1)
-    far = np.nanmin(np.maximum(t1, t2), axis=-1)
-    return np.where((far >= near) & (far > 0), near, np.inf)
-
-
-def _erode(mask: np.ndarray, pixels: int = 1) -> np.ndarray:
-    return cv2.erode(mask.astype(np.uint8), np.ones((2 * pixels + 1,) * 2, np.uint8)).astype(bool)
-
-
 def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
     """A 0.2 m box at 0.5 m before a wall at 3 m: analytic ray casting says which wall pixels the
     projector cannot see. There both projector and flood are ~0; elsewhere the flood is the
@@ -90,17 +77,17 @@ def test_box_shadow_dark_and_lit_wall_matches_inverse_square(renderer, pattern):
     frame = renderer.render(SceneSpec.from_dict(spec))[0]
 
     rays = pixel_rays(*pixel_grid(RIG.camera), RIG.camera)
-    box_t = _box_intersections(np.zeros(3), rays, lower, upper)
+    box_t = box_entry_distance(np.zeros(3), rays, lower, upper)
     on_box = np.isfinite(box_t)
     expected_depth = np.where(on_box, box_t, wall_z)  # rays have z = 1: t is planar depth
-    edges = ~_erode(~on_box) & ~_erode(on_box)  # box silhouette +- 1 px (anti-aliased there)
+    edges = ~mask_core(~on_box) & ~mask_core(on_box)  # box silhouette +- 1 px (anti-aliased there)
     np.testing.assert_allclose(frame["depth"][~edges], expected_depth[~edges], rtol=1e-5)
 
     wall_points = rays * wall_z
     to_projector = RIG.t - wall_points
-    shadow = ~on_box & (_box_intersections(wall_points, to_projector, lower, upper) < 1.0)
+    shadow = ~on_box & (box_entry_distance(wall_points, to_projector, lower, upper) < 1.0)
     lit_wall = ~on_box & ~shadow
-    shadow_core, lit_core = _erode(shadow), _erode(lit_wall)
+    shadow_core, lit_core = mask_core(shadow), mask_core(lit_wall)
     assert shadow_core.sum() > 100, "the test geometry should cast a visible shadow"
     r = np.linalg.norm(to_projector, axis=-1)
     cosine = wall_z / r  # wall normal (0, 0, -1) against the direction to the projector
@@ -128,10 +115,10 @@ def _box_shadow_scene(renderer, pattern, n_lights: int, direct_light: str = "sep
     spec = SceneSpec.from_dict(spec)
     raw = renderer.render(spec)[0]
     rays = pixel_rays(*pixel_grid(RIG.camera), RIG.camera)
-    on_box = np.isfinite(_box_intersections(np.zeros(3), rays, lower, upper))
+    on_box = np.isfinite(box_entry_distance(np.zeros(3), rays, lower, upper))
     wall_points = rays * wall_z
-    shadow = ~on_box & (_box_intersections(wall_points, RIG.t - wall_points, lower, upper) < 1.0)
-    shadow_core, lit_core = _erode(shadow, 2), _erode(~on_box & ~shadow, 2)
+    shadow = ~on_box & (box_entry_distance(wall_points, RIG.t - wall_points, lower, upper) < 1.0)
+    shadow_core, lit_core = mask_core(shadow, 2), mask_core(~on_box & ~shadow, 2)
     assert shadow_core.sum() > 50
     return spec, raw, shadow_core, lit_core
 
@@ -199,7 +186,7 @@ def test_clutter_projector_pass_matches_oracle(renderer, pattern):
     # none of them): projector / flood (same light, same shading) against the oracle's pattern
     # lookup / its lookup of an all-white pattern.
     flat = expected_pattern_image(frame["depth"], RIG, np.ones_like(pattern[0].image), supersample=4)
-    lit = _erode((frame["flood"] > 0.05 * np.percentile(frame["flood"], 99)) & (flat > 0))
+    lit = mask_core((frame["flood"] > 0.05 * np.percentile(frame["flood"], 99)) & (flat > 0))
     score = ncc(frame["projector"][lit] / frame["flood"][lit], expected[lit] / flat[lit])
     # Measured here: 0.948 / 0.967 / 0.994 at 1 / 4 / 16 samples (the rest is sampling noise), the
     # same with 0 or 4 bounces; the dots shifted by one pixel score about 0.3.
