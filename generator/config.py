@@ -37,6 +37,7 @@ from dotsim.rig.presets import PRESET_COLOUR_CAMERAS
 from dotsim.sensor.settings import SensorConfig
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
+    CeilingLight,
     MaskParams,
     Material,
     PointLight,
@@ -167,13 +168,19 @@ class LightingConfig(Checked):
         "capture fit-sensor` measures: projector-off over on - off), log-uniform per scene: the ambient "
         "passes are denoised and scaled to it (docs/CAPTURE.md \"Rooms lit as real rooms are\"); [0, 0]: "
         "off, the ambient as world_strength and the lights give it", low=0.0, high=1000.0)
+    ceiling_light: FloatRange = setting(
+        (0.0, 0.0), "power of a light panel under the whole ceiling (90 % of its width and depth), facing "
+        "down, W, log-uniform per scene: the even light of a room lit from above, where extra_lights' point "
+        "lights light the surfaces near them many times more than the rest (docs/RENDERING.md \"Even "
+        "ambient light\"); [0, 0]: none", **bounds_of(CeilingLight, "power"))
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        low, high = self.ambient_ratio
-        if high > 0 and low <= 0:
-            raise ConfigError(f"[lighting] ambient_ratio = [{low:g}, {high:g}]: not allowed; allowed: [0, 0] "
-                              "(off) or a range whose low end is above 0 (log-uniform)")
+        for key in ("ambient_ratio", "ceiling_light"):
+            low, high = getattr(self, key)
+            if high > 0 and low <= 0:
+                raise ConfigError(f"[lighting] {key} = [{low:g}, {high:g}]: not allowed; allowed: [0, 0] "
+                                  "(off) or a range whose low end is above 0 (log-uniform)")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from generator.config import Config
 from generator.scene_spec import (
     FRAMES_PER_SCENE,
     AssetMesh,
+    CeilingLight,
     Material,
     PatternRef,
     PointLight,
@@ -47,6 +48,9 @@ MAX_TINT_SATURATION = 0.7
 # Keep the camera this far from every room surface (m): objects sampled between camera and wall
 # need some room, and the rig moves a few centimetres between frames.
 _WALL_CLEARANCE = 0.4
+# A ceiling light panel spans this share of the ceiling's width and depth, hanging this far under it.
+_CEILING_PANEL_SHARE = 0.9
+_CEILING_PANEL_DROP = 0.01
 # Attempts to place an object in the projector's view but outside the camera's; rejection
 # sampling succeeds in about a fifth of tries for Structure Core (69 vs 57 degree fields).
 _OUT_OF_VIEW_TRIES = 32
@@ -416,7 +420,12 @@ def sample_scene_spec(config: Config, scene_index: int, base_seed: int, split: s
         colour_camera=config.colour_camera,
     )
     # drawn last, and only when asked for, so that every other draw (and so today's scenes) stays as it was
-    if li.ambient_ratio[1] <= 0:
-        return spec
-    return replace(spec, ambient_ratio=_log_uniform(rng, *li.ambient_ratio))
+    if li.ambient_ratio[1] > 0:
+        spec = replace(spec, ambient_ratio=_log_uniform(rng, *li.ambient_ratio))
+    if li.ceiling_light[1] > 0:
+        panel = CeilingLight(location=(0.0, 0.0, float(room_hi[2] - _CEILING_PANEL_DROP)),
+                             size=(_CEILING_PANEL_SHARE * room[0], _CEILING_PANEL_SHARE * room[1]),
+                             power=_log_uniform(rng, *li.ceiling_light))
+        spec = replace(spec, lights=(*spec.lights, panel))
+    return spec
 

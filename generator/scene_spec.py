@@ -247,8 +247,24 @@ class PointLight(Checked):
                 "radius": self.radius}
 
 
-Light = PointLight
-LIGHT_TYPES = {"POINT": PointLight}
+@dataclass(frozen=True)
+class CeilingLight(Checked):
+    """A light panel just under the ceiling, facing down (ambient light, rendered in the ambient pass):
+    the broad, even light of a room lit from above. A point light near a surface lights it many times
+    more than the rest of the view; a panel as large as the ceiling lights the view far more evenly
+    (docs/RENDERING.md "Even ambient light")."""
+    location: Vector3 = setting(REQUIRED, "centre of the panel, m")
+    size: tuple[float, float] = setting(REQUIRED, "extents along world x and y, m", low=0.0, high=1000.0,
+                                        low_open=True)
+    power: float = setting(REQUIRED, "power, W", low=0.0, high=1e6)
+
+    def to_dict(self) -> dict:
+        return {"type": "CEILING", "location": list(self.location), "size": list(self.size),
+                "power": self.power}
+
+
+Light = PointLight | CeilingLight
+LIGHT_TYPES = {"POINT": PointLight, "CEILING": CeilingLight}
 
 
 def light_from_dict(d: Any, where: str) -> Light:

@@ -24,6 +24,7 @@ from dotsim.rig.geometry import Intrinsics
 from generator.scene_spec import (
     PRIMITIVE_SHAPES,
     AssetMesh,
+    CeilingLight,
     PointLight,
     PrimitiveMesh,
     SceneObject,
@@ -167,6 +168,17 @@ class SceneContent:
         data.shadow_soft_size = light.radius
         obj = bpy.data.objects.new(f"dotsim_{where}", data)
         obj.location = light.location
+        self.collection.objects.link(obj)
+
+    @add_light.register(CeilingLight)
+    def _(self, light: CeilingLight, where: str) -> None:
+        data = bpy.data.lights.new(f"dotsim_{where}", "AREA")
+        data.color = AMBIENT_COLOUR
+        data.energy = light.power
+        data.shape = "RECTANGLE"
+        data.size, data.size_y = light.size
+        obj = bpy.data.objects.new(f"dotsim_{where}", data)
+        obj.location = light.location  # an area light faces its local -z: down, unrotated
         self.collection.objects.link(obj)
 
     @functools.singledispatchmethod

@@ -22,6 +22,7 @@ from generator.sample_scene import (
     ray_box_exit,
     sample_scene_spec,
 )
+from generator.scene_spec import CeilingLight, SceneSpec
 
 RESOURCES = SceneResources("/data/pattern.png", "ab" * 32,
                            (TextureAsset("/data/t0.png"), TextureAsset("/data/t1.png", (0.5, 0.5))))
@@ -310,6 +311,38 @@ def test_ambient_ratio_is_drawn_last_and_only_when_asked_for():
     assert all(0.1 <= r <= 20.0 for r in ratios) and min(ratios) < 1.0 < max(ratios)
     with pytest.raises(ConfigError, match=r"\[lighting\] ambient_ratio = \[0, 5\]: not allowed"):
         config_from_dict({"lighting": {"ambient_ratio": [0.0, 5.0]}})
+
+
+def test_ceiling_light_hangs_one_panel_under_the_whole_ceiling_only_when_asked_for():
+    """[lighting] ceiling_light: one panel per scene, its power log-uniform in the range, centred under
+    the ceiling (the room's highest point, drawn as the room's other surfaces are) and 90 % of its width
+    and depth, facing down; it is drawn after every other draw, so the rest of the scene is the one drawn
+    without it, and [0, 0] (the default) adds nothing; a range starting at 0 is refused."""
+    resources = SceneResources("/p.png", "0" * 64)
+    room = {"room_size": [3.0, 9.0], "room_height": [2.5, 4.0]}
+    config = config_from_dict({"scene": room, "lighting": {"extra_lights": [1, 2]}})
+    panelled = config_from_dict({"scene": room, "lighting": {"extra_lights": [1, 2],
+                                                             "ceiling_light": [10.0, 1000.0]}})
+    powers = []
+    for index in range(12):
+        plain = sample_scene_spec(config, index, 0, "train", resources)
+        spec = sample_scene_spec(panelled, index, 0, "train", resources)
+        *lamps, panel = spec.lights
+        assert isinstance(panel, CeilingLight) and tuple(lamps) == plain.lights
+        assert replace(spec, lights=plain.lights) == plain
+        ceiling = panel.location[2] + 0.01
+        assert 2.5 <= ceiling <= 4.0 and panel.location[:2] == (0.0, 0.0)
+        # the room is [-w/2, w/2] x [-d/2, d/2]: every pose stands inside 0.9 of it, with its clearance
+        assert all(abs(pose[k][3]) < size / 0.9 / 2
+                   for pose in spec.poses for k, size in enumerate(panel.size))
+        assert all(3.0 * 0.9 <= size <= 9.0 * 0.9 for size in panel.size)
+        powers.append(panel.power)
+    assert all(10.0 <= p <= 1000.0 for p in powers) and min(powers) < 100.0 < max(powers)
+    assert all(not isinstance(light, CeilingLight) for light in plain.lights)
+    again = SceneSpec.from_dict(spec.to_dict())
+    assert again.lights[-1] == panel
+    with pytest.raises(ConfigError, match=r"\[lighting\] ceiling_light = \[0, 5\]: not allowed"):
+        config_from_dict({"lighting": {"ceiling_light": [0.0, 5.0]}})
 
 
 def test_mesh_size_draws_asset_meshes_within_their_own_range_or_object_size():
