@@ -5,7 +5,8 @@ capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), w
 [sensor], with the [sensor] table fit-sensor fits to the real frame (its noise from the frame alone,
 then its blur_sigma and speckle_contrast with --compare against a still rendering of the config with
 that noise and no blur or speckle of its own), and with that table in a room lit to the real frame's
-ambient / projector ratio ([lighting] ambient_ratio). Prints each table
+ambient / projector ratio ([lighting] ambient_ratio) by a panel under the ceiling, evenly as the real
+room is lit ([lighting] ceiling_light, no lamps). Prints each table
 (statistic, recording, rendering, ratio) and writes the pictures.
 
     python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
@@ -25,13 +26,17 @@ from pathlib import Path
 REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kinect_v1_ctd"
 CONFIG = "kinect"
 STILL = {"motion": {"translation": 0.0, "rotation": 0.0}}
+# A room lit evenly from above, as the real frame's room is (its wall's ambient even across the view):
+# the ceiling panel instead of the config's lamps (docs/RENDERING.md "Even ambient light"); its power
+# is immaterial, the ambient being scaled to the ratio.
+EVEN_LIGHT = {"extra_lights": [0, 0], "ceiling_light": [100.0, 100.0]}
 
 
 def still_config(scale: float, samples: int, threads: int, assets: str, sensor: dict | None,
                  ambient_ratio: float | None = None):
     """The Kinect config through the capture's rig at [rig] scale `scale`, still, with `sensor` over
-    its [sensor] table (None: the config's own) and [lighting] ambient_ratio fixed at `ambient_ratio`
-    (None: the config's lighting)."""
+    its [sensor] table (None: the config's own) and, unless `ambient_ratio` is None (the config's
+    lighting), lit evenly (EVEN_LIGHT) with [lighting] ambient_ratio fixed at `ambient_ratio`."""
     from generator.config import config_from_dict, load_config
 
     data = load_config(CONFIG).to_dict()
@@ -44,7 +49,7 @@ def still_config(scale: float, samples: int, threads: int, assets: str, sensor: 
     if sensor is not None:
         data["sensor"] = {**data["sensor"], **sensor}
     if ambient_ratio is not None:
-        data["lighting"] = {**data["lighting"], "ambient_ratio": [ambient_ratio, ambient_ratio]}
+        data["lighting"] = {**data["lighting"], "ambient_ratio": [ambient_ratio, ambient_ratio], **EVEN_LIGHT}
     return config_from_dict(data, source=f"{CONFIG} (still, rig {REAL / 'rig.json'}, scale {scale:g})")
 
 
@@ -98,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
                                       real_ratio if lit else None)
                 generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
             which = ("of the config" if sensor is None else "fitted") + \
-                (f", [lighting] ambient_ratio = {real_ratio:.3g}" if lit else "")
+                (f", lit from the ceiling to [lighting] ambient_ratio = {real_ratio:.3g}" if lit else "")
             print(f"\n== the Kinect config's rendering, [sensor] {which}")
             report = folder / f"realism_{name}.png"
             status |= dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
