@@ -174,10 +174,11 @@ def main(argv=None) -> int:
         if steps * per_step in done:
             print(f"{steps * per_step:.3g} pixel-samples: already in {results}, skipped")
             continue
-        cfg = sized_config(base, steps, max(1, round(steps / steps_per_epoch)), args.config)
+        # enough epochs to hold every step (fewer would end the run early, short of its budget)
+        cfg = sized_config(base, steps, math.ceil(steps / steps_per_epoch), args.config)
         run = args.out / f"run_{steps}"
         result = train(cfg, source, run, progress=False)
-        line = {"pixel_samples": steps * per_step, "steps": result["step"], "config": args.config,
+        line = {"pixel_samples": result["step"] * per_step, "steps": result["step"], "config": args.config,
                 "data": str(args.data), "frames": len(source.frames),
                 "tests": {name: rates_by_class(run / CHECKPOINT, test, source, args.test_frames)["all"]
                           for name, test in tests.items()}}

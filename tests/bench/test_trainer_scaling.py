@@ -1,6 +1,6 @@
-"""bench.trainer_scaling run as its docstring says (its own process): train_tiny at four budgets on
-oracle frames, scored on two test sets, a rerun skipping the budgets done, the report's fits; and the
-fit against a power law computed by hand (its doctests)."""
+"""bench.trainer_scaling run as its docstring says (its own process): train_tiny at four budgets (each
+run to its last step, whole epochs or not) on oracle frames, scored on two test sets, a rerun skipping
+the budgets done, the report's fits; and the fit against a power law computed by hand (its doctests)."""
 
 import json
 import os
@@ -26,16 +26,17 @@ def test_fit_recovers_a_power_law_and_names_the_budget_it_reaches_a_rate_at():
 
 
 def test_four_budgets_on_two_tests_then_a_rerun_skips_them(tmp_path):
-    data = make_dataset(tmp_path / "ds", scenes=2, frames_per_scene=2, test_scenes=1)
+    # 8 training frames, 2 steps an epoch: the 5-step budget takes 2.5 epochs, all of whose steps run
+    data = make_dataset(tmp_path / "ds", scenes=2, frames_per_scene=4, test_scenes=1)
     seen = make_dataset(tmp_path / "seen", scenes=0, frames_per_scene=2, test_scenes=1, seed=5)
     common = ["--config", "train_tiny", "--data", str(data), "--test-data", str(data),
               "--seen-test-data", str(seen), "--test-frames", "2", "--out", str(tmp_path / "curve"),
-              "--budgets", ",".join(str(n * STEP) for n in (1, 2, 3, 4))]
+              "--budgets", ",".join(str(n * STEP) for n in (1, 2, 3, 5))]
     done = scaling(*common)
     assert done.returncode == 0, done.stderr[-2000:]
     lines = [json.loads(line) for line in (tmp_path / "curve" / "results.jsonl").read_text().splitlines()]
-    assert [r["steps"] for r in lines] == [1, 2, 3, 4]
-    assert [r["pixel_samples"] for r in lines] == [n * STEP for n in (1, 2, 3, 4)]
+    assert [r["steps"] for r in lines] == [1, 2, 3, 5]
+    assert [r["pixel_samples"] for r in lines] == [n * STEP for n in (1, 2, 3, 5)]
     for r in lines:
         assert set(r["tests"]) == {"seen meshes", "disjoint meshes"}
         assert all(0 <= t["o(5)"] <= t["o(0.5)"] <= 1 and t["pixels"] > 0 for t in r["tests"].values())
