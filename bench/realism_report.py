@@ -6,7 +6,9 @@ capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), w
 then its blur_sigma and speckle_contrast with --compare against a still rendering of the config with
 that noise and no blur or speckle of its own), and with that table in a room lit to the real frame's
 ambient / projector ratio ([lighting] ambient_ratio) by a panel under the ceiling, evenly as the real
-room is lit ([lighting] ceiling_light, no lamps). Prints each table
+room is lit ([lighting] ceiling_light, no lamps). The scenes stand where the real frame's surfaces do:
+their objects' centres within its 5th-95th percentile depth (SGBM against its pattern), before a back
+wall at the far end (--scene-depths config: the config's scenes, 0.5-8 m). Prints each table
 (statistic, recording, rendering, ratio) and writes the pictures.
 
     python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
@@ -26,17 +28,39 @@ from pathlib import Path
 REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kinect_v1_ctd"
 CONFIG = "kinect"
 STILL = {"motion": {"translation": 0.0, "rotation": 0.0}}
+# The nearest depth SGBM searches the real frame for (m): the Kinect's near limit, about 0.5 m.
+NEAREST = 0.5
 # A room lit evenly from above, as the real frame's room is (its wall's ambient even across the view):
 # the ceiling panel instead of the config's lamps (docs/RENDERING.md "Even ambient light"); its power
 # is immaterial, the ambient being scaled to the ratio.
 EVEN_LIGHT = {"extra_lights": [0, 0], "ceiling_light": [100.0, 100.0]}
 
 
+def recording_depth_range() -> tuple[float, float]:
+    """The 5th and 95th percentile depth of the real frame (capture.realism.matched_depths: SGBM with
+    LCN against its pattern, which is in the frame's camera pixels), m."""
+    import cv2
+    import numpy as np
+
+    from capture.realism import matched_depths
+    from dotsim.rig.files import load_rig_file
+    from trainer.sgbm import num_disparities_for
+
+    rig = load_rig_file(REAL / "rig.json").rig
+    frame, pattern = (cv2.imread(str(REAL / name), cv2.IMREAD_UNCHANGED) / 255.0
+                      for name in ("ir.png", "pattern.png"))
+    depths = matched_depths(frame, pattern, rig.camera.fx, rig.baseline, num_disparities_for(rig, NEAREST))
+    low, high = np.percentile(depths, [5, 95])
+    return round(float(low), 2), round(float(high), 2)
+
+
 def still_config(scale: float, samples: int, threads: int, assets: str, sensor: dict | None,
-                 ambient_ratio: float | None = None):
+                 ambient_ratio: float | None = None, depths: tuple[float, float] | None = None):
     """The Kinect config through the capture's rig at [rig] scale `scale`, still, with `sensor` over
-    its [sensor] table (None: the config's own) and, unless `ambient_ratio` is None (the config's
-    lighting), lit evenly (EVEN_LIGHT) with [lighting] ambient_ratio fixed at `ambient_ratio`."""
+    its [sensor] table (None: the config's own), unless `ambient_ratio` is None (the config's lighting)
+    lit evenly (EVEN_LIGHT) with [lighting] ambient_ratio fixed at `ambient_ratio`, and unless `depths`
+    is None (the config's scenes) its objects' centres drawn within `depths` before a back wall at
+    their far end (the recording's depths: recording_depth_range)."""
     from generator.config import config_from_dict, load_config
 
     data = load_config(CONFIG).to_dict()
@@ -46,6 +70,12 @@ def still_config(scale: float, samples: int, threads: int, assets: str, sensor: 
     data["motion"] = {**data["motion"], **STILL["motion"]}
     if assets == "primitives":
         data["assets"] = {"source": "primitives"}
+    if depths is not None:
+        # a room deep enough for the camera to stand before that wall (the schema's rule)
+        room = [max(data["scene"]["room_size"][0], 1.5 * depths[1]), max(data["scene"]["room_size"][1],
+                                                                        1.5 * depths[1])]
+        data["scene"] = {**data["scene"], "distance": list(depths), "back_wall_distance": [depths[1]] * 2,
+                         "room_size": room}
     if sensor is not None:
         data["sensor"] = {**data["sensor"], **sensor}
     if ambient_ratio is not None:
@@ -65,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="scene objects: built-in primitives (default) or the config's asset cache")
     parser.add_argument("--out", type=Path, help="keep renderings and reports here (default: a temporary "
                         "folder); a rerun with the same folder reuses the renderings")
+    parser.add_argument("--scene-depths", choices=("recording", "config"), default="recording",
+                        help="where the scenes' objects stand: within the real frame's 5th-95th percentile "
+                        "depth, before a back wall at its far end (default), or as the config draws them")
     args = parser.parse_args(argv)
 
     from commands.cli import main as dotsim
@@ -73,6 +106,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="dotsim-realism-") as tmp:
         folder = args.out or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
+        depths = recording_depth_range() if args.scene_depths == "recording" else None
+        if depths is not None:
+            print(f"the real frame's depths (SGBM with LCN against its pattern), 5th-95th percentile: "
+                  f"{depths[0]:g}-{depths[1]:g} m: [scene] distance = [{depths[0]:g}, {depths[1]:g}], "
+                  f"back_wall_distance = [{depths[1]:g}, {depths[1]:g}]")
         # fitted as docs/CAPTURE.md "Fitting the sensor" says: the noise from the frame alone, then the
         # camera's blur and the speckle against a still rendering of the config with that noise and
         # neither blur nor speckle of its own (the projector's defocus is the config's)
@@ -83,8 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         if not (reference / "index.json").is_file():
             unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0,
                          "speckle_contrast": 0.0}
-            generate(still_config(args.scale, args.samples, args.threads, args.assets, unblurred), reference,
-                     "train", args.scenes, seed=1, workers=1, progress=False)
+            generate(still_config(args.scale, args.samples, args.threads, args.assets, unblurred,
+                                  depths=depths), reference, "train", args.scenes, seed=1, workers=1,
+                     progress=False)
         fitted = folder / "kinect_fitted.toml"
         if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "--compare", str(reference),
                    "-o", str(fitted)]) != 0:
@@ -100,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             rendering = folder / f"rendering_{name}"
             if not (rendering / "index.json").is_file():
                 config = still_config(args.scale, args.samples, args.threads, args.assets, sensor,
-                                      real_ratio if lit else None)
+                                      real_ratio if lit else None, depths)
                 generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
             which = ("of the config" if sensor is None else "fitted") + \
                 (f", lit from the ceiling to [lighting] ambient_ratio = {real_ratio:.3g}" if lit else "")

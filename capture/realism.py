@@ -89,6 +89,26 @@ def unmatched_share(left: np.ndarray, right: np.ndarray, num_disparities: int, s
     return float(np.mean(~np.isfinite(disparity[:, num_disparities:])))
 
 
+def matched_depths(frame: np.ndarray, reference: np.ndarray, fx: float, baseline: float,
+                   num_disparities: int) -> np.ndarray:
+    """The depths (m) of the pixels SGBM (LCN) matches between a mono frame and its reference pattern,
+    z = fx b / d, right of the first num_disparities columns (as unmatched_share counts): where a
+    recording's surfaces lie, to render scenes at the same depths beside it.
+
+    >>> rng = np.random.default_rng(0)
+    >>> pattern = (rng.random((80, 200)) < 0.1).astype(float)
+    >>> frame = np.roll(pattern, 20, axis=1)   # a wall at fx b / 20
+    >>> depths = matched_depths(frame, pattern, 580.0, 0.075, 32)
+    >>> round(float(np.median(depths)), 3), 580.0 * 0.075 / 20
+    (2.175, 2.175)
+    """
+    from trainer.sgbm import sgbm_disparity
+
+    disparity = sgbm_disparity(frame, reference, num_disparities, preprocessing="lcn")[:, num_disparities:]
+    matched = disparity[np.isfinite(disparity) & (disparity > 0)]
+    return fx * baseline / matched
+
+
 def frame_look(frame: np.ndarray, num_disparities: int, reference: np.ndarray | None = None,
                right: np.ndarray | None = None, window: int = DEFAULT_DOT_WINDOW) -> FrameLook:
     """The looks of a mean projector-on frame: matched against the right IR when there is one, else

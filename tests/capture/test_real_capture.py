@@ -49,3 +49,21 @@ def test_fit_sensor_on_a_real_kinect_frame(tmp_path, capsys):
     assert 1.1 < fwhm < 2.0 and isolated >= 200
     snr = float(out.split("dot peak SNR, one frame")[1].split()[1].rstrip(","))
     assert 15 < snr < 60
+
+
+def test_matched_depths_of_the_real_frame_lie_where_its_room_is():
+    """capture.realism.matched_depths (its doctest: a pattern shifted by a known disparity comes back at
+    fx b / d) on the real frame against its pattern: most of the frame is the wall 2.4-3 m away (its
+    disparity 29-36 px at fx 1160, b 7.5 cm), nothing in it nearer than the Kinect's 0.4 m."""
+    import doctest
+
+    from capture import realism
+
+    assert doctest.testmod(realism).failed == 0
+    frame, pattern = (cv2.imread(str(REAL / name), cv2.IMREAD_UNCHANGED) / 255.0
+                      for name in ("ir.png", "pattern.png"))
+    depths = realism.matched_depths(frame, pattern, 1160.0, 0.075, 176)
+    assert depths.size > 0.8 * 512 * (640 - 176)
+    low, median, high = np.percentile(depths, [5, 50, 95])
+    assert 1.5 < low < median < high < 3.5 and 2.4 < median < 3.0, (low, median, high)
+    assert depths.min() > 0.4
