@@ -6,10 +6,11 @@ capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), w
 then its blur_sigma and speckle_contrast with --compare against a still rendering of the config with
 that noise and no blur or speckle of its own), and with that table in a room lit to the real frame's
 ambient / projector ratio ([lighting] ambient_ratio) by a panel under the ceiling, evenly as the real
-room is lit ([lighting] ceiling_light, no lamps). The scenes stand where the real frame's surfaces do:
-their objects' centres within its 5th-95th percentile depth (SGBM against its pattern), before a back
-wall at the far end (--scene-depths config: the config's scenes, 0.5-8 m). Prints each table
-(statistic, recording, rendering, ratio) and writes the pictures.
+room is lit ([lighting] ceiling_light, no lamps), and lit again to that ratio times the real frame's
+one-frame estimate over the lit rendering's (so that one estimator reads alike on both). The scenes
+stand where the real frame's surfaces do: their objects' centres within its 5th-95th percentile depth
+(SGBM against its pattern), before a back wall at the far end (--scene-depths config: the config's
+scenes, 0.5-8 m). Prints each table (statistic, recording, rendering, ratio) and writes the pictures.
 
     python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
 
@@ -129,20 +130,24 @@ def main(argv: list[str] | None = None) -> int:
                    "-o", str(fitted)]) != 0:
             return 1
         table = tomllib.loads(fitted.read_text())["sensor"]
-        status, real_ratio = 0, None
+        status, ratio = 0, None  # the [lighting] ambient_ratio of the next lit rendering
         # the third: the fitted sensor in a room lit to the real frame's ambient / projector ratio (the
-        # one-frame estimate of the first report: the frame has no projector-off frame to fit it from)
-        variants = (("config", None, False), ("fitted", table, False), ("fitted_lit", table, True))
+        # one-frame estimate of the first report: the frame has no projector-off frame to fit it from);
+        # the fourth: that ratio scaled by the real frame's estimate over the third's, so that the same
+        # one-frame estimate reads alike on both (it counts the scene's texture and misses the light of
+        # clipped dots, biases a target ratio does not see), as --compare fits the blur on both sides
+        variants = (("config", None, False), ("fitted", table, False), ("fitted_lit", table, True),
+                    ("fitted_lit_matched", table, True))
         for name, sensor, lit in variants:
-            if lit and real_ratio is None:
+            if lit and ratio is None:
                 continue
             rendering = folder / f"rendering_{name}"
             if not (rendering / "index.json").is_file():
                 config = still_config(args.scale, args.samples, args.threads, args.assets, sensor,
-                                      real_ratio if lit else None, depths)
+                                      ratio if lit else None, depths)
                 generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
             which = ("of the config" if sensor is None else "fitted") + \
-                (f", lit from the ceiling to [lighting] ambient_ratio = {real_ratio:.3g}" if lit else "")
+                (f", lit from the ceiling to [lighting] ambient_ratio = {ratio:.3g}" if lit else "")
             print(f"\n== the Kinect config's rendering, [sensor] {which}")
             report = folder / f"realism_{name}.png"
             status |= dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
@@ -152,7 +157,9 @@ def main(argv: list[str] | None = None) -> int:
                 off = [abs(row["ratio"] - 1) for row in rows if row["ratio"] is not None]
                 within = sum(value <= 0.25 for value in off)
                 print(f"{within} of {len(off)} statistics within 25% of the real frame's")
-                real_ratio = next(row["recording"] for row in rows if row["statistic"].startswith("ambient"))
+                real, rendered = next((row["recording"], row["rendering"]) for row in rows
+                                      if row["statistic"].startswith("ambient"))
+                ratio = ratio * real / rendered if lit else real
     return status
 
 
