@@ -77,16 +77,23 @@ def frame_ambient_ratio(frame: np.ndarray, window: int = DEFAULT_DOT_WINDOW) -> 
     return float(background[lit].mean() / max(light[lit].mean(), 1e-12))
 
 
-def unmatched_share(left: np.ndarray, right: np.ndarray, num_disparities: int, stereo: bool) -> float:
-    """The share of pixels, right of the first num_disparities columns, SGBM gives no disparity:
-    between a stereo pair's left and right IR (stereo) or an IR frame and its reference pattern."""
+def _disparity(left: np.ndarray, right: np.ndarray, num_disparities: int, stereo: bool) -> np.ndarray:
+    """SGBM's disparity (nan: none) between a stereo pair's left and right IR (stereo) or an IR frame
+    and its reference pattern (with LCN), right of the first num_disparities columns, whose match may
+    lie outside the other image."""
     from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
 
     if stereo:
         disparity = stereo_sgbm_disparity(left, right, num_disparities)
     else:
         disparity = sgbm_disparity(left, right, num_disparities, preprocessing="lcn")
-    return float(np.mean(~np.isfinite(disparity[:, num_disparities:])))
+    return disparity[:, num_disparities:]
+
+
+def unmatched_share(left: np.ndarray, right: np.ndarray, num_disparities: int, stereo: bool) -> float:
+    """The share of pixels, right of the first num_disparities columns, SGBM gives no disparity:
+    between a stereo pair's left and right IR (stereo) or an IR frame and its reference pattern."""
+    return float(np.mean(~np.isfinite(_disparity(left, right, num_disparities, stereo))))
 
 
 def matched_depths(frame: np.ndarray, reference: np.ndarray, fx: float, baseline: float,
@@ -102,9 +109,7 @@ def matched_depths(frame: np.ndarray, reference: np.ndarray, fx: float, baseline
     >>> round(float(np.median(depths)), 3), 580.0 * 0.075 / 20
     (2.175, 2.175)
     """
-    from trainer.sgbm import sgbm_disparity
-
-    disparity = sgbm_disparity(frame, reference, num_disparities, preprocessing="lcn")[:, num_disparities:]
+    disparity = _disparity(frame, reference, num_disparities, stereo=False)
     matched = disparity[np.isfinite(disparity) & (disparity > 0)]
     return fx * baseline / matched
 
