@@ -73,8 +73,7 @@ def still_config(scale: float, samples: int, threads: int, assets: str, sensor: 
         data["assets"] = {"source": "primitives"}
     if depths is not None:
         # a room deep enough for the camera to stand before that wall (the schema's rule)
-        room = [max(data["scene"]["room_size"][0], 1.5 * depths[1]), max(data["scene"]["room_size"][1],
-                                                                        1.5 * depths[1])]
+        room = [max(size, 1.5 * depths[1]) for size in data["scene"]["room_size"]]
         data["scene"] = {**data["scene"], "distance": list(depths), "back_wall_distance": [depths[1]] * 2,
                          "room_size": room}
     if sensor is not None:
