@@ -21,7 +21,8 @@ FULL = get_preset("structure_core")
 RIG = replace(FULL, camera=Intrinsics(1216, 896, 1115.44, 1115.44, 604.0, 457.0)).scaled(0.0625)
 WALL = 2.0  # the wall's distance ahead of the camera (world y), m
 CEILING = 1.2  # the panel's height over the camera, m
-PANEL = (3.0, 1.6)  # its extents along world x and y, m; centred at (0, 1.0, CEILING)
+PANEL = (3.0, 1.6)  # its extents along world x and y, m
+CENTRE = [0.0, 1.0, CEILING]  # the panel's centre (and the point lamp's), m
 # The camera looks along world +y with the image's down along world -z (Blender's z is up).
 WORLD_FROM_CAMERA = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 
@@ -31,8 +32,8 @@ def panel_irradiance(points: np.ndarray, steps: int = 200) -> np.ndarray:
     Lambertian rectangle at z = CEILING facing down: the integral of cos(emitter) cos(wall) / r^2 over
     the panel by the midpoint rule; the panel's part behind the wall gives nothing."""
     du, dv = PANEL[0] / steps, PANEL[1] / steps
-    qx = -PANEL[0] / 2 + (np.arange(steps) + 0.5) * du
-    qy = 1.0 - PANEL[1] / 2 + (np.arange(steps) + 0.5) * dv
+    qx = CENTRE[0] - PANEL[0] / 2 + (np.arange(steps) + 0.5) * du
+    qy = CENTRE[1] - PANEL[1] / 2 + (np.arange(steps) + 0.5) * dv
     qx, qy = np.meshgrid(qx, qy)
     p = points.reshape(-1, 3)
     out = np.empty(len(p))
@@ -59,7 +60,7 @@ def wall_scene(pattern, lights: list[dict]) -> SceneSpec:
 
 
 def test_ceiling_panel_lights_the_wall_as_a_lambertian_rectangle_and_evenly(renderer, pattern):
-    panel = {"type": "CEILING", "location": [0.0, 1.0, CEILING], "size": list(PANEL), "power": 400.0}
+    panel = {"type": "CEILING", "location": CENTRE, "size": list(PANEL), "power": 400.0}
     frame = renderer.render(wall_scene(pattern, [panel]))[0]
     np.testing.assert_allclose(frame["depth"], WALL, rtol=1e-5)
     camera_points = backproject(frame["depth"], RIG.camera)
@@ -75,7 +76,7 @@ def test_ceiling_panel_lights_the_wall_as_a_lambertian_rectangle_and_evenly(rend
         assert np.abs(np.median(ratio, axis=axis) - 1).max() < 0.03, np.median(ratio, axis=axis)
     assert np.percentile(np.abs(ratio - 1), 95) < 0.06
 
-    point = {"type": "POINT", "location": [0.0, 1.0, CEILING], "power": 40.0, "radius": 0.02}
+    point = {"type": "POINT", "location": CENTRE, "power": 40.0, "radius": 0.02}
     lamp = renderer.render(wall_scene(pattern, [point]))[0]["ambient"]
 
     def spread(ambient: np.ndarray) -> float:
