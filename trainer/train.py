@@ -8,6 +8,7 @@ deterministic, and a resumed run continues with the losses an unbroken run would
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import math
 import random
 import sys
@@ -30,6 +31,21 @@ from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_pr
 from trainer.model import GigaDepthNet, autocast, build_model
 from trainer.samples import DataError, FrameDataset, make_loader
 from trainer.scoring import Validation
+
+
+def keep_freed_memory() -> None:
+    """Have glibc's malloc keep the memory a step frees for the next step, instead of handing it back
+    to the system. Every step frees and allocates again the gradients of the per-line weight tables
+    (33 MB each in train_table2) and the activations; above its mmap threshold glibc maps fresh pages
+    for each, which the kernel zeroes on first touch: a third of a one-thread step's time went to page
+    faults (docs/TRAINER.md "Speed"). Elsewhere than glibc (no libc.so.6, no mallopt) it does nothing."""
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return
+    m_trim_threshold, m_mmap_max = -1, -4  # glibc's malloc.h
+    mallopt(m_mmap_max, 0)                 # every block from the heap, none mapped on its own
+    mallopt(m_trim_threshold, 2**31 - 1)   # and the heap's free top kept, not trimmed
 
 
 def seed_everything(seed: int) -> None:
@@ -183,6 +199,7 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
     out_dir, t, rig = Path(out_dir), cfg.train, data.rig
     steps_per_epoch, total_steps = plan_steps(cfg, data)
     ranks = join_ranks(cfg, rig, device, progress)
+    keep_freed_memory()
     validate = held_out_validation(validation, val_frames, data) if ranks.main else None
     seed_everything(cfg.seed)
     state = new_state(cfg, rig, ranks.device, steps_per_epoch, total_steps)
