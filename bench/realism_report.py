@@ -40,16 +40,15 @@ EVEN_LIGHT = {"extra_lights": [0, 0], "ceiling_light": [100.0, 100.0]}
 def recording_depth_range() -> tuple[float, float]:
     """The 5th and 95th percentile depth of the real frame (capture.realism.matched_depths: SGBM with
     LCN against its pattern, which is in the frame's camera pixels), m."""
-    import cv2
     import numpy as np
 
     from capture.realism import matched_depths
+    from dotsim.images import read_grey_image
     from dotsim.rig.files import load_rig_file
     from trainer.sgbm import num_disparities_for
 
     rig = load_rig_file(REAL / "rig.json").rig
-    frame, pattern = (cv2.imread(str(REAL / name), cv2.IMREAD_UNCHANGED) / 255.0
-                      for name in ("ir.png", "pattern.png"))
+    frame, pattern = (read_grey_image(REAL / name).relative() for name in ("ir.png", "pattern.png"))
     depths = matched_depths(frame, pattern, rig.camera.fx, rig.baseline, num_disparities_for(rig, NEAREST))
     low, high = np.percentile(depths, [5, 95])
     return round(float(low), 2), round(float(high), 2)
