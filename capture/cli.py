@@ -593,7 +593,7 @@ def _fit_sensor(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from capture import realism
     from capture.sensor_fit import measure
-    from capture.static_recording import comparison_notes, open_recording
+    from capture.static_recording import comparison_notes, open_recording, single_frames
     from dotsim.images import write_image
     from trainer.sgbm import num_disparities_for
 
@@ -615,33 +615,51 @@ def _compare(args: argparse.Namespace) -> int:
         if rendering.kind != "rendered":
             raise CaptureError(f"DATASET {args.rendering}: a recording, not a rendering of `dotsim generate`")
         notes = comparison_notes(recording, rendering, f"DATASET {args.rendering}")
-        frame, reference, right, rig, nearest = realism.dataset_frames(args.rendering)
+        real_stats = measure(recording)
+        # a one-frame recording's noise is estimated from one frame: the rendering's is too, each of its
+        # frames alone, and its looks are of one frame (one frame's noise, not a mean's)
+        one_frame = real_stats.method == "spatial"
+        rendered_stats = None
+        if one_frame:
+            try:
+                rendered_stats = measure(single_frames(rendering))
+                notes.append("the recording has one frame per scene: the rendering is measured as one-frame "
+                             "recordings are, each of its frames alone")
+            except CaptureError as error:
+                notes.append(f"the recording has one frame per scene, but the rendering's single frames "
+                             f"cannot be measured so ({error}; a dark room, dots everywhere?): it is "
+                             "measured over its frames, and its noise rows are not measured as the "
+                             "recording's")
+        rendered_stats = rendered_stats or measure(rendering)
+        frames, reference, rights, rig, nearest = realism.dataset_frames(args.rendering, one_frame)
         rendered_range = args.num_disparities or num_disparities_for(rig, nearest or DEFAULT_NEAREST)
         ratio = recording.size[0] / rendering.size[0]
         real_range = 16 * max(1, -(-round(rendered_range * ratio) // 16))
-        real_stats, rendered_stats = measure(recording), measure(rendering)
         # one window for both, the recording's, in each one's pixels
         reach = realism.dot_reach(real_stats)
         rendered_reach = max(3, round(reach / ratio))
-        rendered_look = realism.frame_look(frame, rendered_range, reference, right,
-                                           rendered_reach + 1 - rendered_reach % 2)
+        rendered_look = realism.scenes_look(frames, rendered_range, reference, rights,
+                                            rendered_reach + 1 - rendered_reach % 2)
         if recording.kind == "images":
-            real_frame = np.mean(next(recording.scenes()).on, axis=0)
+            real_frames = [np.mean(next(recording.scenes()).on, axis=0)]
             real_reference = read_image(args.pattern).relative() if args.pattern else None
-            real_right = np.mean([read_image(p).relative(args.white_level) for spec in args.right
-                                  for p in list_images(spec, what="--right")], axis=0) if args.right else None
+            real_rights = None if not args.right else [np.mean(
+                [read_image(p).relative(args.white_level) for spec in args.right
+                 for p in list_images(spec, what="--right")], axis=0)]
         else:
             if args.pattern or args.right:
                 raise CaptureError(f"{recording.name}: a dataset: its pattern.png and ir_right are used "
                                    "(leave --pattern and --right out)")
-            real_frame, real_reference, real_right, _, _ = realism.dataset_frames(Path(recording.name))
-        real_look = realism.frame_look(real_frame, real_range, real_reference, real_right, reach)
+            real_frames, real_reference, real_rights, _, _ = realism.dataset_frames(Path(recording.name),
+                                                                                     one_frame)
+        real_look = realism.scenes_look(real_frames, real_range, real_reference, real_rights, reach)
     except (CaptureError, ConfigError, FormatError) as error:
         return _fail("compare", error)
     table = realism.rows(real_stats, real_look, rendered_stats, rendered_look)
     picture = write_image(args.output, realism.draw(real_stats, real_look, rendered_stats, rendered_look))
     record = {"recording": recording.name, "rendering": str(args.rendering), "notes": notes,
               "num_disparities": {"recording": real_range, "rendering": rendered_range},
+              "noise_measured": {"recording": real_stats.method, "rendering": rendered_stats.method},
               "rows": [{"statistic": name, "recording": real, "rendering": rendered,
                         "ratio": None if real in (None, 0) or rendered is None else rendered / real}
                        for name, real, rendered in table]}

@@ -1,7 +1,8 @@
 """How real a rendering looks beside a recording of the sensor it simulates (`dotsim capture compare`).
 
-Both are measured the same way (capture.sensor_fit.measure: noise against level, dots), plus two
-numbers of one frame that need no projector-off frame:
+Both are measured the same way (capture.sensor_fit.measure: noise against level, dots; a rendering
+compared with a one-frame recording each of its frames alone, as one-frame recordings are), plus two
+numbers of one frame that need no projector-off frame, averaged over the scenes (scenes_look):
 
 - the ambient light over the projector's: the background (a median over twice the recording's mean
   dot spacing) over the light above it, where the projector reaches (frame_ambient_ratio). It needs
@@ -139,16 +140,25 @@ def dot_reach(stats: SensorStatistics) -> int:
     return max(DEFAULT_DOT_WINDOW, 2 * int(round(spacing)) + 1)
 
 
-def dataset_frames(root: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, Rig, float | None]:
-    """A dataset's first scene: (its mean ir frame, its pattern as seen from infinity in camera pixels
-    or None without DATASET/pattern.png, its mean ir_right or None, its rig, the nearest distance of
-    the config it was rendered with ([scene] distance's lower bound; None for a recording))."""
+def dataset_frames(root: Path, one_frame: bool = False) -> tuple[
+        list[np.ndarray], np.ndarray | None, list[np.ndarray] | None, Rig, float | None]:
+    """A dataset's scenes: (each scene's mean ir frame, or its first frame alone with `one_frame` (the
+    noise of one frame, as a one-frame recording has), its pattern as seen from infinity in camera pixels
+    or None without DATASET/pattern.png, each scene's mean (or first) ir_right or None, its rig (the
+    first scene's), the nearest distance of the config it was rendered with ([scene] distance's lower
+    bound; None for a recording))."""
     data = dataset.open_dataset(root)
-    scene = dataset.read_scene(data.scenes[0].path)
-    rig = Rig.from_dict(scene.meta["rig"], f"{data.scenes[0].path} rig")
-    frame = np.mean([f["ir"].astype(np.float64) for f in scene.frames], axis=0)
-    right = np.mean([f["ir_right"].astype(np.float64) for f in scene.frames], axis=0) \
-        if "ir_right" in scene.meta["channels"] else None
+    frames, rights, meta = [], [], None
+    for ref in data.scenes:
+        stored = dataset.read_scene_meta(ref.path)["channels"]
+        channels = [name for name in ("ir", "ir_right") if name in stored]
+        scene = dataset.read_scene(ref.path, channels=channels)
+        meta = meta or scene.meta
+        used = scene.frames[:1] if one_frame else scene.frames
+        frames.append(np.mean([f["ir"].astype(np.float64) for f in used], axis=0))
+        if "ir_right" in scene.meta["channels"]:
+            rights.append(np.mean([f["ir_right"].astype(np.float64) for f in used], axis=0))
+    rig = Rig.from_dict(meta["rig"], f"{data.scenes[0].path} rig")
     reference = None
     if (root / PATTERN_FILE).is_file():
         try:
@@ -156,8 +166,19 @@ def dataset_frames(root: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
         except PatternError as error:
             raise CaptureError(str(error)) from None
         reference = reference_image(pattern, rig, supersample=4).astype(np.float64)
-    distance = scene.meta.get("config", {}).get("scene", {}).get("distance")
-    return frame, reference, right, rig, float(distance[0]) if distance else None
+    distance = meta.get("config", {}).get("scene", {}).get("distance")
+    return frames, reference, rights or None, rig, float(distance[0]) if distance else None
+
+
+def scenes_look(frames: list[np.ndarray], num_disparities: int, reference: np.ndarray | None = None,
+                rights: list[np.ndarray] | None = None, window: int = DEFAULT_DOT_WINDOW) -> FrameLook:
+    """The looks of several scenes' frames (frame_look of each): the means of their ambient-to-projector
+    ratios and unmatched shares, and the first scene's frame (for the picture)."""
+    looks = [frame_look(frame, num_disparities, reference, None if rights is None else rights[k], window)
+             for k, frame in enumerate(frames)]
+    unmatched = None if looks[0].unmatched is None else float(np.mean([look.unmatched for look in looks]))
+    return FrameLook(looks[0].frame, float(np.mean([look.ambient_ratio for look in looks])), unmatched,
+                     looks[0].matched_against)
 
 
 def rows(real: SensorStatistics, real_look: FrameLook, rendered: SensorStatistics,

@@ -10,7 +10,9 @@ measure reads a static recording (capture.static_recording) twice, scene by scen
    off frame): size, brightness spread, peak signal-to-noise ratio of one frame, dots per area by
    depth.
 fit turns them into [sensor] values: read and shot noise, bit depth and the exposure's target from
-the noise and levels alone; blur and speckle from the dots, against a rendering of the user's
+the noise and levels alone (a one-frame recording's noise, whose spatial estimate counts fine texture
+too, corrected by what the same estimate reads on a rendering's single frames of known noise); blur
+and speckle from the dots, against a rendering of the user's
 config (--compare) when there is one: the projector's defocus (projector_aperture, projector_focus)
 from the recorded dots' widths against depth where the recording has depth (defocus_fit; else the
 rendering's, kept), blur_sigma makes the rendered dots as wide as the recorded ones (in focus where
@@ -78,6 +80,11 @@ DEFOCUS_BINS = 8
 DEFOCUS_MIN_SPAN = 0.15
 # A focus farther than this (m) is written as infinity (0), as [sensor] projector_focus allows.
 FARTHEST_FOCUS = 100.0
+# The search for the noise whose one-frame estimate on a rendering's scenes is the recording's: at most
+# this many steps, done when both estimates are within this share of the recording's (or within its
+# standard error, where that is wider).
+SPATIAL_STEPS = 10
+SPATIAL_TOLERANCE = 0.01
 
 
 @dataclass
@@ -320,12 +327,17 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
     """[sensor] values for the recording: read_noise, shot_noise, bit_depth, auto_target (the
     recording's 99th percentile, for exposure = "auto"), speckle_contrast and speckle_grain; with a
     rendering of the user's config (`reference`, measured the same way) blur_sigma too, and the
-    speckle calibrated on it. grain: the speckle grain assumed, full-resolution px (default: the
-    reference's speckle_grain, else SensorConfig's default)."""
+    speckle calibrated on it, and for a one-frame recording the spatial noise estimate's bias taken
+    out as the rendering shows it (noise_without_spatial_bias). grain: the speckle grain assumed,
+    full-resolution px (default: the reference's speckle_grain, else SensorConfig's default)."""
     values, errors, notes = {}, {}, {}
-    values["read_noise"], errors["read_noise"] = _rounded(stats.read_noise)
-    values["shot_noise"], errors["shot_noise"] = _rounded(stats.shot_noise)
+    read, shot = stats.read_noise, stats.shot_noise
     notes["read_noise"] = notes["shot_noise"] = f"photon transfer ({stats.method})"
+    if reference is not None and stats.method == "spatial" and reference.method == "temporal":
+        read, shot, note = noise_without_spatial_bias(read, shot, reference)
+        notes["read_noise"] = notes["shot_noise"] = f"photon transfer (spatial), {note}"
+    values["read_noise"], errors["read_noise"] = _rounded(read)
+    values["shot_noise"], errors["shot_noise"] = _rounded(shot)
     if stats.bit_depth is not None:
         values["bit_depth"] = stats.bit_depth
     values["exposure"] = "auto"
@@ -353,12 +365,68 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
         values["blur_sigma"], errors["blur_sigma"] = _rounded(blur)
         notes["blur_sigma"] = ("rendered dots as wide as the recorded ones" if widths is None else
                                "rendered dots in focus as wide as the recorded ones in focus")
-        notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots")
+        scenes = len(reference.recording.frame_counts)
+        notes.setdefault("speckle_contrast", "calibrated on the rendering's own dots" + (
+            "; its error counts how the rendering's scenes differ" if scenes > 1
+            else "; one scene in the rendering: its error leaves out how scenes differ (render 2 or more)"))
     values["speckle_contrast"], errors["speckle_contrast"] = _rounded(contrast)
     SensorConfig(**values)  # the values fit the config's bounds (ConfigError otherwise)
     ratios = stats.scene_ambient_ratios
     ambient = (_significant(min(ratios), 3), _significant(max(ratios), 3)) if ratios else None
     return SensorFit(values, errors, notes, ambient)
+
+
+def noise_without_spatial_bias(read: Estimate, shot: Estimate,
+                          reference: SensorStatistics) -> tuple[Estimate, Estimate, str]:
+    """A one-frame recording's read and shot noise with the spatial estimate's bias taken out, as the
+    rendering's scenes show it. The spatial estimate (flat regions of one frame) also counts fine
+    texture and faint dots as noise, the more so the higher the noise (noisier blocks pass as flat):
+    on Kinect-like renderings it reads 1.3x their true shot noise, on tiny textured ones 2-3x.
+
+    The rendering's still scenes give each pixel's level without noise (the mean of its frames, whose
+    own noise, reference.noise over their count, is left in and made up for); frames of those scenes
+    with the noise of a sensor (r, s) are drawn from them (one draw, scaled, so the search is smooth)
+    and estimated as the recording is; (r, s) are iterated, r <- r x read / (its estimate) and s
+    likewise, until both estimates are within SPATIAL_TOLERANCE of the recording's. That holds where the
+    rendering's frames look like the recording's (a room lit as its room; capture.realism); where no
+    (r, s) gives the recording's estimates (a dark room whose dots leave no quiet block reads far more;
+    a rendering more textured than the recording) the values are kept as measured, with a note."""
+    rng = np.random.default_rng(CALIBRATION_SEED)
+    scenes = []
+    for scene in reference.recording.scenes():
+        mean = scene.on.mean(axis=0)
+        scenes.append((mean, reference.noise.variance(mean) / len(scene.on), rng.standard_normal(mean.shape)))
+    step = _step(reference.bit_depth)
+    top = reference.saturation or 1.0
+
+    def estimate(r: float, s: float) -> tuple[float, float]:
+        bins = NoiseBins(min_count=MIN_BIN_BLOCKS)
+        for mean, kept, draw in scenes:
+            frame = np.clip(mean + np.sqrt(np.maximum(r * r + s * s * mean - kept, 0.0)) * draw, 0.0, 1.0)
+            spatial_noise_bins(np.round(frame / step) * step if step else frame, top, bins)
+        curve = noise_curve(bins, step, "spatial")
+        return curve.read_noise().value, curve.shot_noise().value
+
+    r, s = read.value, shot.value
+    try:
+        for _ in range(SPATIAL_STEPS):
+            seen = estimate(r, s)
+            if all(abs(value - target.value) <= max(SPATIAL_TOLERANCE * target.value, target.error)
+                   for value, target in zip(seen, (read, shot), strict=True)):
+                break
+            r = r * read.value / seen[0] if seen[0] > 0 else r
+            s = s * shot.value / seen[1] if seen[1] > 0 else s
+        else:
+            return read, shot, (f"kept as measured: no sensor makes the rendering's single frames read as "
+                                f"the recording does (read and shot noise {r:.3g}, {s:.3g} read as "
+                                f"{seen[0]:.3g}, {seen[1]:.3g}; a dark room whose dots leave no quiet "
+                                "block? render it lit as the recording's room is: [lighting] ambient_ratio)")
+    except CaptureError as error:
+        return read, shot, f"kept as measured: the rendering's single frames could not be measured ({error})"
+    factors = (r / read.value if read.value > 0 else 1.0, s / shot.value if shot.value > 0 else 1.0)
+    return (Estimate(r, read.error * factors[0]), Estimate(s, shot.error * factors[1]),
+            f"times {factors[0]:.3g} and {factors[1]:.3g}: the spatial estimate's bias taken out, calibrated "
+            "on the rendering's scenes")
 
 
 def defocus_fit(sigmas: np.ndarray, depths: np.ndarray, fx: float) -> DefocusFit | None:
@@ -502,9 +570,11 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics, grain: flo
     target = stats.contrast
 
     def spread(contrast: float) -> Estimate:
-        return _calibration_spread(reference, extra, grain * scale, contrast)
+        return _calibration_spread(reference, extra, grain * scale, contrast)[0]
 
-    (c0, s0), (c1, s1) = (0.0, spread(0.0)), (1.0, spread(1.0))
+    (s0, scenes0), (s1, scenes1) = (_calibration_spread(reference, extra, grain * scale, contrast)
+                                    for contrast in (0.0, 1.0))
+    c0, c1 = 0.0, 1.0
     slope = s1.value - s0.value
     if target.value <= s0.value:
         found, noise = c0, s0.error
@@ -528,16 +598,37 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics, grain: flo
         slope = (s1.value - s0.value) / max(c1 - c0, 1e-9)
         found = c0 + (target.value - s0.value) / max(slope, 1e-9)
         noise = max(s0.error, s1.error)
-    error = math.hypot(target.error, noise) / max(slope, 1e-9)
+    error = math.hypot(target.error / max(slope, 1e-9), noise / max(slope, 1e-9),
+                       _scene_spread(target.value, scenes0, scenes1))
     combined = math.sqrt((1 + sensor.speckle_contrast**2) * (1 + found**2) - 1)
     return Estimate(blur / scale, blur_error / scale), Estimate(min(combined, 1.0), min(error, 1.0))
 
 
+def _scene_spread(target: float, at_zero: list[Estimate], at_one: list[Estimate]) -> float:
+    """The standard error the choice of the rendering's scenes gives the calibrated speckle contrast: each
+    scene's own contrast for the target spread, from its spreads at contrast 0 and 1 on the law the
+    spreads follow (variances add: spread^2 = a + b c^2; signed, so a scene whose dots spread more than
+    the target without speckle counts below 0), their standard deviation over sqrt(scenes); 0 with one
+    scene (nothing to tell it from).
+
+    >>> zero, one = [Estimate(0.3, 0), Estimate(0.6, 0)], [Estimate(0.9, 0), Estimate(1.0, 0)]
+    >>> round(_scene_spread(0.5, zero, one), 3)   # the scenes alone: 0.471 and -0.415
+    0.443
+    """
+    contrasts = []
+    for zero, one in zip(at_zero, at_one, strict=True):
+        excess, per_contrast = target**2 - zero.value**2, one.value**2 - zero.value**2
+        if per_contrast > 0:
+            contrasts.append(math.copysign(math.sqrt(abs(excess) / per_contrast), excess))
+    return float(np.std(contrasts, ddof=1) / math.sqrt(len(contrasts))) if len(contrasts) > 1 else 0.0
+
+
 def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: float,
-                        contrast: float) -> Estimate:
+                        contrast: float) -> tuple[Estimate, list[Estimate]]:
     """The brightness spread of the rendering's dots blurred by blur_px, with speckle of `contrast`
     and grain grain_px on the light above their local background (the same fields for every
-    contrast, so the spread grows smoothly with it), measured as a recording's dots are."""
+    contrast, so the spread grows smoothly with it), measured as a recording's dots are: over all its
+    scenes' dots, and scene by scene."""
     rng = np.random.default_rng(CALIBRATION_SEED)
     ratios, noises = [], []
     for scene in reference.recording.scenes():
@@ -549,4 +640,6 @@ def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: f
         dots = _scene_dots(scene, reference.noise, reference.saturation, image)
         ratios.append(dots.ratio)
         noises.append(dots.ratio_noise)
-    return brightness_contrast(np.concatenate(ratios), np.concatenate(noises))
+    scenes = [brightness_contrast(ratio, noise) for ratio, noise in zip(ratios, noises, strict=True)
+              if ratio.size > 1]
+    return brightness_contrast(np.concatenate(ratios), np.concatenate(noises)), scenes

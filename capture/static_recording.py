@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +100,28 @@ def open_recording(specs: list[str], off: list[str] = (),
         raise CaptureError(f"{what} {spec}: a {kind} of a dataset, not a folder of frames; give the dataset "
                            "folder alone (fit-sensor reads its scenes)")
     return _image_recording(specs, list(off), white_level)
+
+
+def single_frames(recording: StaticRecording) -> StaticRecording:
+    """The recording with each projector-on frame a scene of its own (with the projector-off frame of
+    the same index, the last one where there are fewer): measured (capture.sensor_fit.measure) as a
+    one-frame recording is, from flat regions of single frames, so that a rendering of several still
+    frames reads as a one-frame recording of the same sensor would.
+
+    >>> on = np.zeros((3, 2, 2))
+    >>> still = StaticRecording("r", "rendered", (2, 2), (3,), 0.0, 1.0, None,
+    ...                         lambda: iter([StaticScene("s", on, depth=np.ones((2, 2)))]))
+    >>> alone = single_frames(still)
+    >>> alone.frame_counts, [scene.where for scene in alone.scenes()], next(alone.scenes()).on.shape
+    ((1, 1, 1), ['s frame 0', 's frame 1', 's frame 2'], (1, 2, 2))
+    """
+    def read() -> Iterator[StaticScene]:
+        for scene in recording.scenes():
+            for k in range(len(scene.on)):
+                off = None if scene.off is None else scene.off[min(k, len(scene.off) - 1)][None]
+                yield replace(scene, where=f"{scene.where} frame {k}", on=scene.on[k][None], off=off)
+
+    return replace(recording, frame_counts=(1,) * sum(recording.frame_counts), read=read)
 
 
 def dataset_folder_kind(path: Path) -> str | None:

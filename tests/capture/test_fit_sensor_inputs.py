@@ -8,12 +8,16 @@ samples are left out), so the fit must still find them within 10%.
 
 import shutil
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
+from capture.sensor_fit import measure, noise_without_spatial_bias
+from capture.static_recording import StaticRecording, StaticScene
 from commands.cli import main
 from dotsim.sensor.model import SensorModel
 from dotsim.sensor.settings import SensorSpec
@@ -153,3 +157,40 @@ def test_dataset_folders_are_datasets(scene, tmp_path, capsys):
         assert not output.exists()
     status, _, err = fit_sensor(capsys, tmp_path / "on", "--off", data, "--white-level", 1023, "-o", output)
     assert status == 2 and f"--off {data}: a dataset" in err
+
+
+def textured_scene(seed: int, width: int = 480, height: int = 360) -> np.ndarray:
+    """The light of a textured still scene without noise: a ramp of ambient light from dark to bright on
+    a surface whose reflectance varies by 5% from pixel to pixel (fine texture, which one frame cannot
+    tell from noise), and 1500 dots."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(width)[None, :]
+    texture = ndimage.gaussian_filter(rng.standard_normal((height, width)), 0.7)
+    impulses = np.zeros((height, width))
+    impulses[rng.integers(4, height - 4, 1500), rng.integers(4, width - 4, 1500)] = 0.25 * 2 * np.pi * 0.9**2
+    return (0.04 + 0.5 * x / width) * (1 + 0.05 * texture / texture.std()) + \
+        ndimage.gaussian_filter(impulses, 0.9)  # dots 0.25 high, sigma 0.9 px
+
+
+def test_one_frame_noise_corrected_on_a_rendering_of_known_noise():
+    """One frame of a textured scene: the spatial estimate counts the texture as noise (the shot noise
+    reads 25% or more high); noise_without_spatial_bias, calibrated on four still frames of another
+    scene of the same kind with another known noise (as --compare's rendering), gives the shot noise
+    within 10%, without knowing the recording's."""
+    model = SensorModel(SensorSpec(exposure="fixed", gain=1.0, bloom_strength=0.0, blur_sigma=0.0,
+                                   read_noise=READ, shot_noise=SHOT, bit_depth=10))
+    rendering_model = SensorModel(replace(model.settings, read_noise=0.003, shot_noise=0.02))
+    rng = np.random.default_rng(4)
+    one = model.apply(textured_scene(1), rng).astype(np.float64)[None]
+    four = np.stack([rendering_model.apply(textured_scene(2), rng) for _ in range(4)]).astype(np.float64)
+
+    def recording(name: str, frames: np.ndarray) -> StaticRecording:
+        return StaticRecording(name, "images", frames.shape[:0:-1], (len(frames),), 1e-9, 1.0, None,
+                               lambda: iter([StaticScene(name, frames)]))
+
+    stats, reference = measure(recording("one", one)), measure(recording("rendering", four))
+    assert stats.method == "spatial" and reference.method == "temporal"
+    assert reference.shot_noise.value == pytest.approx(0.02, rel=0.02)
+    assert stats.shot_noise.value > 1.25 * SHOT
+    _, shot, note = noise_without_spatial_bias(stats.read_noise, stats.shot_noise, reference)
+    assert shot.value == pytest.approx(SHOT, rel=0.1) and "bias taken out" in note
