@@ -3,14 +3,17 @@ vendored capture (tests/data/real/kinect_v1_ctd: its README gives source and lic
 renderings of the config docs/CONFIG.md gives for the Kinect (dotsim/configs/kinect.toml) through the
 capture's rig (its rig.json: the centre 640 x 512 of the 1280 x 1024 IR mode), with the config's
 [sensor], with the [sensor] table fit-sensor fits to the real frame (its noise from the frame alone,
-then its blur_sigma and speckle_contrast with --compare against a still rendering of the config with
-that noise and no blur or speckle of its own), and with that table in a room lit to the real frame's
-ambient / projector ratio ([lighting] ambient_ratio) by a panel under the ceiling, evenly as the real
-room is lit ([lighting] ceiling_light, no lamps), and lit again to that ratio times the real frame's
-one-frame estimate over the lit rendering's (so that one estimator reads alike on both). The scenes
-stand where the real frame's surfaces do: their objects' centres within its 5th-95th percentile depth
-(SGBM against its pattern), before a back wall at the far end (--scene-depths config: the config's
-scenes, 0.5-8 m). Prints each table (statistic, recording, rendering, ratio) and writes the pictures.
+then with --compare against a still rendering of the config with that noise and no blur or speckle of
+its own, lit as below: blur_sigma, speckle_contrast, and the noise with the one-frame estimate's bias
+taken out), and with that table in a room lit to the real frame's ambient / projector ratio
+([lighting] ambient_ratio, the one-frame estimate of the first report) by a panel under the ceiling,
+evenly as the real room is lit ([lighting] ceiling_light, no lamps), and lit again to that ratio
+times the real frame's one-frame estimate over the lit rendering's (so that one estimator reads alike
+on both). The scenes stand where the real frame's surfaces do: their objects' centres within its
+5th-95th percentile depth (SGBM against its pattern), before a back wall at the far end
+(--scene-depths config: the config's scenes, 0.5-8 m). Prints each table (statistic, recording,
+rendering, ratio) and writes the pictures. A rerun with the same --out resumes the renderings
+(generate refuses a folder of another config's).
 
     python -m bench.realism_report [--scale 0.5] [--scenes 1] [--samples 4] [--threads 1] [--out DIR]
 
@@ -93,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--assets", choices=("primitives", "cache"), default="primitives",
                         help="scene objects: built-in primitives (default) or the config's asset cache")
     parser.add_argument("--out", type=Path, help="keep renderings and reports here (default: a temporary "
-                        "folder); a rerun with the same folder reuses the renderings")
+                        "folder); a rerun with the same folder resumes the renderings")
     parser.add_argument("--scene-depths", choices=("recording", "config"), default="recording",
                         help="where the scenes' objects stand: within the real frame's 5th-95th percentile "
                         "depth, before a back wall at its far end (default), or as the config draws them")
@@ -101,6 +104,32 @@ def main(argv: list[str] | None = None) -> int:
 
     from commands.cli import main as dotsim
     from generator.driver import generate
+
+    def render(name: str, sensor: dict | None, lit: float | None, depths: tuple[float, float] | None) -> Path:
+        """A still rendering into FOLDER/rendering_NAME (resumed where it is; a folder holding another
+        config's scenes is refused by generate, naming it)."""
+        rendering = folder / f"rendering_{name}"
+        config = still_config(args.scale, args.samples, args.threads, args.assets, sensor, lit, depths)
+        generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
+        return rendering
+
+    def compare(name: str, rendering: Path, what: str) -> list[dict] | None:
+        """`capture compare` of the real frame and the rendering, printed; its rows (None: it failed)."""
+        print(f"\n== the Kinect config's rendering, [sensor] {what}")
+        report = folder / f"realism_{name}.png"
+        if dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
+                   str(REAL / "pattern.png"), "-o", str(report)]) != 0:
+            return None
+        rows = json.loads(report.with_suffix(".json").read_text())["rows"]
+        off = [abs(row["ratio"] - 1) for row in rows if row["ratio"] is not None]
+        within = sum(value <= 0.25 for value in off)
+        print(f"{within} of {len(off)} statistics within 25% of the real frame's")
+        return rows
+
+    def ambient(rows: list[dict]) -> tuple[float, float]:
+        """(the real frame's, the rendering's) one-frame ambient / projector ratio."""
+        return next((row["recording"], row["rendering"]) for row in rows
+                    if row["statistic"].startswith("ambient"))
 
     with tempfile.TemporaryDirectory(prefix="dotsim-realism-") as tmp:
         folder = args.out or Path(tmp)
@@ -110,54 +139,39 @@ def main(argv: list[str] | None = None) -> int:
             print(f"the real frame's depths (SGBM with LCN against its pattern), 5th-95th percentile: "
                   f"{depths[0]:g}-{depths[1]:g} m: [scene] distance = [{depths[0]:g}, {depths[1]:g}], "
                   f"back_wall_distance = [{depths[1]:g}, {depths[1]:g}]")
+        rows = compare("config", render("config", None, None, depths), "of the config")
+        if rows is None:
+            return 1
+        # the real frame's ambient / projector ratio, by the one-frame estimate (it has no projector-off
+        # frame to fit it from): the rooms below are lit evenly from the ceiling to it
+        ratio = ambient(rows)[0]
         # fitted as docs/CAPTURE.md "Fitting the sensor" says: the noise from the frame alone, then the
         # camera's blur and the speckle against a still rendering of the config with that noise and
-        # neither blur nor speckle of its own (the projector's defocus is the config's)
+        # neither blur nor speckle of its own (the projector's defocus is the config's), lit as the real
+        # room is, so that its single frames also tell the one-frame noise estimate's bias
         noise = folder / "kinect_noise.toml"
         if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "-o", str(noise)]) != 0:
             return 1
-        reference = folder / "rendering_reference"
-        if not (reference / "index.json").is_file():
-            unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0,
-                         "speckle_contrast": 0.0}
-            generate(still_config(args.scale, args.samples, args.threads, args.assets, unblurred,
-                                  depths=depths), reference, "train", args.scenes, seed=1, workers=1,
-                     progress=False)
+        unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0, "speckle_contrast": 0.0}
+        reference = render("reference", unblurred, ratio, depths)
         fitted = folder / "kinect_fitted.toml"
         if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "--compare", str(reference),
                    "-o", str(fitted)]) != 0:
             return 1
         table = tomllib.loads(fitted.read_text())["sensor"]
-        status, ratio = 0, None  # the [lighting] ambient_ratio of the next lit rendering
-        # the third: the fitted sensor in a room lit to the real frame's ambient / projector ratio (the
-        # one-frame estimate of the first report: the frame has no projector-off frame to fit it from);
-        # the fourth: that ratio scaled by the real frame's estimate over the third's, so that the same
+        status = 0 if compare("fitted", render("fitted", table, None, depths), "fitted") else 1
+        rows = compare("fitted_lit", render("fitted_lit", table, ratio, depths),
+                       f"fitted, lit from the ceiling to [lighting] ambient_ratio = {ratio:.3g}")
+        if rows is None:
+            return 1
+        # lit again to that ratio scaled by the real frame's estimate over the rendering's, so that the same
         # one-frame estimate reads alike on both (it counts the scene's texture and misses the light of
         # clipped dots, biases a target ratio does not see), as --compare fits the blur on both sides
-        variants = (("config", None, False), ("fitted", table, False), ("fitted_lit", table, True),
-                    ("fitted_lit_matched", table, True))
-        for name, sensor, lit in variants:
-            if lit and ratio is None:
-                continue
-            rendering = folder / f"rendering_{name}"
-            if not (rendering / "index.json").is_file():
-                config = still_config(args.scale, args.samples, args.threads, args.assets, sensor,
-                                      ratio if lit else None, depths)
-                generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
-            which = ("of the config" if sensor is None else "fitted") + \
-                (f", lit from the ceiling to [lighting] ambient_ratio = {ratio:.3g}" if lit else "")
-            print(f"\n== the Kinect config's rendering, [sensor] {which}")
-            report = folder / f"realism_{name}.png"
-            status |= dotsim(["capture", "compare", str(REAL / "ir.png"), str(rendering), "--pattern",
-                              str(REAL / "pattern.png"), "-o", str(report)])
-            if report.with_suffix(".json").is_file():
-                rows = json.loads(report.with_suffix(".json").read_text())["rows"]
-                off = [abs(row["ratio"] - 1) for row in rows if row["ratio"] is not None]
-                within = sum(value <= 0.25 for value in off)
-                print(f"{within} of {len(off)} statistics within 25% of the real frame's")
-                real, rendered = next((row["recording"], row["rendering"]) for row in rows
-                                      if row["statistic"].startswith("ambient"))
-                ratio = ratio * real / rendered if lit else real
+        real, rendered = ambient(rows)
+        matched = ratio * real / rendered
+        if compare("fitted_lit_matched", render("fitted_lit_matched", table, matched, depths),
+                   f"fitted, lit from the ceiling to [lighting] ambient_ratio = {matched:.3g}") is None:
+            status = 1
     return status
 
 
