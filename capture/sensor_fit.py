@@ -318,8 +318,12 @@ def _scene_dots(scene: StaticScene, curve: NoiseCurve, saturation: float | None,
     peak = on_mean[fits.pixel[:, 1], fits.pixel[:, 0]]
     dot_depth = (np.full(len(fits.sigma), np.nan) if scene.depth is None
                  else scene.depth[fits.pixel[:, 1], fits.pixel[:, 0]].astype(np.float64))
-    return SceneDots(fits.sigma, ratio[usable] / scale, ratio_noise[usable] / scale**2,
-                     fits.amplitude / curve.sigma(peak), len(centres), depth_dots, depth_pixels, dot_depth)
+    # no stored value is less noisy than its quantisation; a noise line through 0 below that (a spatial
+    # fit's negative intercept) would give dots an infinite SNR
+    with np.errstate(divide="ignore"):
+        snr = fits.amplitude / np.maximum(curve.sigma(peak), curve.step / math.sqrt(12))
+    return SceneDots(fits.sigma, ratio[usable] / scale, ratio_noise[usable] / scale**2, snr, len(centres),
+                     depth_dots, depth_pixels, dot_depth)
 
 
 def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
