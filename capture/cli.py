@@ -592,8 +592,8 @@ def _fit_sensor(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from capture import realism
-    from capture.sensor_fit import measure
-    from capture.static_recording import comparison_notes, open_recording, single_frames
+    from capture.sensor_fit import measure, single_frame_statistics
+    from capture.static_recording import comparison_notes, open_recording
     from dotsim.images import write_image
     from trainer.sgbm import num_disparities_for
 
@@ -619,18 +619,16 @@ def _compare(args: argparse.Namespace) -> int:
         # a one-frame recording's noise is estimated from one frame: the rendering's is too, each of its
         # frames alone, and its looks are of one frame (one frame's noise, not a mean's)
         one_frame = real_stats.method == "spatial"
-        rendered_stats = None
+        rendered_stats = measure(rendering)
         if one_frame:
             try:
-                rendered_stats = measure(single_frames(rendering))
+                rendered_stats = single_frame_statistics(rendered_stats)
                 notes.append("the recording has one frame per scene: the rendering is measured as one-frame "
                              "recordings are, each of its frames alone")
-            except CaptureError as error:
+            except CaptureError as error:  # its looks below are still of one frame
                 notes.append(f"the recording has one frame per scene, but the rendering's single frames "
-                             f"cannot be measured so ({error}; a dark room, dots everywhere?): it is "
-                             "measured over its frames, and its noise rows are not measured as the "
-                             "recording's")
-        rendered_stats = rendered_stats or measure(rendering)
+                             f"cannot be measured so ({error}; a dark room?): its noise and dots are "
+                             "measured over its frames, not as the recording's")
         frames, reference, rights, rig, nearest = realism.dataset_frames(args.rendering, one_frame)
         rendered_range = args.num_disparities or num_disparities_for(rig, nearest or DEFAULT_NEAREST)
         ratio = recording.size[0] / rendering.size[0]

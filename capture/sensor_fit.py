@@ -58,7 +58,7 @@ from capture.photon_transfer import (
     spatial_noise_bins,
     temporal_noise_bins,
 )
-from capture.static_recording import StaticRecording, StaticScene
+from capture.static_recording import StaticRecording, StaticScene, single_frames
 from dotsim.sensor.model import DEFOCUS_SIGMA_PER_DIAMETER, FWHM_PER_SIGMA, optical_blur, speckle_field
 from dotsim.sensor.settings import SensorConfig
 
@@ -80,6 +80,10 @@ DEFOCUS_BINS = 8
 DEFOCUS_MIN_SPAN = 0.15
 # A focus farther than this (m) is written as infinity (0), as [sensor] projector_focus allows.
 FARTHEST_FOCUS = 100.0
+# A rendering's single frames stand for a one-frame recording where their spatial shot noise estimate is
+# at most this many times its noise over time (Kinect renderings lit as the real room: 1.3x; tiny
+# textured ones 2-3x; a dark room, where the "flat" blocks are dots: 25x and more).
+MAX_SPATIAL_BIAS = 4.0
 # The search for the noise whose one-frame estimate on a rendering's scenes is the recording's: at most
 # this many steps, done when both estimates are within this share of the recording's (or within its
 # standard error, where that is wider).
@@ -241,6 +245,21 @@ def measure(recording: StaticRecording) -> SensorStatistics:
         np.concatenate([d.snr for d in dots]), sum(d.detected for d in dots),
         np.sum([d.depth_dots for d in dots], axis=0), np.sum([d.depth_pixels for d in dots], axis=0), notes,
         tuple(ratios), np.concatenate([d.depth for d in dots]))
+
+
+def single_frame_statistics(rendering: SensorStatistics) -> SensorStatistics:
+    """A rendering's statistics measured as a one-frame recording's are (each frame alone, from flat
+    regions: capture.static_recording.single_frames), given its statistics over time. CaptureError
+    where they cannot stand for it: its single frames cannot be measured so, or their shot noise reads
+    more than MAX_SPATIAL_BIAS times its noise over time (a dark room, whose dots leave no quiet block:
+    the flat regions found are dots)."""
+    alone = measure(single_frames(rendering.recording))
+    true, seen = rendering.shot_noise.value, alone.shot_noise.value
+    if seen > MAX_SPATIAL_BIAS * true:
+        raise CaptureError(f"{rendering.recording.name}: its single frames read a shot noise of {seen:.3g}, "
+                           f"{seen / max(true, 1e-12):.3g} times its {true:.3g} over time (allowed: "
+                           f"{MAX_SPATIAL_BIAS:g} times): their flat regions are not flat")
+    return alone
 
 
 def _step(depth: int | None) -> float:
