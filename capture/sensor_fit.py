@@ -10,16 +10,15 @@ measure reads a static recording (capture.static_recording) twice, scene by scen
    off frame): size, brightness spread, peak signal-to-noise ratio of one frame, dots per area by
    depth.
 fit turns them into [sensor] values: read and shot noise, bit depth and the exposure's target from
-the noise and levels alone (a one-frame recording's noise, whose spatial estimate counts fine texture
-too, corrected by what the same estimate reads on a rendering's single frames of known noise); blur
-and speckle from the dots, against a rendering of the user's
-config (--compare) when there is one: the projector's defocus (projector_aperture, projector_focus)
-from the recorded dots' widths against depth where the recording has depth (defocus_fit; else the
-rendering's, kept), blur_sigma makes the rendered dots as wide as the recorded ones (in focus where
-the defocus is fitted), and speckle_contrast is calibrated on that rendering's own dots (the
-rendering's mean frames blurred to the recorded width, with and without a speckle field of
-contrast 1, measured the same way), so the renderer's own spread of dot brightness and the
-measurement's are taken out.
+the noise and levels alone (a one-frame recording's noise, whose spatial estimate counts fine
+texture too, corrected by what the same estimate reads on a rendering's single frames of known
+noise); blur and speckle from the dots, against a rendering of the user's config (--compare) when
+there is one: the projector's defocus (projector_aperture, projector_focus) from the recorded dots'
+widths against depth where the recording has depth (defocus_fit; else the rendering's, kept),
+blur_sigma makes the rendered dots as wide as the recorded ones (in focus where the defocus is
+fitted), and speckle_contrast is calibrated on that rendering's own dots (the rendering's mean
+frames blurred to the recorded width, with and without a speckle field of contrast 1, measured the
+same way), so the renderer's own spread of dot brightness and the measurement's are taken out.
 """
 
 from __future__ import annotations
@@ -400,7 +399,7 @@ def fit(stats: SensorStatistics, reference: SensorStatistics | None = None,
 
 
 def noise_without_spatial_bias(read: Estimate, shot: Estimate,
-                          reference: SensorStatistics) -> tuple[Estimate, Estimate, str]:
+                               reference: SensorStatistics) -> tuple[Estimate, Estimate, str]:
     """A one-frame recording's read and shot noise with the spatial estimate's bias taken out, as the
     rendering's scenes show it. The spatial estimate (flat regions of one frame) also counts fine
     texture and faint dots as noise, the more so the higher the noise (noisier blocks pass as flat):
@@ -410,7 +409,8 @@ def noise_without_spatial_bias(read: Estimate, shot: Estimate,
     own noise, reference.noise over their count, is left in and made up for); frames of those scenes
     with the noise of a sensor (r, s) are drawn from them (one draw, scaled, so the search is smooth)
     and estimated as the recording is; (r, s) are iterated, r <- r x read / (its estimate) and s
-    likewise, until both estimates are within SPATIAL_TOLERANCE of the recording's. That holds where the
+    likewise, until both estimates are within SPATIAL_TOLERANCE of the recording's (or its standard
+    error, where that is wider). That holds where the
     rendering's frames look like the recording's (a room lit as its room; capture.realism); where no
     (r, s) gives the recording's estimates (a dark room whose dots leave no quiet block reads far more;
     a rendering more textured than the recording) the values are kept as measured, with a note."""
@@ -627,12 +627,12 @@ def _calibrated(stats: SensorStatistics, reference: SensorStatistics, grain: flo
     return Estimate(blur / scale, blur_error / scale), Estimate(min(combined, 1.0), min(error, 1.0))
 
 
-def _scene_spread(target: float, at_zero: list[Estimate], at_one: list[Estimate]) -> float:
+def _scene_spread(target: float, at_zero: list[Estimate | None], at_one: list[Estimate | None]) -> float:
     """The standard error the choice of the rendering's scenes gives the calibrated speckle contrast: each
     scene's own contrast for the target spread, from its spreads at contrast 0 and 1 on the law the
     spreads follow (variances add: spread^2 = a + b c^2; signed, so a scene whose dots spread more than
     the target without speckle counts below 0), their standard deviation over sqrt(scenes); 0 with one
-    scene (nothing to tell it from).
+    scene (nothing to tell it from). Scenes measured at only one end (None: too few dots) are left out.
 
     >>> zero, one = [Estimate(0.3, 0), Estimate(0.6, 0)], [Estimate(0.9, 0), Estimate(1.0, 0)]
     >>> round(_scene_spread(0.5, zero, one), 3)   # the scenes alone: 0.471 and -0.415
@@ -640,6 +640,8 @@ def _scene_spread(target: float, at_zero: list[Estimate], at_one: list[Estimate]
     """
     contrasts = []
     for zero, one in zip(at_zero, at_one, strict=True):
+        if zero is None or one is None:
+            continue
         excess, per_contrast = target**2 - zero.value**2, one.value**2 - zero.value**2
         if per_contrast > 0:
             contrasts.append(math.copysign(math.sqrt(abs(excess) / per_contrast), excess))
@@ -647,11 +649,11 @@ def _scene_spread(target: float, at_zero: list[Estimate], at_one: list[Estimate]
 
 
 def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: float,
-                        contrast: float) -> tuple[Estimate, list[Estimate]]:
+                        contrast: float) -> tuple[Estimate, list[Estimate | None]]:
     """The brightness spread of the rendering's dots blurred by blur_px, with speckle of `contrast`
     and grain grain_px on the light above their local background (the same fields for every
     contrast, so the spread grows smoothly with it), measured as a recording's dots are: over all its
-    scenes' dots, and scene by scene."""
+    scenes' dots, and scene by scene (None for a scene of fewer than 2 dots)."""
     rng = np.random.default_rng(CALIBRATION_SEED)
     ratios, noises = [], []
     for scene in reference.recording.scenes():
@@ -663,6 +665,6 @@ def _calibration_spread(reference: SensorStatistics, blur_px: float, grain_px: f
         dots = _scene_dots(scene, reference.noise, reference.saturation, image)
         ratios.append(dots.ratio)
         noises.append(dots.ratio_noise)
-    scenes = [brightness_contrast(ratio, noise) for ratio, noise in zip(ratios, noises, strict=True)
-              if ratio.size > 1]
+    scenes = [brightness_contrast(ratio, noise) if ratio.size > 1 else None
+              for ratio, noise in zip(ratios, noises, strict=True)]
     return brightness_contrast(np.concatenate(ratios), np.concatenate(noises)), scenes
