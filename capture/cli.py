@@ -272,8 +272,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(OUTPUT.png). Clipped samples (at or above where the sensor saturates) are left out of every "
         "statistic, with their count. At least 4 frames of the still scene (16 or more recommended); with "
         "one frame the noise comes from flat regions of it (spatial statistics), and it says so. With "
-        "--compare, the same statistics of a rendering of your config side by side, and blur_sigma and "
-        "speckle_contrast set so its dots match the recording's (docs/CAPTURE.md \"Fitting the sensor\").",
+        "--compare, the same statistics of a rendering of your config side by side, blur_sigma and "
+        "speckle_contrast set so its dots match the recording's, and a one-frame recording's noise freed of "
+        "what its flat regions' texture adds, calibrated on the rendering (render it lit as the recorded "
+        "room) (docs/CAPTURE.md \"Fitting the sensor\").",
     )
     fit.add_argument("recording", nargs="+", metavar="RECORDING",
                      help="projector-on frames of a still scene: image files, folders or quoted globs "
@@ -309,7 +311,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(fit-sensor's statistics, plus from one frame the ambient light over the projector's and the share "
         "of pixels OpenCV's SGBM leaves unmatched: left against right IR for a stereo pair, against the "
         "reference pattern for a mono sensor) and print one table: each statistic for both and their ratio, "
-        "rendering over recording, in the recording's pixels. Writes the table (OUTPUT.json) and a picture "
+        "rendering over recording, in the recording's pixels (a one-frame recording beside the rendering's "
+        "frames each alone; one-frame statistics averaged over the scenes). Writes the table (OUTPUT.json) "
+        "and a picture "
         "(OUTPUT.png): crops of both frames at the same scale side by side, the noise against level, the "
         "dots' FWHM and peak SNR histograms (docs/CAPTURE.md \"How real a rendering looks\").",
     )
