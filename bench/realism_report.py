@@ -105,9 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     from commands.cli import main as dotsim
     from generator.driver import generate
 
-    def render(name: str, sensor: dict | None, lit: float | None, depths: tuple[float, float] | None) -> Path:
-        """A still rendering into FOLDER/rendering_NAME (resumed where it is; a folder holding another
-        config's scenes is refused by generate, naming it)."""
+    def render(name: str, sensor: dict | None, lit: float | None) -> Path:
+        """A still rendering at the chosen depths into FOLDER/rendering_NAME (resumed where it is; a
+        folder holding another config's scenes is refused by generate, naming it)."""
         rendering = folder / f"rendering_{name}"
         config = still_config(args.scale, args.samples, args.threads, args.assets, sensor, lit, depths)
         generate(config, rendering, "train", args.scenes, seed=1, workers=1, progress=False)
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"the real frame's depths (SGBM with LCN against its pattern), 5th-95th percentile: "
                   f"{depths[0]:g}-{depths[1]:g} m: [scene] distance = [{depths[0]:g}, {depths[1]:g}], "
                   f"back_wall_distance = [{depths[1]:g}, {depths[1]:g}]")
-        rows = compare("config", render("config", None, None, depths), "of the config")
+        rows = compare("config", render("config", None, None), "of the config")
         if rows is None:
             return 1
         # the real frame's ambient / projector ratio, by the one-frame estimate (it has no projector-off
@@ -153,14 +153,14 @@ def main(argv: list[str] | None = None) -> int:
         if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "-o", str(noise)]) != 0:
             return 1
         unblurred = {**tomllib.loads(noise.read_text())["sensor"], "blur_sigma": 0.0, "speckle_contrast": 0.0}
-        reference = render("reference", unblurred, ratio, depths)
+        reference = render("reference", unblurred, ratio)
         fitted = folder / "kinect_fitted.toml"
         if dotsim(["capture", "fit-sensor", str(REAL / "ir.png"), "--compare", str(reference),
                    "-o", str(fitted)]) != 0:
             return 1
         table = tomllib.loads(fitted.read_text())["sensor"]
-        status = 0 if compare("fitted", render("fitted", table, None, depths), "fitted") else 1
-        rows = compare("fitted_lit", render("fitted_lit", table, ratio, depths),
+        status = 0 if compare("fitted", render("fitted", table, None), "fitted") else 1
+        rows = compare("fitted_lit", render("fitted_lit", table, ratio),
                        f"fitted, lit from the ceiling to [lighting] ambient_ratio = {ratio:.3g}")
         if rows is None:
             return 1
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         # clipped dots, biases a target ratio does not see), as --compare fits the blur on both sides
         real, rendered = ambient(rows)
         matched = ratio * real / rendered
-        if compare("fitted_lit_matched", render("fitted_lit_matched", table, matched, depths),
+        if compare("fitted_lit_matched", render("fitted_lit_matched", table, matched),
                    f"fitted, lit from the ceiling to [lighting] ambient_ratio = {matched:.3g}") is None:
             status = 1
     return status

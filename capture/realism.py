@@ -150,13 +150,14 @@ def dataset_frames(root: Path, one_frame: bool = False) -> tuple[
     data = dataset.open_dataset(root)
     frames, rights, meta = [], [], None
     for ref in data.scenes:
-        stored = dataset.read_scene_meta(ref.path)["channels"]
-        channels = [name for name in ("ir", "ir_right") if name in stored]
-        scene = dataset.read_scene(ref.path, channels=channels)
-        meta = meta or scene.meta
-        used = scene.frames[:1] if one_frame else scene.frames
+        scene_meta = dataset.read_scene_meta(ref.path)
+        meta = meta or scene_meta
+        channels = [name for name in ("ir", "ir_right") if name in scene_meta["channels"]]
+        # the frames used only (the first alone with one_frame), each scene.json read once
+        used = [dataset.read_frame(ref.path / entry["file"], channels=channels, meta=scene_meta)
+                for entry in scene_meta["frames"][:1 if one_frame else None]]
         frames.append(np.mean([f["ir"].astype(np.float64) for f in used], axis=0))
-        if "ir_right" in scene.meta["channels"]:
+        if "ir_right" in channels:
             rights.append(np.mean([f["ir_right"].astype(np.float64) for f in used], axis=0))
     rig = Rig.from_dict(meta["rig"], f"{data.scenes[0].path} rig")
     reference = None
