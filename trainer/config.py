@@ -79,6 +79,10 @@ class DataConfig(Checked):
     noise_std: float = setting(0.0, "std of additive Gaussian noise, in the units of the frames' ir "
                                "channel", low=0.0)
     intensity_scale: FloatRange = setting((1.0, 1.0), "uniform random gain range", low=0.0)
+    stretch: FloatRange = setting((1.0, 1.0), "range of a horizontal stretch of each crop about its centre "
+                                  "column (log-uniform; IR and targets resampled), as a surface slanted in "
+                                  "depth stretches the pattern: s, as a disparity changing 1 - 1/s px a "
+                                  "column; [1, 1]: none", low=0.0, low_open=True)
     uniform_noise: float = setting(0.0, "GigaDepth's noise: each sample adds noise uniform in [0, a) per "
                                    "pixel, a = U(0, 1) x this, in the ir channel's units (full scale 1; "
                                    "GigaDepth: 0.3); 0: none", low=0.0)

@@ -5,12 +5,13 @@ any source (`Frames`).
 A sample keeps the identity of the network's lines: crops start on full-resolution rows that are
 multiples of the network's stride and carry their first output row (`row0`) and column (`x0`), so the
 per-line weights see the rows they are meant for. The targets are read at the full-resolution pixels
-the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated.
-Augmentations (gain, noise, vertical jitter, crops around near pixels) draw from an RNG keyed by (seed,
-epoch, frame index): the same sample comes out in any worker and after a resume. GigaDepth's recipe is
-here as [data] options: full frames (crop sizes 0), its uniform noise of random amplitude, its edge
-mask (Sobel(disparity), dilated by an ellipse); [data] near_share draws a share of the crops around
-pixels nearer than near_depth.
+the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated
+unless [data] stretch resamples the crop along its rows (as a surface slanted in depth stretches the
+pattern). Augmentations (gain, noise, vertical jitter, crops around near pixels, the stretch) draw from
+an RNG keyed by (seed, epoch, frame index): the same sample comes out in any worker and after a resume.
+GigaDepth's recipe is here as [data] options: full frames (crop sizes 0), its uniform noise of random
+amplitude, its edge mask (Sobel(disparity), dilated by an ellipse); [data] near_share draws a share of
+the crops around pixels nearer than near_depth.
 
 `Frames(source)` is a torch IterableDataset that yields one dict per frame of a dataset folder or of
 `dotsim export`'s shards (dotsim.shards.reader.resolve names the forms): the channels as numpy arrays
@@ -130,8 +131,10 @@ class FrameDataset(Dataset):
             j = self.cfg.vertical_jitter
             jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
         rows = slice(y0 + jitter, y0 + jitter + self.crop_h)
-        cols = slice(x0, x0 + self.crop_w)
-        ir = np.array(t["ir"][rows, cols])  # a copy: the cached frame stays as read
+        lo, hi = self.cfg.stretch
+        scale = float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if self.augment and lo != hi else 1.0
+        x0, source_columns = stretched_columns(x0, self.crop_w, w, scale)
+        ir = resample_columns(t["ir"][rows], source_columns)
         if self.augment:
             ir = ir * rng.uniform(*self.cfg.intensity_scale)
             if self.cfg.noise_std > 0:
@@ -144,13 +147,11 @@ class FrameDataset(Dataset):
             "row0": torch.tensor(y0 // self.stride),
             "x0": torch.tensor(x0),
         }
-        for key in ("column", "valid", "edge"):
-            step = self.stride  # at the output pixels
-            sub = t[key][rows.start : rows.stop : step, cols.start : cols.stop : step]
-            sample[key] = torch.from_numpy(np.array(sub))
+        at_outputs = {k: t[k][rows.start : rows.stop : self.stride] for k in ("column", "valid", "edge")}
+        targets = resample_targets(at_outputs, source_columns[:: self.stride])
+        sample.update({key: torch.from_numpy(a) for key, a in targets.items()})
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
-
 
     def crop_around(self, pixel: int, h: int, w: int) -> tuple[int, int]:
         """(y0, x0) of the crop centred on flat pixel index `pixel` of an h x w frame, moved inside the
@@ -158,6 +159,59 @@ class FrameDataset(Dataset):
         py, px = divmod(pixel, w)
         y = min(max(py - self.crop_h // 2, 0), h - self.crop_h)
         return self.stride * (y // self.stride), min(max(px - self.crop_w // 2, 0), w - self.crop_w)
+
+
+def stretched_columns(x0: int, crop_w: int, w: int, scale: float) -> tuple[int, np.ndarray]:
+    """A crop of crop_w columns of a w-column frame starting at x0, stretched `scale` times about its
+    centre: (the stretched crop's first column, moved inside the frame; the frame column, fractional,
+    each crop column shows). A surface slanted in depth shows the pattern stretched along its rows,
+    1 / (1 - g) times where its disparity changes by g px per column (its sign as the rig's disparity),
+    so stretched crops teach the slanted surfaces the scenes have few of. The
+    crop claims the columns x0 .. x0 + crop_w - 1 for the network's feasible classes; off the centre
+    they sit up to (1 - 1 / scale) crop_w / 2 px from the columns they show. scale 1: x0 .. x0 + crop_w - 1.
+
+    >>> stretched_columns(10, 4, 100, 1.0)
+    (10, array([10., 11., 12., 13.]))
+    >>> stretched_columns(10, 4, 100, 2.0)[1]
+    array([10.75, 11.25, 11.75, 12.25])
+    """
+    offsets = np.arange(crop_w) - (crop_w - 1) / 2
+    reach = (crop_w - 1) / 2 / scale
+    centre = float(np.clip(x0 + (crop_w - 1) / 2, min(reach, (w - 1) / 2), max(w - 1 - reach, (w - 1) / 2)))
+    first = int(np.clip(round(centre - (crop_w - 1) / 2), 0, w - crop_w))
+    return first, centre + offsets / scale
+
+
+def resample_columns(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """rows (h, w) read at fractional `columns`, linearly interpolated (a copy; 0 outside the frame)."""
+    w = rows.shape[1]
+    if np.all(columns == np.round(columns)):
+        return rows[:, columns.astype(np.int64)]
+    left = np.clip(np.floor(columns).astype(np.int64), 0, w - 2)
+    frac = (columns - left).astype(np.float32)
+    out = rows[:, left] * (1 - frac) + rows[:, left + 1] * frac
+    return np.where((columns >= 0) & (columns <= w - 1), out, 0).astype(rows.dtype)
+
+
+def resample_targets(targets: dict[str, np.ndarray], columns: np.ndarray) -> dict[str, np.ndarray]:
+    """The column, valid and edge targets (h, w) read at fractional `columns` (copies): the column
+    interpolated linearly between two valid neighbours off the edge mask (a smooth surface), else taken
+    from the nearer neighbour (never a column between a foreground and its background); invalid outside
+    the frame."""
+    column, valid, edge = targets["column"], targets["valid"], targets["edge"]
+    if np.all(columns == np.round(columns)):
+        return {key: a[:, columns.astype(np.int64)] for key, a in targets.items()}
+    w = column.shape[1]
+    left = np.clip(np.floor(columns).astype(np.int64), 0, w - 2)
+    frac = (columns - left).astype(np.float32)
+    nearest = np.where(frac < 0.5, left, left + 1)
+    right = left + 1
+    smooth = valid[:, left] & valid[:, right] & (edge[:, left] == 0) & (edge[:, right] == 0)
+    blend = column[:, left] * (1 - frac) + column[:, right] * frac
+    inside = (columns >= 0) & (columns <= w - 1)
+    return {"column": np.where(smooth, blend, column[:, nearest]).astype(np.float32),
+            "valid": np.where(smooth, True, valid[:, nearest]) & inside,
+            "edge": np.array(edge[:, nearest])}
 
 
 class EpochSampler(Sampler[int]):

@@ -12,7 +12,7 @@ from dotsim.frame_source import open_source
 from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict, load_config, resolution_mismatch
 from trainer.model import build_model
-from trainer.samples import FrameDataset, frame_targets
+from trainer.samples import FrameDataset, frame_targets, resample_columns, resample_targets, stretched_columns
 from trainer.train import batch_loss, loss_weights, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -106,6 +106,83 @@ def test_near_crops_hold_the_pixels_nearer_than_near_depth(source):
                     assert near.any(), (i, epoch)
         counts[share] = holding
     assert counts[0.0] < counts[1.0]
+
+
+@pytest.mark.parametrize("scale", [0.8, 0.9, 1.25])
+def test_a_stretched_crop_shows_each_column_with_its_own_target(scale):
+    """A frame whose IR is its column index and whose projector column is a smooth ramp of it: the
+    stretched crop's IR steps 1 / scale columns a pixel about the crop's centre, and every output's target
+    is the ramp at the column its IR shows (read off the IR, not from the stretch)."""
+    h, w, width = 8, 200, 1088.0
+    u = np.broadcast_to(np.arange(w, dtype=np.float32), (h, w))
+    ramp = (2.5 * u + 7.0) / width
+    first, columns = stretched_columns(60, 96, w, scale)
+    assert first == 60  # the centre (107.5) is far enough inside to stay put
+    ir = resample_columns(u, columns)
+    np.testing.assert_allclose(np.diff(ir, axis=1), 1 / scale, rtol=1e-4)
+    np.testing.assert_allclose(ir[:, 47:49].mean(), 107.5, atol=1e-4)
+    targets = resample_targets({"column": ramp[::2], "valid": np.ones((h // 2, w), bool),
+                                "edge": np.zeros((h // 2, w), np.float32)}, columns[::2])
+    assert targets["valid"].all()
+    np.testing.assert_allclose(targets["column"], (2.5 * ir[::2, ::2] + 7.0) / width, rtol=1e-5)
+
+
+def test_a_stretched_crop_never_blends_a_foreground_into_its_background():
+    """Across a depth step (marked by the edge mask) a target takes a real pixel's column, the nearer
+    one, never one between the two surfaces; off the mask it is interpolated."""
+    h, w = 4, 200
+    u = np.broadcast_to(np.arange(w, dtype=np.float32), (h, w))
+    column = np.where(u < 100, u / 1000, u / 1000 + 0.2).astype(np.float32)
+    edge = (np.abs(u - 99.5) < 3).astype(np.float32)
+    for scale in (0.83, 0.97, 1.11, 1.2):
+        _, columns = stretched_columns(52, 96, w, scale)
+        t = resample_targets({"column": column, "valid": np.ones((h, w), bool), "edge": edge}, columns)
+        near_step = np.abs(columns - 99.5) < 3
+        assert np.isin(t["column"][:, near_step], column[0]).all()
+        nearest = np.rint(columns[near_step]).astype(int)
+        np.testing.assert_array_equal(t["column"][0, near_step], column[0, nearest])
+        off = ~near_step & (np.abs(columns - 99.5) > 4)
+        expected = np.where(columns < 100, columns / 1000, columns / 1000 + 0.2)
+        np.testing.assert_allclose(t["column"][0, off], expected[off], rtol=1e-5)
+
+
+def test_a_stretch_stays_inside_the_frame_or_leaves_what_is_outside_invalid():
+    """Crops at the frame's sides move inward to fit; a full-width crop squeezed (scale < 1) cannot fit,
+    and its columns beyond the frame are black and not trained on."""
+    w = 200
+    for x0 in (0, 104):
+        _, columns = stretched_columns(x0, 96, w, 0.8)
+        assert columns.min() >= 0 and columns.max() <= w - 1
+    first, columns = stretched_columns(0, w, w, 0.8)
+    outside = (columns < 0) | (columns > w - 1)
+    assert first == 0 and outside.sum() == 40  # |k - 99.5| / 0.8 > 99.5: 20 columns a side
+    frame = np.ones((2, w), np.float32)
+    np.testing.assert_array_equal(resample_columns(frame, columns)[0] == 0, outside)
+    t = resample_targets({"column": frame, "valid": np.ones((2, w), bool), "edge": 0 * frame}, columns)
+    np.testing.assert_array_equal(t["valid"][0], ~outside)
+
+
+def test_stretch_draws_a_scale_per_sample_within_its_range(source):
+    """[data] stretch [0.8, 1.25] on rendered frames: the crops keep their size and line, their scales
+    (read off where they sit in the frame's IR) vary over the range, and [1, 1] leaves crops as they are."""
+    cfg = with_data(tiny_config(1), crop_width=32, crop_height=16, noise_std=0.0, intensity_scale=(1.0, 1.0),
+                    stretch=(0.8, 1.25))
+    plain = FrameDataset(source.frames[:1], source.rig, with_data(cfg, stretch=(1.0, 1.0)).data, seed=0,
+                         augment=True)
+    ds = FrameDataset(source.frames[:1], source.rig, cfg.data, seed=0, augment=True)
+    ir = source.frames[0].read(("ir",))["ir"].astype(np.float32)
+    scales = []
+    for epoch in range(12):
+        ds.epoch = plain.epoch = epoch
+        s, p = ds[0], plain[0]
+        assert s["ir"].shape == p["ir"].shape and s["column"].shape == p["column"].shape
+        assert int(s["row0"]) == int(p["row0"])
+        rows = ir[2 * int(s["row0"]) : 2 * int(s["row0"]) + 16]
+        candidates = np.linspace(0.78, 1.27, 99)
+        misfits = [np.abs(resample_columns(rows, stretched_columns(int(p["x0"]), 32, ir.shape[1], k)[1])
+                          - s["ir"][0].numpy()).sum() for k in candidates]
+        scales.append(candidates[int(np.argmin(misfits))])
+    assert 0.79 <= min(scales) < 0.9 and 1.12 < max(scales) <= 1.26
 
 
 def test_loss_weights_ramp_as_configured():
