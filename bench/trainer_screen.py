@@ -71,10 +71,12 @@ def step_gflop(cfg, rig) -> float:
 def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource, count: int
                    ) -> dict[str, dict[str, float]]:
     """{class: {"o(t)": rate}} of a checkpoint's network on `count` held-out frames of `validation`, per
-    GT depth range (cut at the rig's max_depth) and on / off the edge mask (trainer.scoring's Scorer)."""
+    GT depth range (cut at the rig's max_depth), on / off the edge mask and slanted (trainer.scoring's
+    Scorer)."""
     model, _, rig = load_model(checkpoint)
     bins = depth_ranges(DEPTH_BINS, rig.max_depth)
-    classes = ("all", *(f"{a:g}-{b:g}" for a, b in zip(bins[:-1], bins[1:], strict=True)), "edge", "off edge")
+    ranges = (f"{a:g}-{b:g}" for a, b in zip(bins[:-1], bins[1:], strict=True))
+    classes = ("all", *ranges, "edge", "off edge", "slanted")
     scorer = Scorer([NetworkMethod(model, rig)], rig, validation.pattern, bins, classes=classes,
                     thresholds=BY_CLASS_THRESHOLDS)
     for ref in validation.held_out(count, data, "training"):

@@ -46,6 +46,7 @@ from trainer.scoring import (
     CLASSES,
     DEPTH_BINS,
     SCORED_CHANNELS,
+    SLANT,
     DeviceDepthMethod,
     NetworkMethod,
     Scorer,
@@ -269,7 +270,9 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
     device = next((m for m in scorer.methods if isinstance(m, DeviceDepthMethod)), None)
     table = format_table([r for r in rows if r["range"] not in CLASSES])
     by_class = [r for r in rows if r["range"] in CLASSES]
-    table += ("\nBy pixel class (the edge mask as the frames store it; solvable: the 9 x 9 window's dots "
+    table += ("\nBy pixel class (the edge mask as the frames store it; slanted: off it, the GT disparity "
+              f"changing more than {SLANT:g} px per px along the row or down the column; solvable: the "
+              "9 x 9 window's dots "
               f"{SOLVABLE_SNR:g} noise sigmas strong, dotsim/solvable.py"
               + ("" if row_of(rows, "network", "solvable") else "; not given: the frames record no sensor "
                  "noise") + "):\n\n"

@@ -7,9 +7,9 @@ whose GT disparity lies inside the range the method can represent: its feasible 
 (NetworkMethod), SGBM against the pattern (SgbmMethod), SGBM between a stereo pair's IR images
 (StereoSgbmMethod) and the depth camera's own depth stored beside the frames (DeviceDepthMethod). The
 Scorer runs methods over frames and counts, per method and pixel class ("all", each GT depth range, on /
-off the edge mask, solvable or not: dotsim/solvable.py), the valid pixels, those outside the method's
-range and the outliers at each threshold (trainer/metrics.py); `rows()` turns the counts into table
-rows. `error_strip` draws the one error image both eval and validation show.
+off the edge mask, slanted off it, solvable or not: dotsim/solvable.py), the valid pixels, those outside
+the method's range and the outliers at each threshold (trainer/metrics.py); `rows()` turns the counts
+into table rows. `error_strip` draws the one error image both eval and validation show.
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
 # depth follows from disparity: exports may hold no depth
 SCORED_CHANNELS = ("ir", "visibility", "disparity", "edge")
-CLASSES = ("edge", "off edge", "solvable", "not solvable")  # the pixel classes beside the depth ranges
+CLASSES = ("edge", "off edge", "slanted", "solvable", "not solvable")  # beside the depth ranges
+SLANT = 0.05  # px of disparity per px: the pattern stretched or sheared by 5 % or more
 
 
 def depth_ranges(depth_bins, max_depth: float) -> tuple[float, ...]:
@@ -50,15 +51,34 @@ def depth_ranges(depth_bins, max_depth: float) -> tuple[float, ...]:
     return tuple(b for b in depth_bins if b < max_depth) + (max_depth,)
 
 
+def slanted_pixels(disparity: np.ndarray) -> np.ndarray:
+    """Pixels whose GT disparity changes by more than SLANT px per px along the row or down the column
+    (central differences; a pixel beside one without disparity has no slope): surfaces slanted in
+    depth, whose pattern is stretched along the rows or sheared against the pattern a plane facing the
+    camera shows, where learned depth sensors fail first.
+
+    >>> ramp = np.tile(np.arange(5.0), (3, 1))
+    >>> bool(slanted_pixels(0.1 * ramp).all()), bool(slanted_pixels(0.02 * ramp).any())
+    (True, False)
+    """
+    with np.errstate(invalid="ignore"):
+        down, along = np.gradient(disparity.astype(np.float64))
+        return np.maximum(np.abs(along), np.abs(down)) > SLANT
+
+
 def pixel_classes(valid: np.ndarray, depth: np.ndarray, edge: np.ndarray | None = None,
-                  solvable: np.ndarray | None = None, depth_bins=DEPTH_BINS) -> dict[str, np.ndarray]:
+                  solvable: np.ndarray | None = None, depth_bins=DEPTH_BINS,
+                  disparity: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The valid pixels by class: "all", each GT depth range "a-b" (m), and where given on / off the
-    edge mask and solvable or not (dotsim/solvable.py)."""
+    edge mask, slanted off the edge mask (slanted_pixels of the GT disparity) and solvable or not
+    (dotsim/solvable.py)."""
     with np.errstate(invalid="ignore"):
         classes = {"all": valid} | {f"{a:g}-{b:g}": valid & (depth >= a) & (depth < b)
                                     for a, b in zip(depth_bins[:-1], depth_bins[1:], strict=True)}
     if edge is not None:
         classes |= {"edge": valid & (edge > 0), "off edge": valid & ~(edge > 0)}
+        if disparity is not None:
+            classes["slanted"] = classes["off edge"] & slanted_pixels(disparity)
     if solvable is not None:
         classes |= {"solvable": valid & solvable, "not solvable": valid & ~solvable}
     return classes
@@ -168,7 +188,7 @@ class Scorer:
         solved = None
         if self.keep is None or {"solvable", "not solvable"} & set(self.keep):
             solved = solvable_pixels(frame["ir"], depth, self.rig, self.pattern, ref.scene_meta())
-        classes = pixel_classes(valid, depth, frame.get("edge"), solved, self.depth_bins)
+        classes = pixel_classes(valid, depth, frame.get("edge"), solved, self.depth_bins, gt)
         return frame, {k: v for k, v in classes.items() if self.keep is None or k in self.keep}
 
     def add(self, ref: FrameRef) -> tuple[dict, dict[str, np.ndarray]]:

@@ -25,3 +25,34 @@ def test_eval_and_validation_give_the_same_counts_on_the_same_frames(tmp_path):
         assert row["pixels"] > 0
         for t in THRESHOLDS:
             assert rates[f"{name} o({t:g})"] == row[f"o({t:g})"]
+
+
+def test_slanted_pixels_are_where_a_plane_tilts_off_the_edge_mask():
+    """The disparity of planes z = 1 / (a + b u) (disparity linear in the column, fx b (a + b u)): the
+    left half facing the camera, the right half tilted 0.08 px per px, a band of rows tilted down the
+    columns; slanted where the analytic slope exceeds 0.05, never on the edge mask, not where GT is
+    missing. And the module's doctests."""
+    import doctest
+
+    import numpy as np
+
+    from trainer import scoring
+
+    h, w = 40, 60
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    disparity = np.where(u < 30, 12.0, 12.0 + 0.08 * (u - 30))
+    disparity[30:] = 8.0 + 0.06 * v[30:]
+    disparity[:5, 40:] = np.nan
+    edge = np.zeros((h, w))
+    edge[:, 28:33] = 1  # the crease between the halves
+    edge[28:33] = 1  # and the seam to the band
+    valid = np.isfinite(disparity)
+    depth = 1.0 / disparity
+    classes = scoring.pixel_classes(valid, depth, edge, disparity=disparity)
+    expected = (u > 30) & (v < 30) | (v >= 30)
+    expected &= (edge == 0) & valid
+    expected[5, 40:] = expected[:5, 39] = False  # beside the missing GT: no slope
+    np.testing.assert_array_equal(classes["slanted"], expected)
+    assert "slanted" not in scoring.pixel_classes(valid, depth, None, disparity=disparity)
+    result = doctest.testmod(scoring)
+    assert result.attempted >= 2 and result.failed == 0
