@@ -83,6 +83,10 @@ class DataConfig(Checked):
                                   "column (log-uniform; IR and targets resampled), as a surface slanted in "
                                   "depth stretches the pattern: s, as a disparity changing 1 - 1/s px a "
                                   "column; [1, 1]: none", low=0.0, low_open=True)
+    shear: float = setting(0.0, "px per row: each crop's rows shifted along themselves by up to this much "
+                           "per row from its centre row (uniform in [-shear, shear]; IR and targets "
+                           "resampled), as a surface slanted down the columns shifts the pattern's rows, "
+                           "its disparity changing that much a row; 0: none", low=0.0)
     uniform_noise: float = setting(0.0, "GigaDepth's noise: each sample adds noise uniform in [0, a) per "
                                    "pixel, a = U(0, 1) x this, in the ir channel's units (full scale 1; "
                                    "GigaDepth: 0.3); 0: none", low=0.0)

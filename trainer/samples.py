@@ -7,7 +7,8 @@ multiples of the network's stride and carry their first output row (`row0`) and 
 per-line weights see the rows they are meant for. The targets are read at the full-resolution pixels
 the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated
 unless [data] stretch resamples the crop along its rows (as a surface slanted in depth stretches the
-pattern). Augmentations (gain, noise, vertical jitter, crops around near pixels, the stretch) draw from
+pattern; [data] shear shifts each row against the next, as a surface slanted down the columns does).
+Augmentations (gain, noise, vertical jitter, crops around near pixels, stretch and shear) draw from
 an RNG keyed by (seed, epoch, frame index): the same sample comes out in any worker and after a resume.
 GigaDepth's recipe is here as [data] options: full frames (crop sizes 0), its uniform noise of random
 amplitude, its edge mask (Sobel(disparity), dilated by an ellipse); [data] near_share draws a share of
@@ -134,6 +135,8 @@ class FrameDataset(Dataset):
         lo, hi = self.cfg.stretch
         scale = float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if self.augment and lo != hi else 1.0
         x0, source_columns = stretched_columns(x0, self.crop_w, w, scale)
+        shear = rng.uniform(-self.cfg.shear, self.cfg.shear) if self.augment and self.cfg.shear else 0.0
+        source_columns = source_columns + shear * (np.arange(self.crop_h) - (self.crop_h - 1) / 2)[:, None]
         ir = resample_columns(t["ir"][rows], source_columns)
         if self.augment:
             ir = ir * rng.uniform(*self.cfg.intensity_scale)
@@ -148,7 +151,7 @@ class FrameDataset(Dataset):
             "x0": torch.tensor(x0),
         }
         at_outputs = {k: t[k][rows.start : rows.stop : self.stride] for k in ("column", "valid", "edge")}
-        targets = resample_targets(at_outputs, source_columns[:: self.stride])
+        targets = resample_targets(at_outputs, source_columns[:: self.stride, :: self.stride])
         sample.update({key: torch.from_numpy(a) for key, a in targets.items()})
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
@@ -182,36 +185,41 @@ def stretched_columns(x0: int, crop_w: int, w: int, scale: float) -> tuple[int, 
     return first, centre + offsets / scale
 
 
-def resample_columns(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """rows (h, w) read at fractional `columns`, linearly interpolated (a copy; 0 outside the frame)."""
+def _columns_of(rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the left neighbour of each fractional column, inside rows (h, w); the weight of the right one;
+    whether the column lies inside the frame), each shaped as rows read at `columns`: one column per crop
+    column (w_crop,), or one per crop pixel (h, w_crop)."""
     w = rows.shape[1]
-    if np.all(columns == np.round(columns)):
-        return rows[:, columns.astype(np.int64)]
     left = np.clip(np.floor(columns).astype(np.int64), 0, w - 2)
-    frac = (columns - left).astype(np.float32)
-    out = rows[:, left] * (1 - frac) + rows[:, left + 1] * frac
-    return np.where((columns >= 0) & (columns <= w - 1), out, 0).astype(rows.dtype)
+    frac = np.broadcast_to(columns - left, (rows.shape[0], columns.shape[-1])).astype(np.float32)
+    return np.broadcast_to(left, frac.shape), frac, (columns >= 0) & (columns <= w - 1)
+
+
+def resample_columns(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """rows (h, w) read at fractional `columns` (one per crop column, or one per pixel: (h, w_crop)),
+    linearly interpolated (a copy; 0 outside the frame)."""
+    left, frac, inside = _columns_of(rows, columns)
+    if not frac.any():
+        return np.take_along_axis(rows, left, axis=1)
+    out = (np.take_along_axis(rows, left, axis=1) * (1 - frac)
+           + np.take_along_axis(rows, left + 1, axis=1) * frac)
+    return np.where(inside, out, 0).astype(rows.dtype)
 
 
 def resample_targets(targets: dict[str, np.ndarray], columns: np.ndarray) -> dict[str, np.ndarray]:
-    """The column, valid and edge targets (h, w) read at fractional `columns` (copies): the column
-    interpolated linearly between two valid neighbours off the edge mask (a smooth surface), else taken
-    from the nearer neighbour (never a column between a foreground and its background); invalid outside
-    the frame."""
-    column, valid, edge = targets["column"], targets["valid"], targets["edge"]
-    if np.all(columns == np.round(columns)):
-        return {key: a[:, columns.astype(np.int64)] for key, a in targets.items()}
-    w = column.shape[1]
-    left = np.clip(np.floor(columns).astype(np.int64), 0, w - 2)
-    frac = (columns - left).astype(np.float32)
-    nearest = np.where(frac < 0.5, left, left + 1)
-    right = left + 1
-    smooth = valid[:, left] & valid[:, right] & (edge[:, left] == 0) & (edge[:, right] == 0)
-    blend = column[:, left] * (1 - frac) + column[:, right] * frac
-    inside = (columns >= 0) & (columns <= w - 1)
-    return {"column": np.where(smooth, blend, column[:, nearest]).astype(np.float32),
-            "valid": np.where(smooth, True, valid[:, nearest]) & inside,
-            "edge": np.array(edge[:, nearest])}
+    """The column, valid and edge targets (h, w) read at fractional `columns` as resample_columns reads
+    them (copies): the column interpolated linearly between two valid neighbours off the edge mask (a
+    smooth surface), else taken from the nearer neighbour (never a column between a foreground and its
+    background); invalid outside the frame."""
+    left, frac, inside = _columns_of(targets["column"], columns)
+    if not frac.any():
+        return {key: np.take_along_axis(a, left, axis=1) for key, a in targets.items()}
+    (c0, v0, e0), (c1, v1, e1), (cn, vn, en) = (
+        [np.take_along_axis(targets[k], at, axis=1) for k in ("column", "valid", "edge")]
+        for at in (left, left + 1, np.where(frac < 0.5, left, left + 1)))
+    smooth = v0 & v1 & (e0 == 0) & (e1 == 0)
+    return {"column": np.where(smooth, c0 * (1 - frac) + c1 * frac, cn).astype(np.float32),
+            "valid": np.where(smooth, True, vn) & inside, "edge": en}
 
 
 class EpochSampler(Sampler[int]):

@@ -108,21 +108,24 @@ def test_near_crops_hold_the_pixels_nearer_than_near_depth(source):
     assert counts[0.0] < counts[1.0]
 
 
-@pytest.mark.parametrize("scale", [0.8, 0.9, 1.25])
-def test_a_stretched_crop_shows_each_column_with_its_own_target(scale):
+@pytest.mark.parametrize("scale, shear", [(0.8, 0.0), (0.9, 0.2), (1.25, -0.15)])
+def test_a_stretched_crop_shows_each_column_with_its_own_target(scale, shear):
     """A frame whose IR is its column index and whose projector column is a smooth ramp of it: the
-    stretched crop's IR steps 1 / scale columns a pixel about the crop's centre, and every output's target
-    is the ramp at the column its IR shows (read off the IR, not from the stretch)."""
+    stretched crop's IR steps 1 / scale columns a pixel about the crop's centre, each row `shear` columns
+    from the one above, and every output's target is the ramp at the column its IR shows (read off the
+    IR, not from the stretch)."""
     h, w, width = 8, 200, 1088.0
     u = np.broadcast_to(np.arange(w, dtype=np.float32), (h, w))
     ramp = (2.5 * u + 7.0) / width
     first, columns = stretched_columns(60, 96, w, scale)
     assert first == 60  # the centre (107.5) is far enough inside to stay put
+    columns = columns + shear * (np.arange(h) - (h - 1) / 2)[:, None]
     ir = resample_columns(u, columns)
     np.testing.assert_allclose(np.diff(ir, axis=1), 1 / scale, rtol=1e-4)
+    np.testing.assert_allclose(np.diff(ir, axis=0), shear, atol=1e-4)
     np.testing.assert_allclose(ir[:, 47:49].mean(), 107.5, atol=1e-4)
     targets = resample_targets({"column": ramp[::2], "valid": np.ones((h // 2, w), bool),
-                                "edge": np.zeros((h // 2, w), np.float32)}, columns[::2])
+                                "edge": np.zeros((h // 2, w), np.float32)}, columns[::2, ::2])
     assert targets["valid"].all()
     np.testing.assert_allclose(targets["column"], (2.5 * ir[::2, ::2] + 7.0) / width, rtol=1e-5)
 
@@ -183,6 +186,29 @@ def test_stretch_draws_a_scale_per_sample_within_its_range(source):
                           - s["ir"][0].numpy()).sum() for k in candidates]
         scales.append(candidates[int(np.argmin(misfits))])
     assert 0.79 <= min(scales) < 0.9 and 1.12 < max(scales) <= 1.26
+
+
+def test_shear_shifts_each_row_of_a_crop_by_a_drawn_slope(source):
+    """[data] shear 0.3 on rendered frames: each sample's rows are the frame's rows shifted by k px per row
+    from the crop's centre row, k (read off the IR) varying over [-0.3, 0.3] from sample to sample."""
+    cfg = with_data(tiny_config(1), crop_width=32, crop_height=16, noise_std=0.0, intensity_scale=(1.0, 1.0),
+                    shear=0.3)
+    plain = FrameDataset(source.frames[:1], source.rig, with_data(cfg, shear=0.0).data, seed=0, augment=True)
+    ds = FrameDataset(source.frames[:1], source.rig, cfg.data, seed=0, augment=True)
+    ir = source.frames[0].read(("ir",))["ir"].astype(np.float32)
+    rows_from_centre = np.arange(16) - 7.5
+    slopes = []
+    for epoch in range(12):
+        ds.epoch = plain.epoch = epoch
+        s, p = ds[0], plain[0]
+        assert int(s["x0"]) == int(p["x0"]) and int(s["row0"]) == int(p["row0"])
+        rows = ir[2 * int(s["row0"]) : 2 * int(s["row0"]) + 16]
+        columns = int(p["x0"]) + np.arange(32)
+        candidates = np.linspace(-0.32, 0.32, 65)
+        misfits = [np.abs(resample_columns(rows, columns + k * rows_from_centre[:, None]) - s["ir"][0].numpy()
+                          ).sum() for k in candidates]
+        slopes.append(candidates[int(np.argmin(misfits))])
+    assert -0.31 <= min(slopes) < -0.1 and 0.1 < max(slopes) <= 0.31
 
 
 def test_loss_weights_ramp_as_configured():
