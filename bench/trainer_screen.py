@@ -14,8 +14,9 @@ FlopCounterMode, bench.trainer_cpu_recipe.count) and the parameters, and the tra
 the same frames by GT depth range and on / off the edge mask (`by_class`: the rows eval.md has; a
 change aimed at near surfaces or edges shows there first). The run's length is sized as
 bench.trainer_accuracy sizes it (step decay at 25, 50 and 75 % of the steps). `--report` prints the
-tables of a folder's lines. Variants that ran at the same time on a shared machine still compare: the
-steps, not the minutes, are equal.
+tables of a folder's lines; `--rescore --name N` scores N's checkpoint by class again (for classes added
+since it ran, as "slanted") and rewrites its line. Variants that ran at the same time on a shared
+machine still compare: the steps, not the minutes, are equal.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import torch
 
 from bench.trainer_accuracy import sized_config
 from bench.trainer_cpu_recipe import count, synthetic_batch
+from dotsim.file_io import atomic_write_bytes
 from dotsim.frame_source import FrameSource, open_source
 from trainer.checkpoint import CHECKPOINT, load_model
 from trainer.config import config_from_dict, load_config, output_rows
@@ -85,6 +87,17 @@ def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource,
             for r in scorer.rows()}
 
 
+def rescore(folder: Path, name: str, by_class: dict) -> int:
+    """Replace the by_class rates of the runs named `name` in folder's results.jsonl."""
+    lines = [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
+    for line in lines:
+        if line["name"] == name:
+            line["by_class"] = by_class
+    atomic_write_bytes(folder / "results.jsonl", "".join(json.dumps(line) + "\n" for line in lines).encode())
+    print(json.dumps(by_class))
+    return 0
+
+
 def report(folder: Path) -> str:
     """The markdown tables of a folder's results, in the order they ran: the validation rates, then
     o(0.5) / o(5) by depth range and pixel class."""
@@ -124,6 +137,9 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("out/screens"))
     parser.add_argument("--report", type=Path, metavar="DIR", help="print DIR's results table and exit")
+    parser.add_argument("--rescore", action="store_true",
+                        help="score --name's trained checkpoint in --out by class again (classes added since "
+                             "it ran) and rewrite its line")
     args = parser.parse_args(argv)
     if args.report:
         print(report(args.report))
@@ -140,6 +156,9 @@ def main(argv=None) -> int:
     sized["train"]["val_every"] = args.steps  # scored once, at the end
     cfg = config_from_dict(sized, f"{args.config} with {args.set}")
     run = args.out / args.name
+    if args.rescore:
+        by_class = rates_by_class(run / CHECKPOINT, validation, source, args.val_frames)
+        return rescore(args.out, args.name, by_class)
     start = time.perf_counter()
     result = train(cfg, source, run, progress=False, validation=validation, val_frames=args.val_frames)
     last = result["losses"][-max(len(result["losses"]) // 10, 1):]
