@@ -79,14 +79,11 @@ class DataConfig(Checked):
     noise_std: float = setting(0.0, "std of additive Gaussian noise, in the units of the frames' ir "
                                "channel", low=0.0)
     intensity_scale: FloatRange = setting((1.0, 1.0), "uniform random gain range", low=0.0)
-    stretch: FloatRange = setting((1.0, 1.0), "range of a horizontal stretch of each crop about its centre "
-                                  "column (log-uniform; IR and targets resampled), as a surface slanted in "
-                                  "depth stretches the pattern: s, as a disparity changing 1 - 1/s px a "
-                                  "column; [1, 1]: none", low=0.0, low_open=True)
-    shear: float = setting(0.0, "px per row: each crop's rows shifted along themselves by up to this much "
-                           "per row from its centre row (uniform in [-shear, shear]; IR and targets "
-                           "resampled), as a surface slanted down the columns shifts the pattern's rows, "
-                           "its disparity changing that much a row; 0: none", low=0.0)
+    slant: float = setting(0.0, "degrees: each crop resampled as the pattern would look on a plane at its "
+                           "median disparity tilted by angles drawn in [-slant, slant] about the vertical "
+                           "axis (the rows stretched) and the horizontal one (each row shifted against the "
+                           "next); the nearer the crop, the larger the change, as on real surfaces; 0: none",
+                           low=0.0, high=80.0)
     uniform_noise: float = setting(0.0, "GigaDepth's noise: each sample adds noise uniform in [0, a) per "
                                    "pixel, a = U(0, 1) x this, in the ir channel's units (full scale 1; "
                                    "GigaDepth: 0.3); 0: none", low=0.0)

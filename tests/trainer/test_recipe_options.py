@@ -7,12 +7,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from scipy.optimize import minimize
 
 from dotsim.frame_source import open_source
 from tests.trainer_fixtures import tiny_config
 from trainer.config import config_from_dict, load_config, resolution_mismatch
 from trainer.model import build_model
-from trainer.samples import FrameDataset, frame_targets, resample_columns, resample_targets, stretched_columns
+from trainer.samples import (
+    FrameDataset,
+    frame_targets,
+    resample_columns,
+    resample_targets,
+    stretched_columns,
+    tilted_plane,
+)
 from trainer.train import batch_loss, loss_weights, train
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -165,50 +173,67 @@ def test_a_stretch_stays_inside_the_frame_or_leaves_what_is_outside_invalid():
     np.testing.assert_array_equal(t["valid"][0], ~outside)
 
 
-def test_stretch_draws_a_scale_per_sample_within_its_range(source):
-    """[data] stretch [0.8, 1.25] on rendered frames: the crops keep their size and line, their scales
-    (read off where they sit in the frame's IR) vary over the range, and [1, 1] leaves crops as they are."""
-    cfg = with_data(tiny_config(1), crop_width=32, crop_height=16, noise_std=0.0, intensity_scale=(1.0, 1.0),
-                    stretch=(0.8, 1.25))
-    plain = FrameDataset(source.frames[:1], source.rig, with_data(cfg, stretch=(1.0, 1.0)).data, seed=0,
-                         augment=True)
-    ds = FrameDataset(source.frames[:1], source.rig, cfg.data, seed=0, augment=True)
-    ir = source.frames[0].read(("ir",))["ir"].astype(np.float32)
-    scales = []
-    for epoch in range(12):
-        ds.epoch = plain.epoch = epoch
-        s, p = ds[0], plain[0]
-        assert s["ir"].shape == p["ir"].shape and s["column"].shape == p["column"].shape
-        assert int(s["row0"]) == int(p["row0"])
-        rows = ir[2 * int(s["row0"]) : 2 * int(s["row0"]) + 16]
-        candidates = np.linspace(0.78, 1.27, 99)
-        misfits = [np.abs(resample_columns(rows, stretched_columns(int(p["x0"]), 32, ir.shape[1], k)[1])
-                          - s["ir"][0].numpy()).sum() for k in candidates]
-        scales.append(candidates[int(np.argmin(misfits))])
-    assert 0.79 <= min(scales) < 0.9 and 1.12 < max(scales) <= 1.26
+def test_tilted_plane_is_the_pattern_on_a_tilted_plane():
+    """Planes through the point at depth z0 on the optical axis, tilted by a degrees, intersected with
+    each pixel's ray (f 435 px, baseline 2.5 cm): the pattern the camera sees along a row is the projector
+    column u - d(u), so its stretch at the centre is 1 / (dx/du); down a column each row's pattern shifts by
+    the change of d from row to row. tilted_plane gives both from the centre's disparity alone."""
+    f, b = 435.0, 0.025
+    u = np.arange(-40.0, 41.0)
+    for z0, a in ((0.5, 60.0), (0.8, -35.0), (4.0, 75.0)):
+        # the plane Z = z0 - X tan(a), the ray (X, Z) = Z (u / f, 1)
+        depth = z0 / (1 + np.tan(np.radians(a)) * u / f)
+        disparity = f * b / depth
+        stretch = 1 / np.gradient(u - disparity)[40]
+        shift = np.gradient(disparity)[40]  # the same plane turned about the horizontal axis, by rows
+        got = tilted_plane(f * b / z0, f, a, a)
+        np.testing.assert_allclose(got, (stretch, shift), rtol=1e-9)
 
 
-def test_shear_shifts_each_row_of_a_crop_by_a_drawn_slope(source):
-    """[data] shear 0.3 on rendered frames: each sample's rows are the frame's rows shifted by k px per row
-    from the crop's centre row, k (read off the IR) varying over [-0.3, 0.3] from sample to sample."""
+def _tilt_misfit(gk, rows, x0, crop):
+    """How far a crop is from rows read stretched by 1 / (1 - g) and shifted k px per row (gk = (g, k))."""
+    h, w = crop.shape
+    columns = stretched_columns(x0, w, rows.shape[1], 1 / (1 - gk[0]))[1]
+    shifted = columns + gk[1] * (np.arange(h) - (h - 1) / 2)[:, None]
+    return float(((resample_columns(rows, shifted) - crop) ** 2).sum())
+
+
+def test_slant_stretches_and_shears_near_crops_within_what_their_depth_allows(source):
+    """[data] slant 80 on rendered frames: each crop's rows are read stretched by s and shifted by k px per
+    row (fitted to the frame's IR), with |1 - 1 / s| and |k| within d tan(80 deg) / f for the crop's median
+    GT disparity d (from the frame's depth: f b / z), and varying from sample to sample."""
     cfg = with_data(tiny_config(1), crop_width=32, crop_height=16, noise_std=0.0, intensity_scale=(1.0, 1.0),
-                    shear=0.3)
-    plain = FrameDataset(source.frames[:1], source.rig, with_data(cfg, shear=0.0).data, seed=0, augment=True)
-    ds = FrameDataset(source.frames[:1], source.rig, cfg.data, seed=0, augment=True)
-    ir = source.frames[0].read(("ir",))["ir"].astype(np.float32)
-    rows_from_centre = np.arange(16) - 7.5
-    slopes = []
-    for epoch in range(12):
-        ds.epoch = plain.epoch = epoch
-        s, p = ds[0], plain[0]
-        assert int(s["x0"]) == int(p["x0"]) and int(s["row0"]) == int(p["row0"])
-        rows = ir[2 * int(s["row0"]) : 2 * int(s["row0"]) + 16]
-        columns = int(p["x0"]) + np.arange(32)
-        candidates = np.linspace(-0.32, 0.32, 65)
-        misfits = [np.abs(resample_columns(rows, columns + k * rows_from_centre[:, None]) - s["ir"][0].numpy()
-                          ).sum() for k in candidates]
-        slopes.append(candidates[int(np.argmin(misfits))])
-    assert -0.31 <= min(slopes) < -0.1 and 0.1 < max(slopes) <= 0.31
+                    slant=80.0)
+    plain = FrameDataset(source.frames, source.rig, with_data(cfg, slant=0.0).data, seed=0, augment=True)
+    ds = FrameDataset(source.frames, source.rig, cfg.data, seed=0, augment=True)
+    f, b = source.rig.camera.fx, source.rig.baseline
+    fitted = []
+    for i in range(len(source.frames)):
+        frame = source.frames[i].read(("ir", "depth", "visibility"))
+        ir = frame["ir"].astype(np.float32)
+        for epoch in range(3):
+            ds.epoch = plain.epoch = epoch
+            s, p = ds[i], plain[i]
+            assert int(s["row0"]) == int(p["row0"])
+            rows = slice(2 * int(s["row0"]), 2 * int(s["row0"]) + 16)
+            depth = frame["depth"][rows, int(p["x0"]) : int(p["x0"]) + 32]
+            d = f * b / np.median(depth[(frame["visibility"][rows, int(p["x0"]) : int(p["x0"]) + 32] > 0)
+                                         & np.isfinite(depth) & (depth > 0)])
+            bound = d * np.tan(np.radians(80.0)) / f
+            fit = (ir[rows], int(p["x0"]), s["ir"][0].numpy())
+            grid = np.linspace(-1.1 * bound, 1.1 * bound, 23)
+            start = min(((g, k) for g in grid for k in grid), key=lambda gk: _tilt_misfit(gk, *fit))
+            step = grid[1] - grid[0]
+            for _ in range(3):  # restarted: the misfit is smooth only piecewise
+                simplex = np.array(start) + [[0, 0], [step, 0], [0, step]]
+                best = minimize(_tilt_misfit, start, fit, method="Nelder-Mead",
+                                options={"xatol": 1e-9, "fatol": 1e-14, "initial_simplex": simplex})
+                start, step = best.x, step / 10
+            assert best.fun < 1e-6 * (s["ir"][0].numpy() ** 2).sum()  # the crop is such a resampling
+            assert abs(best.x[0]) <= bound * 1.01 and abs(best.x[1]) <= bound * 1.01
+            fitted.append(best.x / bound)
+    fitted = np.array(fitted)  # tan(a) / tan(80 deg) of the drawn tilts: a uniform in [-80, 80] deg
+    assert (fitted.min(axis=0) < -0.2).all() and (fitted.max(axis=0) > 0.2).all()  # both ways, far
 
 
 def test_loss_weights_ramp_as_configured():
