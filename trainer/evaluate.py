@@ -9,7 +9,7 @@ method gives no estimate for counts as an outlier, so no method gains by abstain
 half-resolution output sits on pixels (2i, 2j); it is converted column -> depth -> disparity with
 dotsim.rig there and brought to full resolution by interpolation that keeps those samples exactly and
 does not blend across depth jumps (trainer.checkpoint.predict_disparity). Rows are split by GT depth range
-as well as overall, and by pixel class (on / off the edge mask, solvable or not: dotsim/solvable.py);
+as well as overall, and by pixel class (on / off the edge mask, slanted, solvable or not: dotsim/solvable.py);
 a joint table says which pixels both methods, only one or neither get wrong, and a line how many of
 each method's estimates lie outside the rig's feasible disparity range.
 
