@@ -141,8 +141,10 @@ class FrameDataset(Dataset):
             along, down = rng.uniform(-self.cfg.slant, self.cfg.slant, 2)
             found = t["disparity"][rows, x0 : x0 + self.crop_w]
             found = found[np.isfinite(found) & (found > 0)]
-            if len(found):
-                scale, shear = tilted_plane(float(np.median(found)), self.rig.camera.fx, along, down)
+            d = float(np.median(found)) if len(found) else 0.0
+            limit = self.cfg.slant_depth
+            if d > 0 and (not limit or float(disparity_to_depth(np.float64(d), self.rig)) < limit):
+                scale, shear = tilted_plane(d, self.rig.camera.fx, along, down)
         x0, source_columns = stretched_columns(x0, self.crop_w, w, scale)
         source_columns = source_columns + shear * (np.arange(self.crop_h) - (self.crop_h - 1) / 2)[:, None]
         ir = resample_columns(t["ir"][rows], source_columns)

@@ -236,6 +236,29 @@ def test_slant_stretches_and_shears_near_crops_within_what_their_depth_allows(so
     assert (fitted.min(axis=0) < -0.2).all() and (fitted.max(axis=0) > 0.2).all()  # both ways, far
 
 
+def test_slant_depth_leaves_crops_farther_than_it_as_they_are(source):
+    """slant_depth: a crop whose median GT depth (f b / d) is nearer than it is tilted, a farther one read
+    as without slant."""
+    cfg = with_data(tiny_config(1), crop_width=32, crop_height=16, noise_std=0.0, intensity_scale=(1.0, 1.0),
+                    slant=80.0)
+    f, b = source.rig.camera.fx, source.rig.baseline
+    depths = []
+    for i, ref in enumerate(source.frames):
+        frame = ref.read(("disparity", "visibility"))
+        plain = FrameDataset(source.frames, source.rig, with_data(cfg, slant=0.0).data, seed=0, augment=True)
+        p = plain[i]
+        rows = slice(2 * int(p["row0"]), 2 * int(p["row0"]) + 16)
+        cols = slice(int(p["x0"]), int(p["x0"]) + 32)
+        d, lit = frame["disparity"][rows, cols], frame["visibility"][rows, cols] > 0
+        depth = f * b / np.median(d[lit & (d > 0)])
+        depths.append(depth)
+        for limit, tilted in ((depth * 0.99, False), (depth * 1.01, True)):
+            s = FrameDataset(source.frames, source.rig, with_data(cfg, slant_depth=limit).data, seed=0,
+                             augment=True)[i]
+            assert (not torch.equal(s["ir"], p["ir"])) == tilted, (i, limit)
+    assert np.ptp(depths) > 0.1  # crops at several depths
+
+
 def test_loss_weights_ramp_as_configured():
     """l1_weight -> l1_weight_end linearly over the run's steps; edge_weights piecewise in equal shares;
     both left out: the constants (the default, so today's configs train as before)."""
