@@ -85,8 +85,7 @@ class DataConfig(Checked):
                            "next); the nearer the crop, the larger the change, as on real surfaces; 0: none",
                            low=0.0, high=80.0)
     slant_depth: float = setting(0.0, "m: only crops whose median GT depth is nearer than this are tilted by "
-                                 "slant (resampling blurs the dots a little, which far crops, whose tilt "
-                                 "hardly shows, pay for without gain); 0: every crop", low=0.0)
+                                 "slant; 0: every crop", low=0.0)
     uniform_noise: float = setting(0.0, "GigaDepth's noise: each sample adds noise uniform in [0, a) per "
                                    "pixel, a = U(0, 1) x this, in the ir channel's units (full scale 1; "
                                    "GigaDepth: 0.3); 0: none", low=0.0)
