@@ -8,8 +8,8 @@ per-line weights see the rows they are meant for. The targets are read at the fu
 the outputs sit on, (stride i, stride j) of the crop (trainer/model.py), so no target is interpolated
 unless [data] slant resamples the crop as the pattern would look on a tilted plane (its rows stretched,
 each row shifted against the next). Augmentations (gain, noise, vertical jitter, crops around near
-pixels, slant) draw from
-an RNG keyed by (seed, epoch, frame index): the same sample comes out in any worker and after a resume.
+pixels, slant) draw from an RNG keyed by (seed, epoch, frame index): the same sample comes out in any
+worker and after a resume.
 GigaDepth's recipe is here as [data] options: full frames (crop sizes 0), its uniform noise of random
 amplitude, its edge mask (Sobel(disparity), dilated by an ellipse); [data] near_share draws a share of
 the crops around pixels nearer than near_depth.
@@ -136,15 +136,8 @@ class FrameDataset(Dataset):
             j = self.cfg.vertical_jitter
             jitter = int(np.clip(rng.integers(-j, j + 1), -y0, h - self.crop_h - y0)) if j else 0
         rows = slice(y0 + jitter, y0 + jitter + self.crop_h)
-        scale, shear = 1.0, 0.0
-        if self.augment and self.cfg.slant > 0:
-            along, down = rng.uniform(-self.cfg.slant, self.cfg.slant, 2)
-            found = t["disparity"][rows, x0 : x0 + self.crop_w]
-            found = found[np.isfinite(found) & (found > 0)]
-            d = float(np.median(found)) if len(found) else 0.0
-            limit = self.cfg.slant_depth
-            if d > 0 and (not limit or float(disparity_to_depth(np.float64(d), self.rig)) < limit):
-                scale, shear = tilted_plane(d, self.rig.camera.fx, along, down)
+        scale, shear = self.tilt(t["disparity"][rows, x0 : x0 + self.crop_w], rng) if (
+            self.augment and self.cfg.slant > 0) else (1.0, 0.0)
         x0, source_columns = stretched_columns(x0, self.crop_w, w, scale)
         source_columns = source_columns + shear * (np.arange(self.crop_h) - (self.crop_h - 1) / 2)[:, None]
         ir = resample_columns(t["ir"][rows], source_columns)
@@ -165,6 +158,19 @@ class FrameDataset(Dataset):
         sample.update({key: torch.from_numpy(a) for key, a in targets.items()})
         sample["column"] = torch.nan_to_num(sample["column"])  # invalid pixels are masked anyway
         return sample
+
+    def tilt(self, disparity: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
+        """(stretch, shear) of [data] slant for a crop of this GT disparity: a plane at its median disparity
+        tilted by angles drawn in [-slant, slant] (tilted_plane); none for a crop without disparity or,
+        with slant_depth, one whose median depth is not nearer than it."""
+        along, down = rng.uniform(-self.cfg.slant, self.cfg.slant, 2)
+        found = disparity[np.isfinite(disparity) & (disparity > 0)]
+        if not len(found):
+            return 1.0, 0.0
+        d, limit = float(np.median(found)), self.cfg.slant_depth
+        if limit and float(disparity_to_depth(np.float64(d), self.rig)) >= limit:
+            return 1.0, 0.0
+        return tilted_plane(d, self.rig.camera.fx, along, down)
 
     def crop_around(self, pixel: int, h: int, w: int) -> tuple[int, int]:
         """(y0, x0) of the crop centred on flat pixel index `pixel` of an h x w frame, moved inside the
@@ -195,11 +201,9 @@ def tilted_plane(disparity: float, f: float, along: float, down: float) -> tuple
 def stretched_columns(x0: int, crop_w: int, w: int, scale: float) -> tuple[int, np.ndarray]:
     """A crop of crop_w columns of a w-column frame starting at x0, stretched `scale` times about its
     centre: (the stretched crop's first column, moved inside the frame; the frame column, fractional,
-    each crop column shows). A surface slanted in depth shows the pattern stretched along its rows,
-    1 / (1 - g) times where its disparity changes by g px per column (its sign as the rig's disparity),
-    so stretched crops teach the slanted surfaces the scenes have few of. The
-    crop claims the columns x0 .. x0 + crop_w - 1 for the network's feasible classes; off the centre
-    they sit up to (1 - 1 / scale) crop_w / 2 px from the columns they show. scale 1: x0 .. x0 + crop_w - 1.
+    each crop column shows): how a surface slanted in depth shows the pattern (tilted_plane). The crop
+    claims the columns x0 .. x0 + crop_w - 1 for the network's feasible classes; off the centre they sit
+    up to (1 - 1 / scale) crop_w / 2 px from the columns they show. scale 1: x0 .. x0 + crop_w - 1.
 
     >>> stretched_columns(10, 4, 100, 1.0)
     (10, array([10., 11., 12., 13.]))
