@@ -26,6 +26,7 @@ from dotsim.frame_source import open_source, spread
 from dotsim.rig.geometry import disparity_to_depth
 from trainer.checkpoint import load_model, predict_disparity
 from trainer.metrics import valid_pixels
+from trainer.scoring import disparity_slopes
 
 PATCH_PIXELS = 50  # a connected set of wrong pixels this large is a surface's, not a lone miss
 FAR_FROM_EDGE_PX = 20
@@ -42,7 +43,7 @@ def gross_errors(pred: np.ndarray, frame: dict, rig, near: float, threshold: flo
         err = np.abs(pred - gt)
         wrong = near_pixels & ~(err <= threshold)
         right = near_pixels & (err <= 0.5)
-        down, along = np.abs(np.gradient(gt))
+        along, down = disparity_slopes(gt)
     labels, count = ndimage.label(wrong)
     sizes = np.bincount(labels.ravel(), minlength=count + 1)
     edge = frame["edge"] > 0

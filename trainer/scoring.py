@@ -51,19 +51,30 @@ def depth_ranges(depth_bins, max_depth: float) -> tuple[float, ...]:
     return tuple(b for b in depth_bins if b < max_depth) + (max_depth,)
 
 
+def disparity_slopes(disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(|change along the row|, |change down the column|) of a disparity map, px per px, by central
+    differences (one-sided at the borders); nan beside a pixel without disparity.
+
+    >>> along, down = disparity_slopes(np.array([[0.0, 1.0, 2.0], [0.5, 1.5, 2.5]]))
+    >>> along[0].tolist(), down[0].tolist()
+    ([1.0, 1.0, 1.0], [0.5, 0.5, 0.5])
+    """
+    down, along = np.gradient(disparity.astype(np.float64))
+    return np.abs(along), np.abs(down)
+
+
 def slanted_pixels(disparity: np.ndarray) -> np.ndarray:
     """Pixels whose GT disparity changes by more than SLANT px per px along the row or down the column
-    (central differences; a pixel beside one without disparity has no slope): surfaces slanted in
-    depth, whose pattern is stretched along the rows or sheared against the pattern a plane facing the
-    camera shows, where learned depth sensors fail first.
+    (disparity_slopes; a pixel beside one without disparity has no slope): surfaces slanted in depth,
+    whose pattern is stretched along the rows or sheared against the pattern a plane facing the camera
+    shows, where learned depth sensors fail first.
 
     >>> ramp = np.tile(np.arange(5.0), (3, 1))
     >>> bool(slanted_pixels(0.1 * ramp).all()), bool(slanted_pixels(0.02 * ramp).any())
     (True, False)
     """
     with np.errstate(invalid="ignore"):
-        down, along = np.gradient(disparity.astype(np.float64))
-        return np.maximum(np.abs(along), np.abs(down)) > SLANT
+        return np.maximum(*disparity_slopes(disparity)) > SLANT
 
 
 def pixel_classes(valid: np.ndarray, depth: np.ndarray, edge: np.ndarray | None = None,
