@@ -199,7 +199,8 @@ class Scorer:
         solved = None
         if self.keep is None or {"solvable", "not solvable"} & set(self.keep):
             solved = solvable_pixels(frame["ir"], depth, self.rig, self.pattern, ref.scene_meta())
-        classes = pixel_classes(valid, depth, frame.get("edge"), solved, self.depth_bins, gt)
+        disparity = gt if self.keep is None or "slanted" in self.keep else None  # for the slopes
+        classes = pixel_classes(valid, depth, frame.get("edge"), solved, self.depth_bins, disparity)
         return frame, {k: v for k, v in classes.items() if self.keep is None or k in self.keep}
 
     def add(self, ref: FrameRef) -> tuple[dict, dict[str, np.ndarray]]:
