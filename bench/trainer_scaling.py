@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from bench.trainer_accuracy import sized_config
-from bench.trainer_screen import rates_by_class
+from bench.trainer_screen import rates_by_class, read_results
 from dotsim.frame_source import open_source
 from trainer.checkpoint import CHECKPOINT
 from trainer.config import load_config
@@ -109,8 +109,7 @@ def budgets_list(text: str) -> list[float]:
 def report(folder: Path, target: float = GIGADEPTH_TABLE2_RATE) -> str:
     """The markdown table of a folder's points and, per test, the fit and the budget it names for
     `target`."""
-    rows = sorted((json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line),
-                  key=lambda r: r["pixel_samples"])
+    rows = sorted(read_results(folder), key=lambda r: r["pixel_samples"])
     tests = list(dict.fromkeys(t for r in rows for t in r["tests"]))
     lines = ["| pixel-samples | steps | " + " | ".join(f"{t} o(0.5) | {t} o(5)" for t in tests) + " |",
              "|" + "---|" * (2 + 2 * len(tests))]

@@ -87,9 +87,14 @@ def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource,
             for r in scorer.rows()}
 
 
+def read_results(folder: Path) -> list[dict]:
+    """The lines of folder's results.jsonl, in the order they were written."""
+    return [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
+
+
 def rescore(folder: Path, name: str, by_class: dict) -> int:
     """Replace the by_class rates of the runs named `name` in folder's results.jsonl."""
-    lines = [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
+    lines = read_results(folder)
     for line in lines:
         if line["name"] == name:
             line["by_class"] = by_class
@@ -101,7 +106,7 @@ def rescore(folder: Path, name: str, by_class: dict) -> int:
 def report(folder: Path) -> str:
     """The markdown tables of a folder's results, in the order they ran: the validation rates, then
     o(0.5) / o(5) by depth range and pixel class."""
-    rows = [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
+    rows = read_results(folder)
     keys = [f"{c} o({t:g})" for c in ("all", "solvable") for t in (0.5, 5.0)]
     lines = ["| variant | settings | steps | GFLOP/step | parameters (M) | last loss | "
              + " | ".join(keys) + " |", "|" + "---|" * (6 + len(keys))]
