@@ -86,18 +86,18 @@ class _IndexedLinearFunction(torch.autograd.Function):
 
 
 class _GroupedLinearFunction(torch.autograd.Function):
-    """The same product with pixels grouped by table: sorted by index, scattered into a zero-padded
+    """The same product with pixels grouped by table: each pixel copied to its place in a zero-padded
     (tables used, most pixels of one table, in) block, one batched matrix-matrix product per table with
-    its weights read once. Cheaper than gathering a (pixels, out, in) block when few tables are used."""
+    its weights read once. Cheaper than gathering a (pixels, out, in) block when few tables are used.
+    The block is filled and read through one flat index per pixel (index_copy_, index_select): two-index
+    advanced indexing took most of the time of train_table2's heads (docs/TRAINER.md "Speed")."""
 
     @staticmethod
     def forward(ctx, x, idx, weight, bias, groups):
-        order, tables, slot, count = groups
-        xp = x.new_zeros(len(tables), count, x.shape[1])
-        xp[slot[0], slot[1]] = x[order]
+        tables, place, count = groups
+        xp = _padded(x, tables, place, count)
         w = weight.index_select(0, tables).to(x.dtype)
-        y = torch.empty(x.shape[0], weight.shape[1], dtype=x.dtype, device=x.device)
-        y[order] = torch.bmm(xp, w.transpose(1, 2))[slot[0], slot[1]]
+        y = torch.bmm(xp, w.transpose(1, 2)).view(-1, weight.shape[1]).index_select(0, place)
         ctx.save_for_backward(xp, idx, weight, w)
         ctx.groups = groups
         return y + bias.index_select(0, idx).to(x.dtype)
@@ -105,24 +105,29 @@ class _GroupedLinearFunction(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         xp, idx, weight, w = ctx.saved_tensors
-        order, tables, slot, count = ctx.groups
-        gp = grad.new_zeros(len(tables), count, grad.shape[1])
-        gp[slot[0], slot[1]] = grad[order]
-        grad_x = torch.empty(grad.shape[0], xp.shape[2], dtype=grad.dtype, device=grad.device)
-        grad_x[order] = torch.bmm(gp, w)[slot[0], slot[1]]
-        grad_w = torch.zeros_like(weight)
-        grad_w[tables] = torch.bmm(gp.transpose(1, 2).float(), xp.float())
+        tables, place, count = ctx.groups
+        gp = _padded(grad, tables, place, count)
+        grad_x = torch.bmm(gp, w).view(-1, xp.shape[2]).index_select(0, place)
+        grad_w = torch.zeros_like(weight).index_copy_(0, tables, torch.bmm(gp.transpose(1, 2).float(),
+                                                                            xp.float()))
         grad_b = weight.new_zeros(weight.shape[:2]).index_add_(0, idx, grad.float())
         return grad_x, None, grad_w, grad_b, None
+
+
+def _padded(rows: torch.Tensor, tables: torch.Tensor, place: torch.Tensor, count: int) -> torch.Tensor:
+    """rows (N, f) at their places in a zero-padded (tables used, count, f) block."""
+    block = rows.new_zeros(len(tables) * count, rows.shape[1]).index_copy_(0, place, rows)
+    return block.view(len(tables), count, -1)
 
 
 GROUPED_PADDING = 4  # measured: grouping wins while the padded block is a few times the pixels
 
 
 def plan_groups(idx: torch.Tensor, force: bool = False):
-    """How IndexedLinear computes for these indices: (order, tables, (group, rank) of each sorted
-    pixel, largest group size) for the grouped way, or False for gathering, chosen by the padding the
-    grouping needs (force: group anyway). Layers with the same indices share one plan."""
+    """How IndexedLinear computes for these indices: (tables used, each pixel's row in the flattened
+    padded block (group * largest + rank in its group), largest group size) for the grouped way, or
+    False for gathering, chosen by the padding the grouping needs (force: group anyway). Layers with
+    the same indices share one plan."""
     if not len(idx):
         return False
     order = torch.argsort(idx, stable=True)
@@ -132,7 +137,8 @@ def plan_groups(idx: torch.Tensor, force: bool = False):
         return False
     starts = torch.cumsum(counts, 0) - counts
     rank = torch.arange(len(idx), device=idx.device) - starts[group]
-    return order, tables, (group, rank), largest
+    place = torch.empty_like(idx).index_copy_(0, order, group * largest + rank)
+    return tables, place, largest
 
 
 class IndexedLinear(nn.Module):
@@ -401,7 +407,8 @@ class GigaDepthNet(nn.Module):
             ok = (parent >= 0) & (parent < parents) & (target >= 0) & (target < c + 2 * o)
             k = ok.nonzero()[:, 1]
             idx = line[k] * parents + parent[ok]
-            logits = self.classifiers[level](self._stage_input(feat, level)[sel][k], idx, idx).float()
+            x = self._stage_input(feat, level).index_select(0, sel[k])
+            logits = self.classifiers[level](x, idx, idx).float()
             feasible = self._feasible_children(level, parent[ok] * c, None if ranges is None else ranges[k])
             if feasible is not None:
                 logits = logits.masked_fill(~feasible, -math.inf)
@@ -412,7 +419,7 @@ class GigaDepthNet(nn.Module):
         ok = (cand >= 0) & (cand < self.leaves)
         k, cand = ok.nonzero()[:, 1], cand[ok]
         hidden_idx = line[k] * (self.leaves // cls[-1]) + cand // cls[-1]
-        x = self._stage_input(feat, len(cls))[sel][k]
+        x = self._stage_input(feat, len(cls)).index_select(0, sel[k])
         offset = self.regressor(x, hidden_idx, line[k] * self.leaves + cand)[:, 0]
         l1 = torch.zeros_like(pos).index_add(0, k, (offset.float() - (pos[k] - cand)).abs())
         return {"ce": ce, "l1": l1}
