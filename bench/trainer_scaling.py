@@ -24,6 +24,7 @@ import argparse
 import json
 import math
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,17 @@ def budget_for(rate: float, fit: tuple[float, float] | None) -> float | None:
     return math.exp(log_budget) if log_budget < math.log(sys.float_info.max) else math.inf
 
 
+def curve_point(checkpoint: Path, steps: int, per_step: int, config: str, data, source, tests: dict,
+                count: int, device: str = "cpu") -> dict:
+    """One point of the curve, as a line of results.jsonl: a run of `steps` steps of `per_step`
+    pixel-samples trained on `source` (the frames of `data`), with o(0.5) and o(5) of its checkpoint on
+    `count` frames spread over each of `tests` ({name: FrameSource}), the network run on `device`."""
+    return {"pixel_samples": steps * per_step, "steps": steps, "config": config, "data": str(data),
+            "frames": len(source.frames),
+            "tests": {name: rates_by_class(checkpoint, test, source, count, device)["all"]
+                      for name, test in tests.items()}}
+
+
 def budgets_list(text: str) -> list[float]:
     """Comma-separated pixel-sample budgets, ascending, each above 0.
 
@@ -108,18 +120,25 @@ def budgets_list(text: str) -> list[float]:
 
 def report(folder: Path, target: float = GIGADEPTH_TABLE2_RATE) -> str:
     """The markdown table of a folder's points and, per test, the fit and the budget it names for
-    `target`."""
+    `target`. The fit takes the points trained on the most common number of frames: a point trained on
+    fewer (a GPU run on the frames one device call could carry) is shown but would bend the curve."""
     rows = sorted(read_results(folder), key=lambda r: r["pixel_samples"])
     tests = list(dict.fromkeys(t for r in rows for t in r["tests"]))
-    lines = ["| pixel-samples | steps | " + " | ".join(f"{t} o(0.5) | {t} o(5)" for t in tests) + " |",
-             "|" + "---|" * (2 + 2 * len(tests))]
+    frames = Counter(r["frames"] for r in rows).most_common(1)[0][0] if rows else None
+    header = " | ".join(f"{t} o(0.5) | {t} o(5)" for t in tests)
+    lines = [f"| pixel-samples | steps | frames | where | {header} |", "|" + "---|" * (4 + 2 * len(tests))]
     for r in rows:
         cells = " | ".join(f"{r['tests'][t]['o(0.5)']:.4f} | {r['tests'][t]['o(5)']:.4f}" if t in r["tests"]
                            else "- | -" for t in tests)
-        lines.append(f"| {r['pixel_samples']:.3g} | {r['steps']} | {cells} |")
+        where = r.get("device", "cpu")
+        lines.append(f"| {r['pixel_samples']:.3g} | {r['steps']} | {r['frames']} | {where} | {cells} |")
     lines.append("")
+    fitted = [r for r in rows if r["frames"] == frames]
+    if len(fitted) < len(rows):
+        lines.append(f"The fits take the {len(fitted)} points trained on {frames} frames; the others are "
+                     "not fitted.")
     for t in tests:
-        points = [(r["pixel_samples"], r["tests"][t]["o(0.5)"]) for r in rows if t in r["tests"]]
+        points = [(r["pixel_samples"], r["tests"][t]["o(0.5)"]) for r in fitted if t in r["tests"]]
         fit = power_law_fit(*zip(*points, strict=True)) if len(points) >= 2 else None
         need = budget_for(target, fit)
         if fit is None:
@@ -177,10 +196,8 @@ def main(argv=None) -> int:
         cfg = sized_config(base, steps, math.ceil(steps / steps_per_epoch), args.config)
         run = args.out / f"run_{steps}"
         result = train(cfg, source, run, progress=False)
-        line = {"pixel_samples": result["step"] * per_step, "steps": result["step"], "config": args.config,
-                "data": str(args.data), "frames": len(source.frames),
-                "tests": {name: rates_by_class(run / CHECKPOINT, test, source, args.test_frames)["all"]
-                          for name, test in tests.items()}}
+        line = curve_point(run / CHECKPOINT, result["step"], per_step, args.config, args.data, source, tests,
+                           args.test_frames)
         args.out.mkdir(parents=True, exist_ok=True)
         with open(results, "a") as f:
             f.write(json.dumps(line) + "\n")

@@ -70,16 +70,16 @@ def step_gflop(cfg, rig) -> float:
     return sum(count(model, synthetic_batch(cfg, output_rows(cfg.model, rig.camera.height), width, height)))
 
 
-def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource, count: int
-                   ) -> dict[str, dict[str, float]]:
-    """{class: {"o(t)": rate}} of a checkpoint's network on `count` held-out frames of `validation`, per
-    GT depth range (cut at the rig's max_depth), on / off the edge mask and slanted (trainer.scoring's
-    Scorer)."""
-    model, _, rig = load_model(checkpoint)
+def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource, count: int,
+                   device: str = "cpu") -> dict[str, dict[str, float]]:
+    """{class: {"o(t)": rate}} of a checkpoint's network (run on `device`) on `count` held-out frames of
+    `validation`, per GT depth range (cut at the rig's max_depth), on / off the edge mask and slanted
+    (trainer.scoring's Scorer)."""
+    model, _, rig = load_model(checkpoint, device)
     bins = depth_ranges(DEPTH_BINS, rig.max_depth)
     ranges = (f"{a:g}-{b:g}" for a, b in zip(bins[:-1], bins[1:], strict=True))
     classes = ("all", *ranges, "edge", "off edge", "slanted")
-    scorer = Scorer([NetworkMethod(model, rig)], rig, validation.pattern, bins, classes=classes,
+    scorer = Scorer([NetworkMethod(model, rig, device)], rig, validation.pattern, bins, classes=classes,
                     thresholds=BY_CLASS_THRESHOLDS)
     for ref in validation.held_out(count, data, "training"):
         scorer.add(ref)

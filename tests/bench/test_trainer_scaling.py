@@ -43,5 +43,5 @@ def test_four_budgets_on_two_tests_then_a_rerun_skips_them(tmp_path):
     again = scaling(*common)
     assert again.returncode == 0 and again.stdout.count("skipped") == 4, again.stderr[-2000:]
     assert len((tmp_path / "curve" / "results.jsonl").read_text().splitlines()) == 4
-    assert "| pixel-samples | steps | seen meshes o(0.5)" in again.stdout
+    assert "| pixel-samples | steps | frames | where | seen meshes o(0.5)" in again.stdout
     assert again.stdout.count("over 4 points") + again.stdout.count("no fit") == 2
