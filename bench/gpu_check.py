@@ -24,6 +24,13 @@ Sections, in this order, each within its share of --minutes:
 5. tests: the CUDA tests and the precision tests (pytest in a subprocess, OUT/tests.log), in the time
    left.
 
+Only when asked (`--sections table2`, alone, with its own carried shards), table2: GigaDepth's Table 2
+   conditions on the GPU: --table2-config (train_table2) on full frames of the carried Table 2 training
+   shards for the section's time, its learning-rate schedule sized to the steps that fit, then o(0.5)
+   and o(5) of the network on frames spread over the carried like-for-like and disjoint test shards:
+   one point of bench.trainer_scaling's curve, written as a line of its results.jsonl
+   (OUT/table2_point.jsonl; docs/TRAINER.md "The scaling curve").
+
 OUT/gpu_check.json is rewritten after every measurement; OUT/gpu_check.md summarises at the end.
 `--device cpu --small` runs every section on CPU at 122 x 90 with dotsim/configs/train_tiny.toml (the
 test suite's dry run: tests/bench/test_gpu_check.py), as a check that the script works, not figures.
@@ -33,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 import subprocess
 import sys
@@ -43,6 +51,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.trainer_accuracy import sized_config
 from bench.trainer_gpu import (
     PUBLISHED_MS,
     median_seconds,
@@ -51,12 +60,13 @@ from bench.trainer_gpu import (
     training_row,
     variant_backbone,
 )
+from bench.trainer_scaling import curve_point, pixel_samples_per_step
 from dotsim.file_io import atomic_write_bytes, atomic_write_json
 from dotsim.frame_source import open_source
 from dotsim.oracle_dataset import TINY_SCALE, make_dataset, random_depth, synthetic_frame
 from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.presets import get_preset
-from trainer.checkpoint import PRECISIONS
+from trainer.checkpoint import CHECKPOINT, PRECISIONS
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate, overall
 from trainer.metrics import ratio
@@ -66,7 +76,8 @@ from trainer.train import train
 
 CUDA_TESTS = ("tests/trainer/test_trainer_cuda.py", "tests/trainer/test_trainer_precision.py")
 # Each section's share of --minutes (of the shares of the sections run); the tests take what is left.
-SECTION_SHARES = {"inference": 0.22, "training": 0.10, "accuracy": 0.34, "tests": 0.34}
+SECTION_SHARES = {"inference": 0.22, "training": 0.10, "accuracy": 0.34, "table2": 1.0, "tests": 0.34}
+DEFAULT_SECTIONS = ("inference", "training", "accuracy", "tests")  # table2 needs its own carried shards
 
 
 class Report:
@@ -258,6 +269,44 @@ def accuracy_section(report: Report, clock: Clock, cfg, train_data, test_data, d
                f"(ratio {ratio(net['o(0.5)'], sgbm['o(0.5)']):.2f}); OUT/eval.md")
 
 
+def table2_section(report: Report, clock: Clock, cfg_name: str, data: dict[str, str], device: str,
+                   max_steps: int, test_frames: int, out: Path, work: Path) -> None:
+    """`cfg_name` on full frames of data["train"] for the section's time, then scored on `test_frames`
+    frames spread over each test of `data`: a point of bench.trainer_scaling's curve."""
+    base = load_config(cfg_name).to_dict()
+    # GigaDepth's batches: whole frames (no crops, so no crops drawn around near pixels either)
+    base["data"].update(crop_width=0, crop_height=0, near_share=0.0, workers=0)
+    source = open_source(data["train"], "train")
+    cfg = config_from_dict(base, f"{cfg_name} on full frames")
+    rig, batch = first_batch(cfg, data["train"])
+    rate = training_row(cfg, batch, rig, device, cfg.train.amp, 5, 2)["ms_per_step"]
+    scoring_seconds = (20 if device == "cuda" else 10) * len(data) - 1  # per test, and reading the frames
+    seconds = clock.left("table2") - scoring_seconds
+    planned = max(2, int(seconds / (1.25 * rate / 1e3))) if seconds > 0 else 2
+    planned = min(planned, max_steps) if max_steps else planned
+    steps_per_epoch = max(len(source.frames) // cfg.train.batch_size, 1)
+    cfg = sized_config(base, planned, math.ceil(planned / steps_per_epoch), f"{cfg_name} on full frames")
+    run = work / "table2_run"
+    started = time.monotonic()
+    result = train(cfg, source, run, device=device, progress=False, max_seconds=max(seconds, 1.0))
+    took = time.monotonic() - started
+    report.add("table2", {"config": cfg_name, "ms_per_step": rate, "planned_steps": planned,
+                          "steps": result["step"], "seconds": took, "train_frames": len(source.frames)},
+               f"  table2: {cfg_name} on full frames, {result['step']} steps (planned {planned} at "
+               f"{rate:.1f} ms/step) in {took:.0f} s on {len(source.frames)} frames")
+    tests = {name: open_source(data[key], "test") for key, name in
+             (("seen", "seen meshes"), ("disjoint", "disjoint meshes")) if key in data}
+    per_step = pixel_samples_per_step(cfg.train.batch_size, 0, 0, rig.camera.width, rig.camera.height)
+    point = curve_point(run / CHECKPOINT, result["step"], per_step, cfg_name, data["train"], source, tests,
+                        test_frames, device)
+    point |= {"device": environment(device).get("gpu", device), "full_frames": True, "seconds": took}
+    atomic_write_bytes(out / "table2_point.jsonl", (json.dumps(point) + "\n").encode())
+    rates = "; ".join(f"{name} o(0.5) {r['o(0.5)']:.4f} o(5) {r['o(5)']:.4f}"
+                      for name, r in point["tests"].items())
+    report.add("table2", point, f"  table2: {point['pixel_samples']:.3g} pixel-samples: {rates}; "
+               "OUT/table2_point.jsonl")
+
+
 def tests_section(report: Report, clock: Clock, tests: list[str], out: Path) -> None:
     timeout = clock.left() - 5
     if timeout < 20:
@@ -313,7 +362,7 @@ def summary(results: dict) -> str:
             peak = "-" if r["peak_gib"] is None else f"{r['peak_gib']:.2f}"
             lines.append(f"| {r['config']} | {r['precision']} | {r['ms_per_step']:.1f} | "
                          f"{r['samples_per_s']:.1f} | {peak} | {r['first_loss']} -> {r['last_loss']} |")
-    for r in results.get("accuracy", []) + results.get("tests", []):
+    for r in results.get("accuracy", []) + results.get("table2", []) + results.get("tests", []):
         lines.append("")
         lines.append("- " + json.dumps(r))
     return "\n".join(lines) + "\n"
@@ -322,9 +371,9 @@ def summary(results: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--train", required=True, help="training frames: an export folder, shards or a brace "
-                        "pattern (`dotsim export --precision training`)")
-    parser.add_argument("--test", required=True, help="held-out test frames (split test), as --train")
+    parser.add_argument("--train", help="training frames: an export folder, shards or a brace pattern "
+                        "(`dotsim export --precision training`); the training and accuracy sections need it")
+    parser.add_argument("--test", help="held-out test frames (split test), as --train; needed by accuracy")
     parser.add_argument("--out", required=True, type=Path, help="results folder ($OUT on the device)")
     parser.add_argument("--minutes", type=float, default=7.0, help="the whole check's budget (default 7; at "
                         "most 9 so one device call of 10 minutes holds it)")
@@ -337,15 +386,27 @@ def main(argv=None) -> int:
                         help="inference variants, comma-separated (cuda-graph: CUDA only)")
     parser.add_argument("--max-steps", type=int, default=0, help="cap the accuracy run's steps (0: the time)")
     parser.add_argument("--tests", nargs="*", default=list(CUDA_TESTS), help="pytest paths for section 5")
-    parser.add_argument("--sections", default=",".join(SECTION_SHARES),
+    parser.add_argument("--sections", default=",".join(DEFAULT_SECTIONS),
                         help="which sections to run, comma-separated (a rerun of some: the others' shares of "
-                        "--minutes go to these)")
+                        f"--minutes go to these; default {','.join(DEFAULT_SECTIONS)}; table2 runs alone "
+                        "with all of them)")
+    parser.add_argument("--table2-train", help="table2: Table 2 training frames, as --train")
+    parser.add_argument("--table2-seen-test", help="table2: test frames of new scenes of the training meshes")
+    parser.add_argument("--table2-test", help="table2: test frames of meshes never seen")
+    parser.add_argument("--table2-config", help="table2: the training config (default train_table2; "
+                        "train_tiny with --small)")
+    parser.add_argument("--test-frames", type=int, default=16, help="table2: frames spread over each test")
     args = parser.parse_args(argv)
     sections = [name for name in args.sections.split(",") if name]
     if not 0 < args.minutes <= 9:
         parser.error(f"--minutes {args.minutes}: between 0 and 9")
     if unknown := set(sections) - set(SECTION_SHARES):
         parser.error(f"--sections: unknown {sorted(unknown)}; choose from {', '.join(SECTION_SHARES)}")
+    for name, needs in (("training", ("train",)), ("accuracy", ("train", "test"))):
+        if name in sections and (missing := [f"--{k}" for k in needs if not getattr(args, k)]):
+            parser.error(f"the {name} section needs {' and '.join(missing)}")
+    if "table2" in sections and not (args.table2_train and (args.table2_seen_test or args.table2_test)):
+        parser.error("--sections table2 needs --table2-train and --table2-seen-test and/or --table2-test")
     if args.device == "cuda" and not torch.cuda.is_available():
         print("bench.gpu_check: no CUDA device (torch.cuda.is_available() is False); `--device cpu --small` "
               "dry-runs it on CPU", file=sys.stderr)
@@ -378,6 +439,13 @@ def main(argv=None) -> int:
             print("4. accuracy:", flush=True)
             accuracy_section(report, clock, cpu_cfg, args.train, args.test, device, rate, args.max_steps,
                              args.out, work)
+        if "table2" in sections:
+            name = args.table2_config or ("train_tiny" if args.small else "train_table2")
+            print(f"table2 ({name} on full frames):", flush=True)
+            carried = {"train": args.table2_train, "seen": args.table2_seen_test,
+                       "disjoint": args.table2_test}
+            table2_section(report, clock, name, {k: v for k, v in carried.items() if v}, device,
+                           args.max_steps, args.test_frames, args.out, work)
         if "tests" in sections:
             print("5. tests:", flush=True)
             tests_section(report, clock, args.tests, args.out)
