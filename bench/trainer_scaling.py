@@ -13,9 +13,11 @@ sizes a run, one torch thread), so every point has a whole learning-rate schedul
 1.8e10 pixel-samples is GigaDepth's 20,480 steps of 4 full 432 x 512 frames. Each run appends one line
 to OUT/results.jsonl (budget, steps, o(0.5) and o(5) per test over `--test-frames` frames spread over
 each test set, the network only: trainer.scoring's Scorer, as bench.trainer_screen scores); a rerun skips
-the budgets already there. The fit is o = a * N^-b by least squares in log-log space (the points below
-a rate of 0 are left out); with fewer than two points, or a slope that does not fall, no budget is
-named. Step counts, not minutes, are the abscissa: the runs may share a machine.
+the budgets already there. A GPU's point (bench.gpu_check --sections table2) is a line of the same form,
+with its device; the report fits the points trained on the most common number of frames. The fit is
+o = a * N^-b by least squares in log-log space (the points below a rate of 0 are left out); with fewer
+than two points, or a slope that does not fall, no budget is named. Step counts, not minutes, are the
+abscissa: the runs may share a machine.
 """
 
 from __future__ import annotations
