@@ -278,7 +278,7 @@ def table2_section(report: Report, clock: Clock, cfg_name: str, data: dict[str, 
     base["data"].update(crop_width=0, crop_height=0, near_share=0.0, workers=0)
     source = open_source(data["train"], "train")
     cfg = config_from_dict(base, f"{cfg_name} on full frames")
-    rig, batch = first_batch(cfg, data["train"])
+    rig, batch = first_batch(cfg, source)
     rate = training_row(cfg, batch, rig, device, cfg.train.amp, 5, 2)["ms_per_step"]
     tests = {name: open_source(data[key], "test") for key, name in
              (("seen", "seen meshes"), ("disjoint", "disjoint meshes")) if key in data}
@@ -296,8 +296,8 @@ def table2_section(report: Report, clock: Clock, cfg_name: str, data: dict[str, 
                f"  table2: {cfg_name} on full frames, {result['step']} steps (planned {planned} at "
                f"{rate:.1f} ms/step) in {took:.0f} s on {len(source.frames)} frames")
     per_step = pixel_samples_per_step(cfg.train.batch_size, 0, 0, rig.camera.width, rig.camera.height)
-    point = curve_point(run / CHECKPOINT, result["step"], per_step, cfg_name, data["train"], source, tests,
-                        test_frames, device)
+    point = curve_point(run / CHECKPOINT, result["step"], per_step, cfg_name, source, tests, test_frames,
+                        device)
     where = torch.cuda.get_device_name(0) if device == "cuda" else device
     point |= {"device": where, "full_frames": True, "seconds": took}
     atomic_write_bytes(out / "table2_point.jsonl", (json.dumps(point) + "\n").encode())
@@ -326,10 +326,9 @@ def tests_section(report: Report, clock: Clock, tests: list[str], out: Path) -> 
                f"  tests: {'TIMED OUT after ' + format(timeout, '.0f') + ' s' if code is None else summary}")
 
 
-def first_batch(cfg, data) -> tuple:
-    """(rig, one training batch) of `data`'s train split: the config's batch size of augmented crops,
-    frames repeated when there are fewer (the dry run has 2)."""
-    source = open_source(data, "train")
+def first_batch(cfg, source) -> tuple:
+    """(rig, one training batch) of a FrameSource: the config's batch size of augmented crops, frames
+    repeated when there are fewer (the dry run has 2)."""
     rig = source.rig
     ds = FrameDataset(source.frames, rig, cfg.data, cfg.seed, augment=True)
     samples = [ds[i % len(ds)] for i in range(cfg.train.batch_size)]
@@ -341,7 +340,7 @@ def oracle_batch(cfg, scale: float, work: Path) -> tuple:
     data = work / f"oracle_{scale:g}"
     if not (data / "index.json").exists():
         make_dataset(data, scenes=2, frames_per_scene=2, scale=scale)
-    return first_batch(cfg, data)
+    return first_batch(cfg, open_source(data, "train"))
 
 
 def summary(results: dict) -> str:
@@ -431,8 +430,9 @@ def main(argv=None) -> int:
                               args.repeats, variants, args.out)
         if "training" in sections:
             print("3. training:", flush=True)
+            cpu_batch = first_batch(cpu_cfg, open_source(args.train, "train"))
             configs = {f"{published_name} (oracle)": (published, *oracle_batch(published, scale, work)),
-                       f"{cpu_name} (carried)": (cpu_cfg, *first_batch(cpu_cfg, args.train))}
+                       f"{cpu_name} (carried)": (cpu_cfg, *cpu_batch)}
             rows = training_section(report, clock, configs, device, args.train_steps)
             rate = rows.get((f"{cpu_name} (carried)", "float32"), {}).get("ms_per_step")
         if "accuracy" in sections:

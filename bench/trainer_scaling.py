@@ -93,12 +93,12 @@ def budget_for(rate: float, fit: tuple[float, float] | None) -> float | None:
     return math.exp(log_budget) if log_budget < math.log(sys.float_info.max) else math.inf
 
 
-def curve_point(checkpoint: Path, steps: int, per_step: int, config: str, data, source, tests: dict,
-                count: int, device: str = "cpu") -> dict:
+def curve_point(checkpoint: Path, steps: int, per_step: int, config: str, source, tests: dict, count: int,
+                device: str = "cpu") -> dict:
     """One point of the curve, as a line of results.jsonl: a run of `steps` steps of `per_step`
-    pixel-samples trained on `source` (the frames of `data`), with o(0.5) and o(5) of its checkpoint on
-    `count` frames spread over each of `tests` ({name: FrameSource}), the network run on `device`."""
-    return {"pixel_samples": steps * per_step, "steps": steps, "config": config, "data": str(data),
+    pixel-samples trained on `source` (a FrameSource), with o(0.5) and o(5) of its checkpoint on `count`
+    frames spread over each of `tests` ({name: FrameSource}), the network run on `device`."""
+    return {"pixel_samples": steps * per_step, "steps": steps, "config": config, "data": source.name,
             "frames": len(source.frames),
             "tests": {name: rates_by_class(checkpoint, test, source, count, device)["all"]
                       for name, test in tests.items()}}
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
         cfg = sized_config(base, steps, math.ceil(steps / steps_per_epoch), args.config)
         run = args.out / f"run_{steps}"
         result = train(cfg, source, run, progress=False)
-        line = curve_point(run / CHECKPOINT, result["step"], per_step, args.config, args.data, source, tests,
+        line = curve_point(run / CHECKPOINT, result["step"], per_step, args.config, source, tests,
                            args.test_frames)
         args.out.mkdir(parents=True, exist_ok=True)
         with open(results, "a") as f:
