@@ -13,11 +13,13 @@ sizes a run, one torch thread), so every point has a whole learning-rate schedul
 1.8e10 pixel-samples is GigaDepth's 20,480 steps of 4 full 432 x 512 frames. Each run appends one line
 to OUT/results.jsonl (budget, steps, o(0.5) and o(5) per test over `--test-frames` frames spread over
 each test set, the network only: trainer.scoring's Scorer, as bench.trainer_screen scores); a rerun skips
-the budgets already there. A GPU's point (bench.gpu_check --sections table2) is a line of the same form,
-with its device; the report fits the points trained on the most common number of frames. The fit is
-o = a * N^-b by least squares in log-log space (the points below a rate of 0 are left out); with fewer
-than two points, or a slope that does not fall, no budget is named. Step counts, not minutes, are the
-abscissa: the runs may share a machine.
+the budgets already there. `--run CHECKPOINT` adds a run trained elsewhere as a point
+(bench.trainer_accuracy's 60-minute run, sized the same way: its steps and crops read from the checkpoint,
+its network the one --config builds), scored as the budgets are. A GPU's point (bench.gpu_check
+--sections table2) is a line of the same form, with its device; the report fits the points trained on
+the most common number of frames. The fit is o = a * N^-b by least squares in log-log space (the points
+below a rate of 0 are left out); with fewer than two points, or a slope that does not fall, no budget
+is named. Step counts, not minutes, are the abscissa: the runs may share a machine.
 """
 
 from __future__ import annotations
@@ -35,12 +37,14 @@ import torch
 from bench.trainer_accuracy import sized_config
 from bench.trainer_screen import rates_by_class, read_results
 from dotsim.frame_source import open_source
-from trainer.checkpoint import CHECKPOINT
+from trainer.checkpoint import CHECKPOINT, load_checkpoint
 from trainer.config import load_config
+from trainer.samples import DataError
 from trainer.train import train
 
 GIGADEPTH_TABLE2_RATE = 0.0188  # o(0.5) GigaDepth reports in its Table 2
 GIGADEPTH_TABLE2_PIXEL_SAMPLES = 20480 * 4 * 432 * 512  # 1.81e10: its Table 2 training
+DEFAULT_BUDGETS = [2e7, 5e7, 1.2e8, 3e8]
 
 
 def pixel_samples_per_step(batch: int, crop_width: int, crop_height: int, width: int, height: int) -> int:
@@ -104,6 +108,21 @@ def curve_point(checkpoint: Path, steps: int, per_step: int, config: str, source
                       for name, test in tests.items()}}
 
 
+def run_steps(checkpoint: Path, config: str) -> tuple[int, int]:
+    """(steps, pixel-samples per step) of a run trained elsewhere, read from its checkpoint, which must hold
+    the network `config` builds (a run of another network is not a point of this curve)."""
+    ckpt, cfg, rig = load_checkpoint(checkpoint)
+    mine, theirs = cfg.to_dict()["model"], load_config(config).to_dict()["model"]
+    if mine != theirs:
+        diffs = ", ".join(f"{k} {mine[k]} (--config: {theirs[k]})" for k in theirs if mine[k] != theirs[k])
+        raise DataError(f"{checkpoint}: its network differs from --config {config}'s in [model] {diffs}; "
+                        "allowed: a run of the network the curve is of")
+    if "step" not in ckpt:
+        raise DataError(f"{checkpoint}: no 'step' entry: not a checkpoint trainer.train wrote")
+    return ckpt["step"], pixel_samples_per_step(cfg.train.batch_size, cfg.data.crop_width,
+                                                cfg.data.crop_height, rig.camera.width, rig.camera.height)
+
+
 def budgets_list(text: str) -> list[float]:
     """Comma-separated pixel-sample budgets, ascending, each above 0.
 
@@ -154,6 +173,13 @@ def report(folder: Path, target: float = GIGADEPTH_TABLE2_RATE) -> str:
     return "\n".join(lines)
 
 
+def append_line(results: Path, line: dict) -> None:
+    results.parent.mkdir(parents=True, exist_ok=True)
+    with open(results, "a") as f:
+        f.write(json.dumps(line) + "\n")
+    print(json.dumps(line), flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -164,10 +190,14 @@ def main(argv=None) -> int:
                         help="test split of new scenes of the training meshes (the like-for-like test)")
     parser.add_argument("--test-data", type=Path, help="test split of meshes never seen (the disjoint test)")
     parser.add_argument("--test-frames", type=int, default=16, help="frames spread over each test set")
-    parser.add_argument("--budgets", type=budgets_list, default=budgets_list("2e7,5e7,1.2e8,3e8"),
-                        help="pixel-samples per run, comma-separated (at least four for a curve)")
+    parser.add_argument("--budgets", type=budgets_list,
+                        help="pixel-samples per run, comma-separated (at least four for a curve; default "
+                        "2e7,5e7,1.2e8,3e8, none where --run is given)")
     parser.add_argument("--target", type=float, default=GIGADEPTH_TABLE2_RATE,
                         help="o(0.5) the fit names a budget for (default GigaDepth's 0.0188)")
+    parser.add_argument("--run", type=Path, action="append", default=[], metavar="CHECKPOINT",
+                        help="a run trained elsewhere (bench.trainer_accuracy's) to add as a point; "
+                        "repeatable; no budget is trained then unless --budgets names some")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("out/scaling"))
     parser.add_argument("--report", type=Path, metavar="DIR", help="print DIR's table and fits and exit")
@@ -189,7 +219,20 @@ def main(argv=None) -> int:
     done = {json.loads(line)["pixel_samples"] for line in results.read_text().splitlines() if line} \
         if results.exists() else set()
     steps_per_epoch = max(len(source.frames) // base["train"]["batch_size"], 1)
-    for budget in args.budgets:
+    for checkpoint in args.run:
+        try:
+            steps, run_per_step = run_steps(checkpoint, args.config)
+        except DataError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        if steps * run_per_step in done:
+            print(f"{checkpoint}: {steps * run_per_step:.3g} pixel-samples already in {results}, skipped")
+            continue
+        line = curve_point(checkpoint, steps, run_per_step, args.config, source, tests, args.test_frames)
+        append_line(results, line | {"run": str(checkpoint)})
+        done.add(steps * run_per_step)
+    budgets = args.budgets if args.budgets is not None else [] if args.run else DEFAULT_BUDGETS
+    for budget in budgets:
         steps = max(1, round(budget / per_step))
         if steps * per_step in done:
             print(f"{steps * per_step:.3g} pixel-samples: already in {results}, skipped")
@@ -200,10 +243,7 @@ def main(argv=None) -> int:
         result = train(cfg, source, run, progress=False)
         line = curve_point(run / CHECKPOINT, result["step"], per_step, args.config, source, tests,
                            args.test_frames)
-        args.out.mkdir(parents=True, exist_ok=True)
-        with open(results, "a") as f:
-            f.write(json.dumps(line) + "\n")
-        print(json.dumps(line), flush=True)
+        append_line(results, line)
     print(report(args.out, args.target))
     return 0
 
