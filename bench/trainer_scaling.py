@@ -13,9 +13,9 @@ sizes a run, one torch thread), so every point has a whole learning-rate schedul
 1.8e10 pixel-samples is GigaDepth's 20,480 steps of 4 full 432 x 512 frames. Each run appends one line
 to OUT/results.jsonl (budget, steps, o(0.5) and o(5) per test over `--test-frames` frames spread over
 each test set, the network only: trainer.scoring's Scorer, as bench.trainer_screen scores); a rerun skips
-the budgets already there. `--run CHECKPOINT` adds a run trained elsewhere as a point
-(bench.trainer_accuracy's 60-minute run, sized the same way: its steps and crops read from the checkpoint,
-its network the one --config builds), scored as the budgets are. A GPU's point (bench.gpu_check
+the budgets already there. `--run CHECKPOINT` adds a run trained elsewhere on --data as a
+point (bench.trainer_accuracy's 60-minute run, sized the same way: its steps and crops read from the
+checkpoint, its network the one --config builds), scored as the budgets are. A GPU's point (bench.gpu_check
 --sections table2) is a line of the same form, with its device; the report fits the points trained on
 the most common number of frames. The fit is o = a * N^-b by least squares in log-log space (the points
 below a rate of 0 are left out); with fewer than two points, or a slope that does not fall, no budget
@@ -196,8 +196,8 @@ def main(argv=None) -> int:
     parser.add_argument("--target", type=float, default=GIGADEPTH_TABLE2_RATE,
                         help="o(0.5) the fit names a budget for (default GigaDepth's 0.0188)")
     parser.add_argument("--run", type=Path, action="append", default=[], metavar="CHECKPOINT",
-                        help="a run trained elsewhere (bench.trainer_accuracy's) to add as a point; "
-                        "repeatable; no budget is trained then unless --budgets names some")
+                        help="a run trained elsewhere on --data (bench.trainer_accuracy's) to add as a "
+                        "point; repeatable; no budget is trained then unless --budgets names some")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("out/scaling"))
     parser.add_argument("--report", type=Path, metavar="DIR", help="print DIR's table and fits and exit")
