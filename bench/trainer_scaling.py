@@ -108,11 +108,12 @@ def curve_point(checkpoint: Path, steps: int, per_step: int, config: str, source
                       for name, test in tests.items()}}
 
 
-def run_steps(checkpoint: Path, config: str) -> tuple[int, int]:
+def run_steps(checkpoint: Path, config: str, model: dict) -> tuple[int, int]:
     """(steps, pixel-samples per step) of a run trained elsewhere, read from its checkpoint, which must hold
-    the network `config` builds (a run of another network is not a point of this curve)."""
+    the network of `config` (its [model] section `model`): a run of another network is not a point of this
+    curve."""
     ckpt, cfg, rig = load_checkpoint(checkpoint)
-    mine, theirs = cfg.to_dict()["model"], load_config(config).to_dict()["model"]
+    mine, theirs = cfg.to_dict()["model"], model
     if mine != theirs:
         diffs = ", ".join(f"{k} {mine[k]} (--config: {theirs[k]})" for k in theirs if mine[k] != theirs[k])
         raise DataError(f"{checkpoint}: its network differs from --config {config}'s in [model] {diffs}; "
@@ -221,7 +222,7 @@ def main(argv=None) -> int:
     steps_per_epoch = max(len(source.frames) // base["train"]["batch_size"], 1)
     for checkpoint in args.run:
         try:
-            steps, run_per_step = run_steps(checkpoint, args.config)
+            steps, run_per_step = run_steps(checkpoint, args.config, base["model"])
         except DataError as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
@@ -230,7 +231,7 @@ def main(argv=None) -> int:
             continue
         line = curve_point(checkpoint, steps, run_per_step, args.config, source, tests, args.test_frames)
         append_line(results, line | {"run": str(checkpoint)})
-        done.add(steps * run_per_step)
+        done.add(line["pixel_samples"])
     budgets = args.budgets if args.budgets is not None else [] if args.run else DEFAULT_BUDGETS
     for budget in budgets:
         steps = max(1, round(budget / per_step))
