@@ -1,6 +1,7 @@
 """Step-matched screens of training changes: each variant of a config trains the same number of steps on
 the same frames with one torch thread, and is scored on held-out validation frames (never the test
-split); what a step of it costs is counted, not timed (timings on a shared machine mean nothing).
+split); what a step of it costs is counted here (timings of runs that share a machine mean nothing)
+and timed apart with --time (below).
 
     python -m bench.trainer_screen --config train_cpu --data out/gpu/train --val-data out/gpu_val \
         --steps 3000 --name min_depth --set model.min_depth=0.2 --out out/screens/cpu
@@ -17,12 +18,25 @@ bench.trainer_accuracy sizes it (step decay at 25, 50 and 75 % of the steps). `-
 tables of a folder's lines; `--rescore --name N` scores N's checkpoint by class again (for classes added
 since it ran, as "slanted") and rewrites its line. Variants that ran at the same time on a shared
 machine still compare: the steps, not the minutes, are equal.
+
+What a step costs in time is the other half of a variant's price, since a fixed hour decides:
+
+    python -m bench.trainer_screen --config train_table2 --data data/table2c/train --time 24 \
+        --name lines_256 --set model.lines=256 --out out/screens/t2c_2400
+
+times the variant's training step against the config's own on a quiet machine, in one process: each
+trains --time real batches of --data per round (the same frames and crops for both, trainer.train's
+step: loss, backward, optimiser, schedule), --rounds rounds after a warm-up, taking turns, so a load
+that comes and goes falls on both. It appends to OUT/timings.jsonl the seconds per step of every round,
+their medians and the variant / config ratio round by round (median, min, max); `--report` prints them.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import statistics
 import sys
 import time
 import tomllib
@@ -35,11 +49,13 @@ from bench.trainer_cpu_recipe import count, synthetic_batch
 from dotsim.file_io import atomic_write_bytes
 from dotsim.frame_source import FrameSource, open_source
 from trainer.checkpoint import CHECKPOINT, load_model
-from trainer.config import config_from_dict, load_config, output_rows
+from trainer.config import Config, config_from_dict, load_config, output_rows
+from trainer.distributed import ONE_PROCESS
 from trainer.metrics import THRESHOLDS
 from trainer.model import build_model
+from trainer.samples import FrameDataset, make_loader
 from trainer.scoring import DEPTH_BINS, NetworkMethod, Scorer, depth_ranges
-from trainer.train import train
+from trainer.train import TrainingLoss, new_state, optimiser_step, plan_steps, seed_everything, train
 
 BY_CLASS_THRESHOLDS = (0.5, 5.0)
 
@@ -60,6 +76,16 @@ def with_settings(base: dict, settings: list[str]) -> dict:
         value = tomllib.loads(f"v = {text.strip()}")["v"]
         (d[section] if section else d)[name] = value
     return d
+
+
+def screened_config(config: str, settings: list[str], steps: int, frames: int) -> Config:
+    """The config named `config` with `settings` (with_settings), sized as bench.trainer_accuracy sizes a
+    run of `steps` steps over `frames` training frames, scored once, at the end."""
+    base = with_settings(load_config(config).to_dict(), settings)
+    steps_per_epoch = max(frames // base["train"]["batch_size"], 1)
+    sized = sized_config(base, steps, max(1, round(steps / steps_per_epoch)), config).to_dict()
+    sized["train"]["val_every"] = steps
+    return config_from_dict(sized, f"{config} with {settings}")
 
 
 def step_gflop(cfg, rig) -> float:
@@ -87,9 +113,51 @@ def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource,
             for r in scorer.rows()}
 
 
-def read_results(folder: Path) -> list[dict]:
-    """The lines of folder's results.jsonl, in the order they were written."""
-    return [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line]
+def step_seconds(cfgs: dict[str, Config], source: FrameSource, batches: int, rounds: int
+                 ) -> dict[str, list[float]]:
+    """{name: seconds per training step in each round} of each config in cfgs, stepped as trainer.train
+    steps (optimiser_step) through the first `batches` augmented batches of source's frames, the same
+    for each config (its own crop and stride). After a warm-up of 2 steps each, `rounds` rounds; the
+    configs take turns, in reversed order every other round."""
+    runs = {}
+    for name, cfg in cfgs.items():
+        seed_everything(cfg.seed)
+        ds = FrameDataset(source.frames, source.rig, cfg.data, cfg.seed, augment=True,
+                          stride=cfg.model.stride)
+        loader = make_loader(ds, cfg.train.batch_size, 0, 0, cfg.data.workers)
+        taken = [batch for batch, _ in zip(loader, range(batches), strict=False)]
+        state = new_state(cfg, source.rig, "cpu", *plan_steps(cfg, source))
+        state.model.train()
+        runs[name] = (TrainingLoss(state.model, cfg, ONE_PROCESS), state, cfg, taken)
+
+    def seconds_per_step(name: str, count: int) -> float:
+        loss_of, state, cfg, taken = runs[name]
+        start = time.perf_counter()
+        for step, batch in enumerate(taken[:count]):
+            optimiser_step(loss_of, state, batch, cfg, ONE_PROCESS, step, start)
+        return (time.perf_counter() - start) / min(count, len(taken))
+
+    for name in runs:
+        seconds_per_step(name, 2)
+    seconds: dict[str, list[float]] = {name: [] for name in runs}
+    for r in range(rounds):
+        for name in list(runs)[:: 1 if r % 2 == 0 else -1]:
+            seconds[name].append(seconds_per_step(name, batches))
+    return seconds
+
+
+def timing_line(name: str, settings: list[str], seconds: dict[str, list[float]]) -> dict:
+    """The timings.jsonl line of a variant's rounds against the config's (step_seconds' "config")."""
+    ratios = [v / c for v, c in zip(seconds[name], seconds["config"], strict=True)]
+    return {"name": name, "settings": settings, "seconds_per_step": seconds,
+            "median_seconds": {k: statistics.median(v) for k, v in seconds.items()},
+            "ratio": {"median": statistics.median(ratios), "min": min(ratios), "max": max(ratios)},
+            "load_average": os.getloadavg()}
+
+
+def read_results(folder: Path, file: str = "results.jsonl") -> list[dict]:
+    """The lines of folder's results.jsonl (or `file`), in the order they were written."""
+    return [json.loads(line) for line in (folder / file).read_text().splitlines() if line]
 
 
 def rescore(folder: Path, name: str, by_class: dict) -> int:
@@ -105,11 +173,12 @@ def rescore(folder: Path, name: str, by_class: dict) -> int:
 
 def report(folder: Path) -> str:
     """The markdown tables of a folder's results, in the order they ran: the validation rates, then
-    o(0.5) / o(5) by depth range and pixel class."""
-    rows = read_results(folder)
+    o(0.5) / o(5) by depth range and pixel class, then the step timings (timings.jsonl) where any ran."""
+    rows = read_results(folder) if (folder / "results.jsonl").exists() else []
     keys = [f"{c} o({t:g})" for c in ("all", "solvable") for t in (0.5, 5.0)]
-    lines = ["| variant | settings | steps | GFLOP/step | parameters (M) | last loss | "
-             + " | ".join(keys) + " |", "|" + "---|" * (6 + len(keys))]
+    lines = [] if not rows else [
+        "| variant | settings | steps | GFLOP/step | parameters (M) | last loss | " + " | ".join(keys) + " |",
+        "|" + "---|" * (6 + len(keys))]
     for r in rows:
         rates = " | ".join(f"{r['validation'][k]:.4f}" if k in r["validation"] else "-" for k in keys)
         lines.append(f"| {r['name']} | {', '.join(r['settings']) or 'as the config'} | {r['steps']} | "
@@ -123,6 +192,17 @@ def report(folder: Path) -> str:
             cells = [f"{c['o(0.5)']:.3f} / {c['o(5)']:.3f}" if (c := r.get("by_class", {}).get(k))
                      and c["pixels"] else "-" for k in classes]
             lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
+    if (folder / "timings.jsonl").exists():
+        lines += ["", "Seconds per training step, the variant and the config taking turns in one process:",
+                  "",
+                  "| variant | settings | rounds x steps | config s/step | variant s/step | "
+                  "ratio median (min-max) |", "|---|---|---|---|---|---|"]
+        for t in read_results(folder, "timings.jsonl"):
+            m, ratio = t["median_seconds"], t["ratio"]
+            lines.append(f"| {t['name']} | {', '.join(t['settings']) or 'as the config'} | "
+                         f"{len(t['seconds_per_step']['config'])} x {t['steps_per_round']} | "
+                         f"{m['config']:.3f} | {m[t['name']]:.3f} | "
+                         f"{ratio['median']:.2f} ({ratio['min']:.2f}-{ratio['max']:.2f}) |")
     return "\n".join(lines)
 
 
@@ -145,21 +225,34 @@ def main(argv=None) -> int:
     parser.add_argument("--rescore", action="store_true",
                         help="score --name's trained checkpoint in --out by class again (classes added since "
                              "it ran) and rewrite its line")
+    parser.add_argument("--time", type=int, default=0, metavar="N",
+                        help="instead of training: time the variant's step against the config's on N real "
+                             "batches of --data per round, taking turns, into OUT/timings.jsonl")
+    parser.add_argument("--rounds", type=int, default=6, help="--time: rounds")
     args = parser.parse_args(argv)
     if args.report:
         print(report(args.report))
         return 0
-    if args.data is None or args.val_data is None:
-        parser.error("--data and --val-data are needed (or --report DIR)")
+    if args.data is None or (args.val_data is None and not args.time):
+        parser.error("--data and --val-data are needed (--time: --data; or --report DIR)")
+    if args.time and args.name == "config":
+        parser.error("--time: name the variant something other than 'config' (the config's own step)")
     torch.set_num_threads(args.threads)
     source = open_source(args.data, args.split)
     frames, rig = source.frames, source.rig
+    cfg = screened_config(args.config, args.set, args.steps, len(frames))
+    if args.time:
+        seconds = step_seconds({"config": screened_config(args.config, [], args.steps, len(frames)),
+                                args.name: cfg}, source, args.time, args.rounds)
+        line = timing_line(args.name, args.set, seconds) | {
+            "config": args.config, "data": str(args.data), "steps_per_round": args.time,
+            "threads": args.threads}
+        args.out.mkdir(parents=True, exist_ok=True)
+        with open(args.out / "timings.jsonl", "a") as f:
+            f.write(json.dumps(line) + "\n")
+        print(json.dumps(line))
+        return 0
     validation = open_source(args.val_data, args.val_split)
-    base = with_settings(load_config(args.config).to_dict(), args.set)
-    spe = max(len(frames) // base["train"]["batch_size"], 1)
-    sized = sized_config(base, args.steps, max(1, round(args.steps / spe)), args.config).to_dict()
-    sized["train"]["val_every"] = args.steps  # scored once, at the end
-    cfg = config_from_dict(sized, f"{args.config} with {args.set}")
     run = args.out / args.name
     if args.rescore:
         by_class = rates_by_class(run / CHECKPOINT, validation, source, args.val_frames)

@@ -52,3 +52,22 @@ def test_two_variants_train_the_same_steps_and_are_reported(tmp_path):
     report = done.stdout
     assert "| base | as the config | 3 |" in report and "model.stride=1, model.lines=90" in report
     assert "by GT depth range (m) and pixel class" in report and "| off edge |" in report
+
+
+def test_time_steps_the_variant_and_the_config_in_turns(tmp_path):
+    data = make_dataset(tmp_path / "ds", scenes=2, frames_per_scene=2)
+    common = ["--config", "train_tiny", "--data", str(data), "--out", str(tmp_path / "screens")]
+    done = screen(*common, "--time", "2", "--rounds", "3", "--name", "full", "--set", "model.stride=1")
+    assert done.returncode == 0, done.stderr[-2000:]
+    (line,) = [json.loads(t) for t in (tmp_path / "screens" / "timings.jsonl").read_text().splitlines()]
+    seconds = line["seconds_per_step"]
+    assert set(seconds) == {"config", "full"} and all(len(v) == 3 and min(v) > 0 for v in seconds.values())
+    ratios = sorted(v / c for v, c in zip(seconds["full"], seconds["config"], strict=True))
+    assert line["ratio"] == {"median": ratios[1], "min": ratios[0], "max": ratios[2]}
+    assert line["median_seconds"]["config"] == sorted(seconds["config"])[1]
+    assert not (tmp_path / "screens" / "results.jsonl").exists()  # nothing trained
+    report = screen("--report", str(tmp_path / "screens"))
+    assert report.returncode == 0, report.stderr[-2000:]
+    assert "| full | model.stride=1 | 3 x 2 |" in report.stdout
+    refused = screen(*common, "--time", "2", "--name", "config")
+    assert refused.returncode == 2 and "other than 'config'" in refused.stderr
