@@ -55,7 +55,15 @@ from trainer.metrics import THRESHOLDS
 from trainer.model import build_model
 from trainer.samples import FrameDataset, make_loader
 from trainer.scoring import DEPTH_BINS, NetworkMethod, Scorer, depth_ranges
-from trainer.train import TrainingLoss, new_state, optimiser_step, plan_steps, seed_everything, train
+from trainer.train import (
+    TrainingLoss,
+    keep_freed_memory,
+    new_state,
+    optimiser_step,
+    plan_steps,
+    seed_everything,
+    train,
+)
 
 BY_CLASS_THRESHOLDS = (0.5, 5.0)
 
@@ -118,7 +126,10 @@ def step_seconds(cfgs: dict[str, Config], source: FrameSource, batches: int, rou
     """{name: seconds per training step in each round} of each config in cfgs, stepped as trainer.train
     steps (optimiser_step) through the first `batches` augmented batches of source's frames, the same
     for each config (its own crop and stride). After a warm-up of 2 steps each, `rounds` rounds; the
-    configs take turns, in reversed order every other round."""
+    configs take turns, in reversed order every other round. The process keeps freed memory as
+    trainer.train's does (keep_freed_memory): without it each step's fresh gradient tables are paged
+    in again, a cost that grows with the tables and that training does not pay."""
+    keep_freed_memory()
     runs = {}
     for name, cfg in cfgs.items():
         seed_everything(cfg.seed)
