@@ -173,7 +173,7 @@ def test_config_resolution_mismatch_is_named():
 
 def test_train_table2_fits_the_table2_camera_standing_upright():
     """--config table2 renders DepthInSpace's camera, 432 px wide and 512 px tall: train_table2's lines
-    cover its 256 half-resolution rows 2 apiece (the 54 of the camera lying on its side do not fit)."""
+    cover its 256 half-resolution rows one each (the 54 of the camera lying on its side do not fit)."""
     from dataclasses import replace
 
     from dotsim.rig.config import read_rig_config
@@ -183,7 +183,7 @@ def test_train_table2_fits_the_table2_camera_standing_upright():
     camera = checked_rig(*read_rig_config("table2")).rig.camera  # [rig] alone: CI has no asset cache built
     assert (camera.width, camera.height) == (432, 512)
     cfg = load_config("train_table2")
-    assert cfg.model.lines * 2 == 512 // 2 and resolution_mismatch(cfg, 432, 512) is None
+    assert cfg.model.lines == 512 // 2 and resolution_mismatch(cfg, 432, 512) is None
     old = replace(cfg, model=replace(cfg.model, lines=54))
     assert "lines = 54" in resolution_mismatch(old, 432, 512)
 
