@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from bench.trainer_accuracy import sized_config
-from bench.trainer_screen import rates_by_class, read_results
+from bench.trainer_screen import append_line, rates_by_class, read_results
 from dotsim.frame_source import open_source
 from trainer.checkpoint import CHECKPOINT, load_checkpoint
 from trainer.config import load_config
@@ -172,13 +172,6 @@ def report(folder: Path, target: float = GIGADEPTH_TABLE2_RATE) -> str:
                         if need is not None and need < math.inf else
                         "the rate falls too slowly or not at all with the budget: no budget named"))
     return "\n".join(lines)
-
-
-def append_line(results: Path, line: dict) -> None:
-    results.parent.mkdir(parents=True, exist_ok=True)
-    with open(results, "a") as f:
-        f.write(json.dumps(line) + "\n")
-    print(json.dumps(line), flush=True)
 
 
 def main(argv=None) -> int:

@@ -171,6 +171,14 @@ def read_results(folder: Path, file: str = "results.jsonl") -> list[dict]:
     return [json.loads(line) for line in (folder / file).read_text().splitlines() if line]
 
 
+def append_line(results: Path, line: dict) -> None:
+    """Append `line` to the JSON-lines file `results` (its folder made if need be) and print it."""
+    results.parent.mkdir(parents=True, exist_ok=True)
+    with open(results, "a") as f:
+        f.write(json.dumps(line) + "\n")
+    print(json.dumps(line), flush=True)
+
+
 def rescore(folder: Path, name: str, by_class: dict) -> int:
     """Replace the by_class rates of the runs named `name` in folder's results.jsonl."""
     lines = read_results(folder)
@@ -258,10 +266,7 @@ def main(argv=None) -> int:
         line = timing_line(args.name, args.set, seconds) | {
             "config": args.config, "data": str(args.data), "steps_per_round": args.time,
             "threads": args.threads}
-        args.out.mkdir(parents=True, exist_ok=True)
-        with open(args.out / "timings.jsonl", "a") as f:
-            f.write(json.dumps(line) + "\n")
-        print(json.dumps(line))
+        append_line(args.out / "timings.jsonl", line)
         return 0
     validation = open_source(args.val_data, args.val_split)
     run = args.out / args.name
@@ -279,10 +284,7 @@ def main(argv=None) -> int:
             "gflop_per_step": step_gflop(cfg, rig),
             "parameters": sum(p.numel() for p in build_model(cfg, rig).parameters()),
             "seconds_on_a_shared_machine": time.perf_counter() - start, "thresholds": list(THRESHOLDS)}
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "results.jsonl", "a") as f:
-        f.write(json.dumps(line) + "\n")
-    print(json.dumps(line))
+    append_line(args.out / "results.jsonl", line)
     return 0
 
 
