@@ -188,6 +188,13 @@ def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None 
     return along(along(np.asarray(half, np.float64), height, 0), width, 1)
 
 
+def full_resolution_disparity(samples: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Disparity known at full-resolution pixels (2i, 2j) (a stride-2 network's output) -> (height,
+    width) as eval scores it: the samples kept, the pixels between them linear, across a depth jump the
+    farther surface (upsample_half with DEPTH_JUMP_PX)."""
+    return upsample_half(samples, height, width, jump=DEPTH_JUMP_PX)
+
+
 def load_model(checkpoint: str | Path, device: str = "cpu") -> tuple[GigaDepthNet, Config, Rig]:
     """The trained network of a checkpoint on `device`, in eval mode, with its config and rig.
 
@@ -215,7 +222,7 @@ def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str
     full_column = upsample_half(column, height, width) if half else column
     disparity = depth_to_disparity(projector_column_to_depth(full_column, rig, normalised=True), rig)
     if half:
-        disparity = upsample_half(disparity[0::2, 0::2], height, width, jump=DEPTH_JUMP_PX)
+        disparity = full_resolution_disparity(disparity[0::2, 0::2], height, width)
     return disparity.astype(np.float32), disparity_to_depth(disparity, rig).astype(np.float32)
 
 

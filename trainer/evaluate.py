@@ -20,7 +20,9 @@ baseline). Its left-right disparity d_s = fx B_s / z is
 scored as the depth it gives, in the projector disparity's pixels: d_s B / B_s (B: the projector's
 baseline), so every row judges the same depth error alike. Frames storing `device_depth` (the device's
 own depth: recordings, or renders with [device_depth] on) get a row 'device' (trainer.scoring's
-DeviceDepthMethod: that depth as disparity, a pixel without a reading an outlier).
+DeviceDepthMethod: that depth as disparity, a pixel without a reading an outlier). A stride-2 network
+gets a row 'half-res floor' (trainer.scoring's HalfResolutionFloor): the GT taken at its output pixels and
+brought to full resolution as its output is, the errors its output resolution alone leaves.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from trainer.scoring import (
     SCORED_CHANNELS,
     SLANT,
     DeviceDepthMethod,
+    HalfResolutionFloor,
     NetworkMethod,
     Scorer,
     SgbmMethod,
@@ -117,8 +120,8 @@ def choose_preprocessing(frames: list[FrameRef], validation: FrameSource | None,
 
 def eval_methods(model, data: FrameSource, nearest: float, device: str, precision: str) -> list:
     """The network, SGBM plain and LCN (their range reaching `nearest` metres), on a stereo pair's data
-    SGBM between its two IR images (its range sized with the pair's baseline), and on data whose frames
-    store device_depth the device's own depth."""
+    SGBM between its two IR images (its range sized with the pair's baseline), on data whose frames
+    store device_depth the device's own depth, and for a stride-2 network the half-resolution floor."""
     rig, reference = data.rig, load_reference(data)
     n_disp = num_disparities_for(rig, nearest)
     methods = [NetworkMethod(model, rig, device, precision),
@@ -129,6 +132,8 @@ def eval_methods(model, data: FrameSource, nearest: float, device: str, precisio
                                         rig.baseline / pair_baseline))  # d_s -> the projector disparity
     if "device_depth" in data.channels:
         methods.append(DeviceDepthMethod(rig))
+    if model.cfg.stride == 2:
+        methods.append(HalfResolutionFloor())
     return methods
 
 
@@ -268,6 +273,7 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
     sgbm = next(m for m in scorer.methods if isinstance(m, SgbmMethod))
     stereo = next((m for m in scorer.methods if isinstance(m, StereoSgbmMethod)), None)
     device = next((m for m in scorer.methods if isinstance(m, DeviceDepthMethod)), None)
+    floor = next((m for m in scorer.methods if isinstance(m, HalfResolutionFloor)), None)
     table = format_table([r for r in rows if r["range"] not in CLASSES])
     by_class = [r for r in rows if r["range"] in CLASSES]
     table += ("\nBy pixel class (the edge mask as the frames store it; slanted: off it, the GT disparity "
@@ -303,5 +309,9 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
            f"{device.name}: {device.label} (the frames' device_depth channel: a recording's, or the "
            "simulated device's, docs/DEVICE_DEPTH.md), scored as the disparity fx b / z of its depth; a "
            "pixel without a reading is an outlier.\n")
+        + ("" if floor is None else
+           f"{floor.name}: the GT disparity taken at the network's half-resolution output pixels and brought "
+           "to full resolution as its output is: what a perfect network at this resolution still gets "
+           "wrong (on depth edges, a pixel between two samples on two surfaces takes the farther one).\n")
         + f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     return header + table + "\n" + verdict(rows, chosen) + "\n"

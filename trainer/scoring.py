@@ -5,7 +5,8 @@ A method is an object with a `name`, the frame `channels` it reads beyond the IR
 full-resolution disparity in camera px, nan where it gives none) and `reachable(gt, depth)` (the pixels
 whose GT disparity lies inside the range the method can represent: its feasible range): the network
 (NetworkMethod), SGBM against the pattern (SgbmMethod), SGBM between a stereo pair's IR images
-(StereoSgbmMethod) and the depth camera's own depth stored beside the frames (DeviceDepthMethod). The
+(StereoSgbmMethod), the depth camera's own depth stored beside the frames (DeviceDepthMethod) and the GT
+taken at a stride-2 network's output pixels (HalfResolutionFloor: what output resolution alone costs). The
 Scorer runs methods over frames and counts, per method and pixel class ("all", each GT depth range, on /
 off the edge mask, slanted off it, solvable or not: dotsim/solvable.py), the valid pixels, those outside
 the method's range and the outliers at each threshold (trainer/metrics.py); `rows()` turns the counts
@@ -23,7 +24,7 @@ from dotsim.false_colour import titled, with_legend
 from dotsim.frame_source import FrameRef
 from dotsim.rig.geometry import Rig, depth_to_projector_column, disparity_to_depth
 from dotsim.solvable import solvable_pixels
-from trainer.checkpoint import predict_disparity
+from trainer.checkpoint import full_resolution_disparity, predict_disparity
 from trainer.device_depth_row import DEVICE_LABEL, DEVICE_METHOD, device_disparity
 from trainer.metrics import (
     THRESHOLDS,
@@ -36,6 +37,7 @@ from trainer.metrics import (
 from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
+HALF_RES_FLOOR = "half-res floor"  # the HalfResolutionFloor's row in eval's tables
 # depth follows from disparity: exports may hold no depth
 SCORED_CHANNELS = ("ir", "visibility", "disparity", "edge")
 CLASSES = ("edge", "off edge", "slanted", "solvable", "not solvable")  # beside the depth ranges
@@ -168,6 +170,24 @@ class DeviceDepthMethod:
 
     def predict(self, frame: dict) -> np.ndarray:
         return device_disparity(frame, self.rig)
+
+    def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        return np.ones(gt.shape, bool)
+
+
+@dataclass(frozen=True)
+class HalfResolutionFloor:
+    """What a perfect stride-2 network would still get wrong: the GT disparity itself taken at the output
+    pixels (2i, 2j) and brought to full resolution as the network's output is (full_resolution_disparity).
+    Its outliers lie on depth edges, where a full-resolution pixel between two samples on two surfaces
+    takes the farther one: the share of a network's errors its output resolution alone accounts for."""
+
+    name: str = HALF_RES_FLOOR
+    channels: tuple[str, ...] = ()
+
+    def predict(self, frame: dict) -> np.ndarray:
+        gt = frame["disparity"]
+        return full_resolution_disparity(gt[0::2, 0::2], *gt.shape)
 
     def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
         return np.ones(gt.shape, bool)

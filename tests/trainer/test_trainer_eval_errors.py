@@ -19,6 +19,7 @@ from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate
 from trainer.infer import infer
 from trainer.samples import DataError
+from trainer.scoring import HalfResolutionFloor
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train
 
@@ -50,6 +51,31 @@ def test_upsample_half_takes_the_farther_sample_across_a_depth_jump():
     np.testing.assert_allclose(up[:, 5], 8.4)
     np.testing.assert_allclose(up[:, 7], 3.8)
     assert np.isnan(up[:, 6]).all()
+
+
+def test_half_resolution_floor_misses_only_the_pixel_between_two_surfaces():
+    """A near box (disparity 20) before a far wall (disparity 10). Samples sit on even rows and columns;
+    a full-resolution pixel on an odd column (row) between a near and a far sample takes the far one, so
+    the floor misses the box's pixels on such a column (row) at a box border that starts or ends on an
+    even index, and none where the border falls between two samples of the same surface. Counted by hand:
+    the box spans rows 3..8 and columns 4..9 (0-based, inclusive). Left border, first box column 4 (even):
+    sample 4 is near, so column 3 (between far 2 and near 4) takes far: right, it is wall. Right border,
+    last box column 9 (odd): samples 8 (near) and 10 (far); column 9 takes far: wrong, 6 rows. Top, first
+    box row 3 (odd): samples 2 (far) and 4 (near); row 3 takes far: wrong. Bottom, last box row 8 (even):
+    row 9 between 8 (near) and 10 (far) takes far: right. Row 3 misses box columns 4..8 (5 pixels; its
+    column 9 is counted once already), so 6 + 5 = 11 of the 6 x 6 box pixels, nothing else."""
+    height, width = 14, 16
+    disparity = np.full((height, width), 10.0, np.float32)
+    disparity[3:9, 4:10] = 20.0
+    predicted = HalfResolutionFloor().predict({"disparity": disparity})
+    wrong = np.abs(predicted - disparity) > 0.5
+    expected = np.zeros_like(wrong)
+    expected[3:9, 9] = True
+    expected[3, 4:10] = True
+    np.testing.assert_array_equal(wrong, expected)
+    assert wrong.sum() == 11
+    # between two samples of one surface the floor is exact, so off the box's borders nothing is lost
+    np.testing.assert_allclose(predicted[~expected], disparity[~expected])
 
 
 def test_sgbm_on_an_exact_wall_finds_fb_over_z():
@@ -197,8 +223,11 @@ def test_eval_chooses_sgbm_on_validation_frames_never_the_test(run, tmp_path):
     chosen = {r["method"] for r in rows if r["chosen"]}
     assert len(chosen) == 1 and chosen <= {"sgbm-plain", "sgbm-lcn"}
     on_train = evaluate(run["ckpt"], open_source(run["data"], "train"), tmp_path / "t", progress=False)
-    rates = {r["method"]: r["o(0.5)"] for r in on_train if r["range"] == "all" and r["method"] != "network"}
+    rates = {r["method"]: r["o(0.5)"] for r in on_train
+             if r["range"] == "all" and r["method"].startswith("sgbm-")}
     assert min(rates, key=rates.get) == chosen.pop()
+    assert {r["range"] for r in rows if r["method"] == "half-res floor"} >= {"all", "edge", "off edge"}
+    assert "half-res floor: the GT disparity taken at" in (tmp_path / "e" / "eval.md").read_text()
     assert "chosen on 2 validation frame(s)" in (tmp_path / "e" / "eval.md").read_text()
     with pytest.raises(SourceError, match="overlap the evaluated frames"):
         evaluate(run["ckpt"], open_source(run["data"], "test"), tmp_path / "o", progress=False,

@@ -178,7 +178,8 @@ def test_eval_table_matches_independent_count_from_infer_output(data, trained, t
     assert "| network | solvable |" in md and "| all | 0.5 |" in md and "feasible disparity range" in md
     with open(tmp_path / "eval" / "eval.csv") as f:
         table = list(csv.DictReader(f))
-    assert len(table) == len(rows) == 3 * (6 + 5)  # all, 5 ranges; edge, off edge, slanted, (not) solvable
+    # network, SGBM plain and LCN, the half-res floor; all, 5 ranges; edge, off edge, slanted, (not) solvable
+    assert len(table) == len(rows) == 4 * (6 + 5)
     pngs = sorted((tmp_path / "eval" / "errors").glob("*.png"))
     assert len(pngs) == 2
     # 122 x 90 frames: each panel scaled up twice (nearest) under a title bar, the IR untouched by text
