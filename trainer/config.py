@@ -109,9 +109,7 @@ class TrainConfig(Checked):
     epochs: int = setting(10, "passes over the training frames", low=1)
     max_steps: int = setting(0, "> 0 stops after this many optimiser steps (tests, benchmarks)", low=0)
     batch_size: int = setting(4, "frames per optimiser step", low=1)
-    optimizer: str = setting("sgd", "optimiser: sgd, adam, or lazy_adam (Adam updating only the weight-table "
-                             "rows each batch uses: trainer.train.LazyAdam; one process, no weight_decay)",
-                             choices=("sgd", "adam", "lazy_adam"))
+    optimizer: str = setting("sgd", "optimiser", choices=("sgd", "adam"))
     lr: float = setting(4.0, "learning rate", low=0.0, low_open=True)
     momentum: float = setting(0.0, "SGD momentum", low=0.0, high=1.0)
     weight_decay: float = setting(0.0, "L2 weight decay", low=0.0)
@@ -229,9 +227,6 @@ def validate(cfg: Config, source: str = "<dict>") -> None:
     if len(t.ce_weights) != levels:
         raise fail("[train] ce_weights", t.ce_weights, "not one weight per tree level",
                    f"{levels} weights")
-    if t.optimizer == "lazy_adam" and t.weight_decay:
-        raise fail("[train] weight_decay", t.weight_decay, "set with optimizer = \"lazy_adam\" (it updates "
-                   "only the rows a batch uses)", "0, or optimizer = \"adam\"")
 
 
 def output_rows(cfg: ModelConfig, camera_height: int) -> int:

@@ -60,9 +60,9 @@ class _IndexedLinearFunction(torch.autograd.Function):
     ~100x slower on CPU than index_add_ of the per-pixel outer products (80 vs 0.6 ms, 6000 pixels)."""
 
     @staticmethod
-    def forward(ctx, x, idx, weight, bias, chunk, sparse):
+    def forward(ctx, x, idx, weight, bias, chunk):
         ctx.save_for_backward(x, idx, weight)
-        ctx.chunk, ctx.sparse = chunk, sparse
+        ctx.chunk = chunk
         outs = []
         for s in range(0, x.shape[0], chunk):
             i = idx[s : s + chunk]
@@ -73,21 +73,16 @@ class _IndexedLinearFunction(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         x, idx, weight = ctx.saved_tensors
-        # the rows of the gradient tables: every table (dense), or only those touched (sparse)
-        tables, row = torch.unique(idx, return_inverse=True) if ctx.sparse else (None, idx)
-        rows = weight.shape[0] if tables is None else len(tables)
-        grad_w = weight.new_zeros(rows, *weight.shape[1:])
-        grad_b = weight.new_zeros(rows, weight.shape[1])
+        grad_w = torch.zeros_like(weight)
+        grad_b = weight.new_zeros(weight.shape[:2])
         grad_x = torch.empty_like(x)
         for s in range(0, x.shape[0], ctx.chunk):
-            i, g, xs = row[s : s + ctx.chunk], grad[s : s + ctx.chunk], x[s : s + ctx.chunk]
-            w = weight.index_select(0, idx[s : s + ctx.chunk]).to(g.dtype)
+            i, g, xs = idx[s : s + ctx.chunk], grad[s : s + ctx.chunk], x[s : s + ctx.chunk]
+            w = weight.index_select(0, i).to(g.dtype)
             grad_x[s : s + ctx.chunk] = torch.bmm(w.transpose(1, 2), g[:, :, None])[..., 0]
             grad_w.index_add_(0, i, g.float()[:, :, None] * xs.float()[:, None, :])
             grad_b.index_add_(0, i, g.float())
-        if tables is not None:
-            grad_w, grad_b = (_touched_rows(tables, t, weight.shape) for t in (grad_w, grad_b))
-        return grad_x, None, grad_w, grad_b, None, None
+        return grad_x, None, grad_w, grad_b, None
 
 
 class _GroupedLinearFunction(torch.autograd.Function):
@@ -98,13 +93,13 @@ class _GroupedLinearFunction(torch.autograd.Function):
     advanced indexing took most of the time of train_table2's heads (docs/TRAINER.md "Speed")."""
 
     @staticmethod
-    def forward(ctx, x, idx, weight, bias, groups, sparse):
+    def forward(ctx, x, idx, weight, bias, groups):
         tables, place, count = groups
         xp = _padded(x, tables, place, count)
         w = weight.index_select(0, tables).to(x.dtype)
         y = torch.bmm(xp, w.transpose(1, 2)).view(-1, weight.shape[1]).index_select(0, place)
         ctx.save_for_backward(xp, idx, weight, w)
-        ctx.groups, ctx.sparse = groups, sparse
+        ctx.groups = groups
         return y + bias.index_select(0, idx).to(x.dtype)
 
     @staticmethod
@@ -113,23 +108,10 @@ class _GroupedLinearFunction(torch.autograd.Function):
         tables, place, count = ctx.groups
         gp = _padded(grad, tables, place, count)
         grad_x = torch.bmm(gp, w).view(-1, xp.shape[2]).index_select(0, place)
-        block = torch.bmm(gp.transpose(1, 2).float(), xp.float())  # (tables used, out, in)
-        if ctx.sparse:  # a pixel's place in the padded block over the largest group is its table's index
-            group = place // count
-            grad_b = weight.new_zeros(len(tables), weight.shape[1]).index_add_(0, group, grad.float())
-            grad_w, grad_b = (_touched_rows(tables, t, weight.shape) for t in (block, grad_b))
-        else:
-            grad_w = torch.zeros_like(weight).index_copy_(0, tables, block)
-            grad_b = weight.new_zeros(weight.shape[:2]).index_add_(0, idx, grad.float())
-        return grad_x, None, grad_w, grad_b, None, None
-
-
-def _touched_rows(tables: torch.Tensor, rows: torch.Tensor, shape: torch.Size) -> torch.Tensor:
-    """A table's gradient held only at its rows `tables` (sorted, distinct): a sparse COO tensor of
-    `shape` (torch.sparse_coo_tensor), for an optimiser that updates only those rows (trainer.train's
-    LazyAdam)."""
-    return torch.sparse_coo_tensor(tables[None], rows, (shape[0], *rows.shape[1:]), is_coalesced=True,
-                                   check_invariants=False)  # built sorted and distinct above
+        grad_w = torch.zeros_like(weight).index_copy_(0, tables, torch.bmm(gp.transpose(1, 2).float(),
+                                                                            xp.float()))
+        grad_b = weight.new_zeros(weight.shape[:2]).index_add_(0, idx, grad.float())
+        return grad_x, None, grad_w, grad_b, None
 
 
 def _padded(rows: torch.Tensor, tables: torch.Tensor, place: torch.Tensor, count: int) -> torch.Tensor:
@@ -176,16 +158,13 @@ class IndexedLinear(nn.Module):
         self.weight = nn.Parameter(torch.empty(tables, out_features, in_features).uniform_(-bound, bound))
         self.bias = nn.Parameter(torch.empty(tables, out_features).uniform_(-bound, bound))
         self.chunk = chunk
-        # True: the gradients of weight and bias hold only the tables a batch used (sparse COO, as
-        # nn.Embedding(sparse=True) gives), for an optimiser that updates only those (LazyAdam)
-        self.sparse_grad = False
 
     def forward(self, x: torch.Tensor, idx: torch.Tensor, plan=None) -> torch.Tensor:
         """plan: plan_groups(idx) (or False to gather); None plans here."""
         plan = plan_groups(idx) if plan is None else plan
         if plan is False:
-            return _IndexedLinearFunction.apply(x, idx, self.weight, self.bias, self.chunk, self.sparse_grad)
-        return _GroupedLinearFunction.apply(x, idx, self.weight, self.bias, plan, self.sparse_grad)
+            return _IndexedLinearFunction.apply(x, idx, self.weight, self.bias, self.chunk)
+        return _GroupedLinearFunction.apply(x, idx, self.weight, self.bias, plan)
 
 
 class IndexedMLP(nn.Module):

@@ -28,7 +28,7 @@ from dotsim.rig.geometry import Rig
 from trainer.checkpoint import CHECKPOINT, TrainingState, check_rig, restore_checkpoint, save_checkpoint
 from trainer.config import Config, resolution_mismatch
 from trainer.distributed import ONE_PROCESS, Ranks, join_process_group, leave_process_group
-from trainer.model import GigaDepthNet, IndexedLinear, autocast, build_model
+from trainer.model import GigaDepthNet, autocast, build_model
 from trainer.samples import DataError, FrameDataset, make_loader
 from trainer.scoring import Validation
 
@@ -122,53 +122,11 @@ def loss_weights(cfg: Config, step: int, total_steps: int) -> tuple[float, float
     return l1, piece(t.edge_weights, done) if t.edge_weights else t.edge_weight
 
 
-class LazyAdam(torch.optim.Adam):
-    """Adam that updates a weight table only at the rows a batch used: parameters whose gradient comes
-    sparse (IndexedLinear.sparse_grad) have those rows' moments and values updated, as
-    torch.optim.SparseAdam does (bias correction by the parameter's step count), and nothing else read or
-    written; the rest (backbone, batch norm) is fused Adam's. A batch of train_table2 uses a few percent
-    of its 86 M table entries, so plain Adam spends most of its step, and the backward most of its
-    zero-filling, on entries whose gradient is 0. Unlike Adam, an untouched row's moments do not decay
-    and it does not move on its momentum."""
-
-    def __init__(self, params, lr: float):
-        super().__init__(params, lr=lr, fused=True)
-
-    @torch.no_grad()
-    def step(self, closure=None):
-        for group in self.param_groups:
-            (beta1, beta2), lr, eps = group["betas"], group["lr"], group["eps"]
-            for p in group["params"]:
-                if p.grad is None or not p.grad.is_sparse:
-                    continue
-                grad, p.grad = p.grad.coalesce(), None  # the fused step below skips it
-                rows, values = grad.indices()[0], grad.values()
-                state = self.state[p]
-                if not state:
-                    state.update(step=torch.zeros((), dtype=torch.float32),
-                                 exp_avg=torch.zeros_like(p), exp_avg_sq=torch.zeros_like(p))
-                state["step"] += 1
-                step = float(state["step"])
-                exp_avg = state["exp_avg"].index_select(0, rows).lerp_(values, 1 - beta1)
-                exp_avg_sq = state["exp_avg_sq"].index_select(0, rows).mul_(beta2)
-                exp_avg_sq.addcmul_(values, values, value=1 - beta2)
-                state["exp_avg"].index_copy_(0, rows, exp_avg)
-                state["exp_avg_sq"].index_copy_(0, rows, exp_avg_sq)
-                denominator = (exp_avg_sq / (1 - beta2 ** step)).sqrt_().add_(eps)
-                p.index_add_(0, rows, exp_avg.div_(denominator).mul_(-lr / (1 - beta1 ** step)))
-        return super().step(closure)
-
-
 def make_optimizer(model: torch.nn.Module, cfg: Config, steps_per_epoch: int, total_steps: int = 1):
     """The optimiser and its learning-rate schedule over a run of total_steps."""
     t = cfg.train
     if t.optimizer == "sgd":
         opt = torch.optim.SGD(model.parameters(), lr=t.lr, momentum=t.momentum, weight_decay=t.weight_decay)
-    elif t.optimizer == "lazy_adam":
-        for layer in model.modules():
-            if isinstance(layer, IndexedLinear):
-                layer.sparse_grad = True
-        opt = LazyAdam(model.parameters(), lr=t.lr)
     else:
         # Adam updates every table entry each step, though a batch touches few: the plain per-tensor
         # loop measured 47 ms per step for train_cpu's 8.3 M parameters on 2 CPU threads, fused 4.8 ms.
@@ -340,9 +298,6 @@ def join_ranks(cfg: Config, rig: Rig, device: str, progress: bool) -> Ranks:
     if cfg.train.batch_size % ranks.world:
         raise DataError(f"[train].batch_size {cfg.train.batch_size} is the global batch and must divide "
                         f"evenly among the {ranks.world} processes")
-    if cfg.train.optimizer == "lazy_adam" and ranks.world > 1:
-        raise DataError(f"[train].optimizer \"lazy_adam\" trains in one process, not {ranks.world}: its "
-                        "sparse gradients are not averaged over processes; use optimizer = \"adam\"")
     mismatch = resolution_mismatch(cfg, rig.camera.width, rig.camera.height)
     if mismatch and progress and ranks.main:
         print(f"warning: {mismatch}", flush=True)

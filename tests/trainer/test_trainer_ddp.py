@@ -45,10 +45,9 @@ def tiny_config(steps: int, batch_size: int = 4):
     return config_from_dict(d, "test config")
 
 
-def tiny_config_file(path: Path, steps: int, batch_size: int, optimizer: str = "adam") -> Path:
+def tiny_config_file(path: Path, steps: int, batch_size: int) -> Path:
     text = (ROOT / "dotsim/configs/train_tiny.toml").read_text()
-    values = {"crop_width": 64, "crop_height": 48, "max_steps": steps, "batch_size": batch_size,
-              "optimizer": f'"{optimizer}"'}
+    values = {"crop_width": 64, "crop_height": 48, "max_steps": steps, "batch_size": batch_size}
     lines = [next((f"{k} = {v}" for k, v in values.items() if line.startswith(f"{k} =")), line)
              for line in text.splitlines()]
     path.write_text("\n".join(lines))
@@ -156,18 +155,6 @@ def test_nproc_that_does_not_divide_the_batch_is_a_one_line_error(data, tmp_path
     assert refused.value.code == 2
     assert capfd.readouterr().err.strip().splitlines()[-1] == (
         "dotsim train: error: argument --nproc: '0': allowed: an integer >= 1")
-
-
-def test_lazy_adam_on_two_processes_is_a_one_line_error(data, tmp_path, capfd):
-    cfg = tiny_config_file(tmp_path / "cfg.toml", steps=2, batch_size=4, optimizer="lazy_adam")
-    status = main(["train", "--config", str(cfg), "--data", str(data), "--out", str(tmp_path / "run"),
-                   "--nproc", "2"])
-    captured = capfd.readouterr()
-    assert status == 1 and captured.out == ""
-    assert captured.err.strip().splitlines() == [
-        'dotsim train: error: [train].optimizer "lazy_adam" trains in one process, not 2: its sparse '
-        'gradients are not averaged over processes; use optimizer = "adam"']
-    assert not (tmp_path / "run").exists()
 
 
 def test_torchrun_two_processes_rank_zero_alone_prints_and_writes(data, tmp_path):
