@@ -37,7 +37,6 @@ from trainer.metrics import (
 from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
-HALF_RES_FLOOR = "half-res floor"  # the HalfResolutionFloor's row in eval's tables
 # depth follows from disparity: exports may hold no depth
 SCORED_CHANNELS = ("ir", "visibility", "disparity", "edge")
 CLASSES = ("edge", "off edge", "slanted", "solvable", "not solvable")  # beside the depth ranges
@@ -182,7 +181,7 @@ class HalfResolutionFloor:
     Its outliers lie on depth edges, where a full-resolution pixel between two samples on two surfaces
     takes the farther one: the share of a network's errors its output resolution alone accounts for."""
 
-    name: str = HALF_RES_FLOOR
+    name: str = "half-res floor"
     channels: tuple[str, ...] = ()
 
     def predict(self, frame: dict) -> np.ndarray:
