@@ -24,7 +24,7 @@ from dotsim.false_colour import titled, with_legend
 from dotsim.frame_source import FrameRef
 from dotsim.rig.geometry import Rig, depth_to_projector_column, disparity_to_depth
 from dotsim.solvable import solvable_pixels
-from trainer.checkpoint import full_resolution_disparity, predict_disparity
+from trainer.checkpoint import predict_disparity
 from trainer.device_depth_row import DEVICE_LABEL, DEVICE_METHOD, device_disparity
 from trainer.metrics import (
     THRESHOLDS,
@@ -35,6 +35,7 @@ from trainer.metrics import (
     valid_pixels,
 )
 from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
+from trainer.upsampling import full_resolution_disparity
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
 # depth follows from disparity: exports may hold no depth

@@ -14,7 +14,7 @@ from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
 from tests.output_folders import assert_one_line_error, leftovers
-from trainer.checkpoint import load_checkpoint, upsample_half
+from trainer.checkpoint import load_checkpoint
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate
 from trainer.infer import infer
@@ -22,6 +22,7 @@ from trainer.samples import DataError
 from trainer.scoring import HalfResolutionFloor
 from trainer.sgbm import num_disparities_for, sgbm_disparity
 from trainer.train import train
+from trainer.upsampling import upsample_half
 
 
 def test_upsample_half_is_exact_for_linear_fields():
