@@ -64,6 +64,7 @@ from trainer.train import (
     seed_everything,
     train,
 )
+from trainer.upsampling import pattern_reference
 
 BY_CLASS_THRESHOLDS = (0.5, 5.0)
 
@@ -113,7 +114,8 @@ def rates_by_class(checkpoint: Path, validation: FrameSource, data: FrameSource,
     bins = depth_ranges(DEPTH_BINS, rig.max_depth)
     ranges = (f"{a:g}-{b:g}" for a, b in zip(bins[:-1], bins[1:], strict=True))
     classes = ("all", *ranges, "edge", "off edge", "slanted")
-    scorer = Scorer([NetworkMethod(model, rig, device)], rig, validation.pattern, bins, classes=classes,
+    network = NetworkMethod(model, rig, device, reference=pattern_reference(validation.pattern, rig))
+    scorer = Scorer([network], rig, validation.pattern, bins, classes=classes,
                     thresholds=BY_CLASS_THRESHOLDS)
     for ref in validation.held_out(count, data, "training"):
         scorer.add(ref)

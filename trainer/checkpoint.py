@@ -2,10 +2,11 @@
 resume, `dotsim eval` and `dotsim infer` stand on.
 
 RUN/checkpoint.pt holds everything a resume needs (model, optimiser, scheduler, loss scaler, step,
-config, rig, RNG states: save_checkpoint, restore_checkpoint), written atomically so a failed save
-leaves the last good one. The config and rig it was trained with come along, so the network is rebuilt
-from the file alone (load_model). The network's half-resolution column is turned into full-resolution
-disparity and depth here, once, for evaluation and inference alike (predict_disparity).
+config, rig, RNG states: save_checkpoint, restore_checkpoint) and the training data's pattern for
+inference (stored_reference), written atomically so a failed save leaves the last good one. The config
+and rig it was trained with come along, so the network is rebuilt from the file alone (load_model). The
+network's half-resolution column is turned into full-resolution disparity and depth here, once, for
+evaluation and inference alike (predict_disparity).
 """
 
 from __future__ import annotations
@@ -18,11 +19,16 @@ import numpy as np
 import torch
 
 from dotsim.file_io import atomic_writer
-from dotsim.rig.geometry import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
+from dotsim.rig.geometry import (
+    Rig,
+    depth_to_disparity,
+    disparity_to_depth,
+    projector_column_to_depth,
+)
 from trainer.config import Config, config_from_dict
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model
 from trainer.samples import DataError
-from trainer.upsampling import full_resolution_disparity, upsample_half
+from trainer.upsampling import full_resolution_disparity, pattern_reference, upsample_half
 
 PRECISIONS = ("float32", *LOW_PRECISION)  # of inference (`--precision`)
 CHECKPOINT = "checkpoint.pt"
@@ -39,12 +45,16 @@ class TrainingState:
     scaler: torch.amp.GradScaler
 
 
-def save_checkpoint(path: Path, state: TrainingState, step: int, cfg: Config, rig: Rig) -> None:
-    """Write the checkpoint of a run at `step` atomically (RNG states included, for an exact resume)."""
+def save_checkpoint(path: Path, state: TrainingState, step: int, cfg: Config, rig: Rig,
+                    pattern: np.ndarray | None) -> None:
+    """Write the checkpoint of a run at `step` atomically (RNG states included, for an exact resume),
+    with the training data's `pattern` (the projector image; None: none known), which inference
+    matches a stride-2 network's output against on depth edges (stored_reference)."""
     atomic_torch_save({
         "model": state.model.state_dict(), "optimizer": state.opt.state_dict(),
         "scheduler": state.sched.state_dict(), "scaler": state.scaler.state_dict(), "step": step,
         "config": cfg.to_dict(), "rig": rig.to_dict(), "rng": _rng_states(),
+        "pattern": None if pattern is None else np.asarray(pattern, np.float32),
         "torch_version": torch.__version__,
     }, path)
 
@@ -162,11 +172,25 @@ def load_model(checkpoint: str | Path, device: str = "cpu") -> tuple[GigaDepthNe
     return model.to(device).eval(), cfg, rig
 
 
+def stored_reference(path: str | Path, rig: Rig) -> np.ndarray | None:
+    """The pattern a checkpoint's network was trained on, as seen from infinity on the camera grid
+    (trainer.upsampling.pattern_reference, as eval's SGBM sees it): what predict_disparity matches a
+    stride-2 network's depth edges against. None for a checkpoint saved before checkpoints stored it
+    or trained on data without a pattern here.
+    The file is memory-mapped: its tables are not read again."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
+    pattern = ckpt.get("pattern")
+    return None if pattern is None else pattern_reference(pattern, rig)
+
+
 def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str = "cpu",
-                      precision: str = "float32"):
+                      precision: str = "float32", reference: np.ndarray | None = None):
     """(disparity camera px, depth metres), each (H, W) float32, nan where the column gives no depth.
 
-    precision: float32, or float16 / bfloat16 autocast (the column itself is computed in float32)."""
+    precision: float32, or float16 / bfloat16 autocast (the column itself is computed in float32).
+    reference: the pattern as seen from infinity on the camera grid (stored_reference, or the data's);
+    a stride-2 network's pixels on depth edges then take the surface the pattern matches
+    (trainer.upsampling.full_resolution_disparity), else the farther one."""
     model.eval()
     with torch.no_grad(), autocast(device, precision):
         x = torch.from_numpy(np.ascontiguousarray(ir, np.float32))[None, None].to(device)
@@ -178,7 +202,7 @@ def predict_disparity(model: GigaDepthNet, rig: Rig, ir: np.ndarray, device: str
     full_column = upsample_half(column, height, width) if half else column
     disparity = depth_to_disparity(projector_column_to_depth(full_column, rig, normalised=True), rig)
     if half:
-        disparity = full_resolution_disparity(disparity[0::2, 0::2], height, width)
+        disparity = full_resolution_disparity(disparity[0::2, 0::2], height, width, ir, reference)
     return disparity.astype(np.float32), disparity_to_depth(disparity, rig).astype(np.float32)
 
 

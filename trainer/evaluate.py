@@ -8,10 +8,11 @@ o(t) is the share of valid pixels whose disparity error exceeds t camera pixels 
 method gives no estimate for counts as an outlier, so no method gains by abstaining. The network's
 half-resolution output sits on pixels (2i, 2j); it is converted column -> depth -> disparity with
 dotsim.rig there and brought to full resolution by interpolation that keeps those samples exactly and
-does not blend across depth jumps (trainer.checkpoint.predict_disparity). Rows are split by GT depth range
-as well as overall, and by pixel class (on / off the edge mask, slanted, solvable or not: dotsim/solvable.py);
-a joint table says which pixels both methods, only one or neither get wrong, and a line how many of
-each method's estimates lie outside the rig's feasible disparity range.
+does not blend across depth jumps; on a depth edge each pixel takes the nearby sample whose surface its
+window's dots match in the data's pattern (trainer.upsampling.full_resolution_disparity). Rows are split
+by GT depth range as well as overall, and by pixel class (on / off the edge mask, slanted, solvable or
+not: dotsim/solvable.py); a joint table says which pixels both methods, only one or neither get wrong,
+and a line how many of each method's estimates lie outside the rig's feasible disparity range.
 
 Data of a stereo pair (frames storing a stereo channel of dotsim/channels.py, `ir_right`:
 docs/FORMAT.md) get a row more, 'sgbm-stereo': SGBM between the left and right IR, GigaDepth's baseline
@@ -38,7 +39,7 @@ from dotsim.dataset.frames import derivable_channels
 from dotsim.file_io import atomic_write_bytes
 from dotsim.frame_source import FrameRef, FrameSource
 from dotsim.images import write_image
-from dotsim.rig.geometry import Rig, disparity_to_depth, reference_image
+from dotsim.rig.geometry import Rig, disparity_to_depth
 from dotsim.rig.stereo import stereo_baseline
 from dotsim.solvable import SOLVABLE_SNR
 from trainer.checkpoint import check_rig, load_model
@@ -59,11 +60,12 @@ from trainer.scoring import (
     error_strip,
 )
 from trainer.sgbm import PREPROCESSINGS, max_disparity, num_disparities_for
+from trainer.upsampling import pattern_reference
 
 
 def load_reference(data: FrameSource) -> np.ndarray:
     """The data's pattern (DATASET/pattern.png, or an export's) as seen from infinity on the camera grid."""
-    return reference_image(data.pattern, data.rig, supersample=4)
+    return pattern_reference(data.pattern, data.rig)
 
 
 def configured_nearest_depth(ref: FrameRef) -> float | None:
@@ -124,7 +126,7 @@ def eval_methods(model, data: FrameSource, nearest: float, device: str, precisio
     store device_depth the device's own depth, and for a stride-2 network the half-resolution floor."""
     rig, reference = data.rig, load_reference(data)
     n_disp = num_disparities_for(rig, nearest)
-    methods = [NetworkMethod(model, rig, device, precision),
+    methods = [NetworkMethod(model, rig, device, precision, reference),
                *(SgbmMethod(reference, n_disp, p) for p in PREPROCESSINGS)]
     if data.stereo:
         pair_baseline = stereo_baseline(rig, data.name)
@@ -133,7 +135,7 @@ def eval_methods(model, data: FrameSource, nearest: float, device: str, precisio
     if "device_depth" in data.channels:
         methods.append(DeviceDepthMethod(rig))
     if model.cfg.stride == 2:
-        methods.append(HalfResolutionFloor())
+        methods.append(HalfResolutionFloor(reference))
     return methods
 
 
@@ -312,6 +314,7 @@ def report(scorer: Scorer, rows: list[dict], what: str, data: FrameSource, neare
         + ("" if floor is None else
            f"{floor.name}: the GT disparity taken at the network's half-resolution output pixels and brought "
            "to full resolution as its output is: what a perfect network at this resolution still gets "
-           "wrong (on depth edges, a pixel between two samples on two surfaces takes the farther one).\n")
+           "wrong (on depth edges, where a pixel near samples on two surfaces takes the one its window's "
+           "dots match, and that is sometimes the wrong one).\n")
         + f"Reference: {GIGADEPTH_REFERENCE}.\n\n")
     return header + table + "\n" + verdict(rows, chosen) + "\n"

@@ -3,15 +3,17 @@
 Inputs: dotsim frame EXRs (their `ir` channel; rendered or captured with `dotsim capture`), or plain IR
 images (8/16-bit PNG scaled to [0, 1], or a single-channel EXR) of the checkpoint's camera size.
 Outputs per input, named after it (dotsim.prediction_file): NAME.exr (float32 channels disparity
-[camera px] and depth [m], nan where no estimate; marked in its header as a prediction of this checkpoint
-for this input), NAME.png (disparity, turbo colour map over its
-1st..99th percentile, black = none, with a legend under it), NAME.ply (dotsim.pointcloud: binary,
-through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue; only depths
+[camera px] and depth [m], nan where no estimate; a stride-2 network's depth edges matched against the
+pattern its checkpoint stores, as eval scores them: trainer.upsampling.pattern_guided_disparity; marked
+in its header as a prediction of this checkpoint for this input), NAME.png (disparity, turbo colour map
+over its 1st..99th percentile, black = none, with a legend under it), NAME.ply (dotsim.pointcloud:
+binary, through trimesh; x, y, z in metres in the OpenCV camera frame, IR grey as red/green/blue; only depths
 within the rig's max_depth).
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +26,7 @@ from dotsim.images import ImageError, read_grey_image, write_image
 from dotsim.pointcloud import depth_points, grey_levels, write_ply
 from dotsim.prediction_file import output_name, write_prediction
 from dotsim.rig.geometry import Rig
-from trainer.checkpoint import load_model, predict_disparity
+from trainer.checkpoint import load_model, predict_disparity, stored_reference
 from trainer.samples import DataError
 
 
@@ -63,6 +65,11 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     (progress_bar=False: without)."""
     model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
+    reference = stored_reference(checkpoint, rig) if model.cfg.stride == 2 else None
+    if progress and model.cfg.stride == 2 and reference is None:
+        print(f"{checkpoint}: stores no pattern (saved before checkpoints did, or trained on data without "
+              "one here), so depth edges take the farther sample, not the surface the pattern matches",
+              file=sys.stderr)
     names = [output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")
@@ -70,7 +77,7 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     written = []
     todo = list(zip(names, irs, inputs, strict=True))
     for name, ir, path in tqdm(todo, desc="infer", unit="frame", disable=not (progress and progress_bar)):
-        disparity, depth = predict_disparity(model, rig, ir, device, precision)
+        disparity, depth = predict_disparity(model, rig, ir, device, precision, reference)
         write_prediction(out_dir / f"{name}.exr", {"disparity": disparity, "depth": depth},
                          {"checkpoint": str(Path(checkpoint).resolve()), "input": str(Path(path).resolve()),
                           "precision": precision})

@@ -35,7 +35,7 @@ from trainer.metrics import (
     valid_pixels,
 )
 from trainer.sgbm import sgbm_disparity, stereo_sgbm_disparity
-from trainer.upsampling import full_resolution_disparity
+from trainer.upsampling import full_resolution_disparity, pattern_reference
 
 DEPTH_BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 20.0)  # metres; cut at the rig's max_depth (depth_ranges)
 # depth follows from disparity: exports may hold no depth
@@ -105,11 +105,13 @@ class NetworkMethod:
     rig: Rig
     device: str = "cpu"
     precision: str = "float32"
+    reference: np.ndarray | None = field(default=None, repr=False)  # predict_disparity's
     name: str = "network"
     channels: tuple[str, ...] = ()
 
     def predict(self, frame: dict) -> np.ndarray:
-        return predict_disparity(self.model, self.rig, frame["ir"], self.device, self.precision)[0]
+        return predict_disparity(self.model, self.rig, frame["ir"], self.device, self.precision,
+                                 self.reference)[0]
 
     def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
         column = depth_to_projector_column(depth, self.rig, normalised=True)
@@ -178,16 +180,18 @@ class DeviceDepthMethod:
 @dataclass(frozen=True)
 class HalfResolutionFloor:
     """What a perfect stride-2 network would still get wrong: the GT disparity itself taken at the output
-    pixels (2i, 2j) and brought to full resolution as the network's output is (full_resolution_disparity).
-    Its outliers lie on depth edges, where a full-resolution pixel between two samples on two surfaces
-    takes the farther one: the share of a network's errors its output resolution alone accounts for."""
+    pixels (2i, 2j) and brought to full resolution as the network's output is (full_resolution_disparity,
+    guided by `reference` as NetworkMethod's). Its outliers lie on depth edges, where a full-resolution
+    pixel near samples on two surfaces takes the wrong one: the share of a network's errors its output
+    resolution alone accounts for."""
 
+    reference: np.ndarray | None = field(default=None, repr=False)
     name: str = "half-res floor"
     channels: tuple[str, ...] = ()
 
     def predict(self, frame: dict) -> np.ndarray:
         gt = frame["disparity"]
-        return full_resolution_disparity(gt[0::2, 0::2], *gt.shape)
+        return full_resolution_disparity(gt[0::2, 0::2], *gt.shape, frame["ir"], self.reference)
 
     def reachable(self, gt: np.ndarray, depth: np.ndarray) -> np.ndarray:
         return np.ones(gt.shape, bool)
@@ -305,6 +309,7 @@ class Validation:
 
     def __init__(self, frames: list[FrameRef], rig: Rig, pattern: np.ndarray):
         self.rig, self.pattern = rig, pattern
+        self.reference = pattern_reference(pattern, rig)
         self.frames = [self.scorer(None).prepare(ref) for ref in frames]  # read once, at the start
 
     def scorer(self, method) -> Scorer:
@@ -312,7 +317,7 @@ class Validation:
 
     def __call__(self, model, device: str) -> tuple[dict[str, float], np.ndarray]:
         """({"all o(0.5)": rate, ...}, the first frame's error strip as RGB uint8)."""
-        scorer = self.scorer(NetworkMethod(model, self.rig, device))
+        scorer = self.scorer(NetworkMethod(model, self.rig, device, reference=self.reference))
         preds = [scorer.score(frame, classes) for frame, classes in self.frames]
         image = error_strip(self.frames[0][0], preds[0])[..., ::-1]
         model.train()

@@ -23,7 +23,7 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from dotsim.file_io import DiskFullError, disk_full_error, is_disk_full, make_folder
-from dotsim.frame_source import FrameSource
+from dotsim.frame_source import FrameSource, SourceError
 from dotsim.rig.geometry import Rig
 from trainer.checkpoint import CHECKPOINT, TrainingState, check_rig, restore_checkpoint, save_checkpoint
 from trainer.config import Config, resolution_mismatch
@@ -209,6 +209,7 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
     if ranks.world > 1:  # BatchNorm statistics are global already (GlobalBatchNorm2d): no buffers to send
         loss_of = DistributedDataParallel(loss_of, forward_sync_buffers=False)
     ds = FrameDataset(data.frames, rig, cfg.data, cfg.seed, augment=True, stride=cfg.model.stride)
+    pattern = stored_pattern(data, progress and ranks.main)
     losses, rates, start = [], {}, time.perf_counter()
     state.model.train()
     progress = progress and ranks.main
@@ -232,7 +233,7 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
                     rates = log_step(writer, step, step == total_steps, out_of_time, cfg, state, value, parts,
                                      batch, validate, ranks.device) or rates
                     if step % t.checkpoint_every == 0 or step == total_steps or out_of_time:
-                        save_checkpoint(out_dir / CHECKPOINT, state, step, cfg, rig)
+                        save_checkpoint(out_dir / CHECKPOINT, state, step, cfg, rig, pattern)
                 if step >= total_steps or out_of_time:
                     total_steps = step
                     break
@@ -266,6 +267,19 @@ def nothing_learnt(steps: int, data_name: str) -> str:
     return (f"warning: the loss was 0 at every one of {steps} step(s): the training frames show no visible "
             f"pixel (visibility = 1 nowhere), so nothing was learnt; `dotsim stats {data_name}` shows the "
             "visible share")
+
+
+def stored_pattern(data: FrameSource, say: bool) -> np.ndarray | None:
+    """The training data's pattern, for the checkpoint (inference matches a stride-2 network's depth
+    edges against it); None where the source has none here (shards behind URLs, a dataset without its
+    pattern file), with a warning when `say`."""
+    try:
+        return data.pattern
+    except SourceError as error:
+        if say:
+            print(f"warning: no pattern to keep in the checkpoint ({error}); inference will give depth "
+                  "edges the farther sample", file=sys.stderr)
+        return None
 
 
 def held_out_validation(validation: FrameSource | None, count: int, data: FrameSource) -> Validation | None:

@@ -14,7 +14,7 @@ from dotsim.patterns import generate_dot_pattern
 from dotsim.rig.geometry import reference_image
 from dotsim.rig.presets import get_preset
 from tests.output_folders import assert_one_line_error, leftovers
-from trainer.checkpoint import load_checkpoint
+from trainer.checkpoint import load_checkpoint, stored_reference
 from trainer.config import config_from_dict, load_config
 from trainer.evaluate import evaluate
 from trainer.infer import infer
@@ -68,7 +68,7 @@ def test_half_resolution_floor_misses_only_the_pixel_between_two_surfaces():
     height, width = 14, 16
     disparity = np.full((height, width), 10.0, np.float32)
     disparity[3:9, 4:10] = 20.0
-    predicted = HalfResolutionFloor().predict({"disparity": disparity})
+    predicted = HalfResolutionFloor().predict({"disparity": disparity, "ir": np.zeros_like(disparity)})
     wrong = np.abs(predicted - disparity) > 0.5
     expected = np.zeros_like(wrong)
     expected[3:9, 9] = True
@@ -331,5 +331,8 @@ def test_training_on_frames_with_nothing_visible_says_so(tmp_path, run, capsys):
     capsys.readouterr()
     result = train(cfg, open_source(dark, "train"), tmp_path / "run", progress=True, progress_bar=False)
     assert result["losses"] == [0.0, 0.0]
-    assert "the loss was 0 at every one of 2 step(s): the training frames show no visible pixel" in \
-        capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the loss was 0 at every one of 2 step(s): the training frames show no visible pixel" in err
+    # this dataset has no pattern.png: it trains, and the checkpoint keeps no pattern, saying so
+    assert "no pattern to keep in the checkpoint" in err and "pattern.png: no such file" in err
+    assert stored_reference(tmp_path / "run" / "checkpoint.pt", rig) is None

@@ -19,7 +19,7 @@ from dotsim.prediction_file import prediction_source
 from dotsim.rig.geometry import depth_to_disparity, projector_column_to_depth, reference_image
 from dotsim.solvable import pattern_snr
 from tests.trainer_fixtures import tiny_config
-from trainer.checkpoint import load_checkpoint, load_model, predict_disparity
+from trainer.checkpoint import load_checkpoint, load_model, predict_disparity, stored_reference
 from trainer.config import config_from_dict
 from trainer.evaluate import evaluate
 from trainer.infer import infer
@@ -386,3 +386,29 @@ def test_infer_by_its_command_draws_a_bar_unless_told_not_to(data, trained, tmp_
     assert "infer:" not in err and "wrote disparity/depth EXR, PNG and PLY for 1 frame(s)" in out
     assert sorted(p.name for p in (tmp_path / "bar").iterdir()) == \
         sorted(p.name for p in (tmp_path / "quiet").iterdir())
+
+
+def test_a_checkpoint_keeps_its_training_pattern_for_the_depth_edges(data, trained, tmp_path, capsys):
+    """The checkpoint stores the training data's pattern: infer matches a stride-2 network's depth
+    edges against it as eval does against the data's (their agreement: the eval-from-infer test above).
+    A checkpoint saved before checkpoints stored one gives the farther sample there, and infer says so."""
+    import OpenEXR
+
+    source = open_source(data, "train")
+    ckpt_path = trained["run"] / "checkpoint.pt"
+    want = reference_image(load_pattern(data / "pattern.png").image, source.rig, supersample=4)
+    np.testing.assert_array_equal(stored_reference(ckpt_path, source.rig), want)
+    ckpt = torch.load(ckpt_path, weights_only=False)
+    del ckpt["pattern"]
+    torch.save(ckpt, tmp_path / "old.pt")
+    assert stored_reference(tmp_path / "old.pt", source.rig) is None
+    frame = open_source(data, "test").frames[0]
+    infer(tmp_path / "old.pt", [frame.path], tmp_path / "out", progress=True, progress_bar=False)
+    assert "stores no pattern" in capsys.readouterr().err
+    model, _, rig = load_model(ckpt_path)
+    ir = read_frame(frame.path)["ir"].astype(np.float32)
+    written = OpenEXR.File(str(tmp_path / "out" / f"{frame.path.parent.name}_{frame.path.stem}.exr"),
+                           separate_channels=True).channels()["disparity"].pixels
+    np.testing.assert_array_equal(written, predict_disparity(model, rig, ir)[0])
+    guided = predict_disparity(model, rig, ir, reference=want)[0]
+    assert np.any(np.isfinite(guided) & (guided != written))  # the pattern moved some edge pixels
