@@ -19,12 +19,7 @@ import numpy as np
 import torch
 
 from dotsim.file_io import atomic_writer
-from dotsim.rig.geometry import (
-    Rig,
-    depth_to_disparity,
-    disparity_to_depth,
-    projector_column_to_depth,
-)
+from dotsim.rig.geometry import Rig, depth_to_disparity, disparity_to_depth, projector_column_to_depth
 from trainer.config import Config, config_from_dict
 from trainer.model import LOW_PRECISION, GigaDepthNet, autocast, build_model
 from trainer.samples import DataError

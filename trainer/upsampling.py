@@ -49,11 +49,11 @@ def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None 
 # The pattern-guided choice (pattern_guided_disparity), chosen on the 24 validation frames of the
 # corrected Table 2 data with the 60-minute benchmark's network (docs/results/trainer_scaling.md
 # "Pixels between samples chosen by the pattern"), o(0.5): 0.98 % with the farther sample; one 9 x 9
-# window 0.57 %; the best of shiftable windows, 9 x 9 centred 0 or 2 px away 0.53 %, 7 x 7 0.51 %
-# (5 x 5: 0.55; 7 x 7 centred 0 or 1 px away 0.53, 0 or 3 px 0.56; every centre 0-2 px away 0.509).
-# LCN of 3, 5, 7, 9, 11 px (one 9 x 9 window) gave 0.53, 0.55, 0.61, 0.68, 0.75 %: 5 is kept as the
-# smallest that is not a pixel's own contrast (3: 0.511 against 0.514 with shifted windows). Choosing
-# only where the samples differ by over 1.5, 2 or 3 px instead of 1: 0.56, 0.60, 0.62 %.
+# window 0.57 %; shiftable windows, the best of those centred up to 2 px away, 7 x 7: 0.51 % (kept;
+# 5 x 5: 0.55, 9 x 9: 0.53; centres 0 or 1 px away 0.53, 0 or 3 px 0.56). LCN of 3, 5, 7, 9, 11 px
+# gave 0.53, 0.55, 0.61, 0.68, 0.75 % (one window, an earlier candidate set): 5 is kept as the smallest
+# that is not a pixel's own contrast (3 with shiftable windows: 0.51 as well). Choosing only where the
+# samples differ by over 1.5, 2 or 3 px instead of 1: 0.56, 0.60, 0.62 %.
 MATCH_RADIUS = 3  # 7 x 7 windows
 WINDOW_SHIFTS = (-2, -1, 0, 1, 2)  # px from the pixel, along each axis, of the windows' centres
 MATCH_LCN_WINDOW = 5
@@ -138,9 +138,9 @@ def pattern_guided_disparity(samples: np.ndarray, ir: np.ndarray, reference: np.
                              jump: float = DEPTH_JUMP_PX) -> np.ndarray:
     """Disparity at every pixel of `ir` from a stride-2 network's samples at pixels (2i, 2j), with
     the pattern as the judge on depth edges. Where the samples near a pixel (neighbour_samples) agree
-    within `jump`, the pixel is full_resolution_disparity's. Where they differ, the pixel (a sample's
-    own pixel included: a network blurs across an edge) takes whichever of them, or of
-    full_resolution_disparity's value, has its window (window_costs) best matched by the IR against
+    within `jump`, the pixel is upsample_half's (linear between samples). Where they differ, the pixel
+    (a sample's own pixel included: a network blurs across an edge) takes whichever of them, or of
+    upsample_half's value (the farther sample), has its window (window_costs) best matched by the IR against
     `reference` (the pattern as seen from infinity on the camera grid): the surface its own dots say
     it lies on, not always the farther one."""
     height, width = ir.shape
