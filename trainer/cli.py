@@ -149,7 +149,8 @@ def add_parser(subparsers) -> None:
         "'ir' channel is used) or plain greyscale IR images (8/16-bit PNG, grey or RGB with equal "
         "channels, or EXR) of the checkpoint's camera size. Writes per input NAME.exr (channels "
         "disparity [camera px], depth [m]), NAME.png (colour-mapped disparity) and NAME.ply (points in "
-        "metres, camera frame).")
+        "metres, camera frame). A half-resolution network's depth edges take the surface whose dots each "
+        "pixel's window matches in the pattern the checkpoint keeps, as eval scores them.")
     p.add_argument("--checkpoint", required=True, metavar="CKPT", help="RUN/checkpoint.pt from dotsim train")
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="frame EXR(s) or IR PNG/EXR image(s)")
     add_output(p, "output folder", metavar="DIR")
