@@ -183,7 +183,8 @@ class HalfResolutionFloor:
     pixels (2i, 2j) and brought to full resolution as the network's output is (full_resolution_disparity,
     guided by `reference` as NetworkMethod's). Its outliers lie on depth edges, where a full-resolution
     pixel near samples on two surfaces takes the wrong one: the share of a network's errors its output
-    resolution alone accounts for."""
+    resolution alone accounts for. The step is set for a network's samples, which are unsure near an
+    edge: perfect samples lose a little to it (trainer.upsampling's MATCH_JUMP_PX)."""
 
     reference: np.ndarray | None = field(default=None, repr=False)
     name: str = "half-res floor"

@@ -53,12 +53,18 @@ def upsample_half(half: np.ndarray, height: int, width: int, jump: float | None 
 # 5 x 5: 0.55, 9 x 9: 0.53; centres 0 or 1 px away 0.53, 0 or 3 px 0.56). LCN of 3, 5, 7, 9, 11 px
 # gave 0.53, 0.55, 0.61, 0.68, 0.75 % (one window, an earlier candidate set): 5 is kept as the smallest
 # that is not a pixel's own contrast (3 with shiftable windows: 0.51 as well). Choosing only where the
-# samples differ by over 1.5, 2 or 3 px instead of 1: 0.56, 0.60, 0.62 %.
+# samples differ by over 1.5, 2 or 3 px instead of 1: 0.56, 0.60, 0.62 %. Samples that differ by more
+# than the 0.5 px the score allows cannot both be right about a pixel between them, so the pattern
+# judges from 0.5 px (MATCH_JUMP_PX; the same page, "The pattern judges from 0.5 px"): 0.509 -> 0.480 %
+# with that network, 0.528 -> 0.492 % with the second run's (0.2-0.6 px gave 0.479-0.482 and
+# 0.486-0.495 %). With the GT's samples (eval's floor row) it costs 0.365 -> 0.414 %: it pays for
+# samples that are unsure, as a network's are. 0.35 -> 0.58 s a frame.
 MATCH_RADIUS = 3  # 7 x 7 windows
 WINDOW_SHIFTS = (-2, -1, 0, 1, 2)  # px from the pixel, along each axis, of the windows' centres
 MATCH_LCN_WINDOW = 5
 MATCH_LCN_EPS = 0.003  # images in fractions of full scale, as trainer/sgbm.py's LCN
 NEIGHBOUR_PX = 2  # a pixel's candidates: the samples within 2 px along each axis (2 or 3 per axis)
+MATCH_JUMP_PX = 0.5  # the pattern judges where a pixel's candidate samples differ by more than this
 
 
 def pattern_reference(pattern: np.ndarray, rig: Rig) -> np.ndarray:
@@ -135,7 +141,7 @@ def neighbour_samples(samples: np.ndarray, height: int, width: int) -> np.ndarra
 
 
 def pattern_guided_disparity(samples: np.ndarray, ir: np.ndarray, reference: np.ndarray,
-                             jump: float = DEPTH_JUMP_PX) -> np.ndarray:
+                             jump: float = MATCH_JUMP_PX) -> np.ndarray:
     """Disparity at every pixel of `ir` from a stride-2 network's samples at pixels (2i, 2j), with
     the pattern as the judge on depth edges. Where the samples near a pixel (neighbour_samples) agree
     within `jump`, the pixel is upsample_half's (linear between samples). Where they differ, the pixel

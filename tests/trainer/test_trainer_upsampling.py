@@ -58,6 +58,18 @@ def test_blurred_samples_on_a_depth_edge_take_the_surface_their_dots_show(box):
     np.testing.assert_allclose(guided[away & valid], gt[away & valid], atol=1e-9)
 
 
+def test_a_sample_off_by_more_than_the_score_allows_is_judged_by_the_pattern(box):
+    """One sample on the box's face 0.7 px off (a network unsure of it; more than o(0.5) allows, less
+    than a depth jump): linear filling would keep its own pixel wrong; the pattern puts it back on the
+    face its dots show."""
+    ir, gt, valid, reference = box
+    samples = gt[0::2, 0::2].copy()
+    samples[20, 35] += 0.7  # pixel (40, 70): the box's face, 19 px from its borders
+    guided = full_resolution_disparity(samples, *gt.shape, ir, reference)
+    assert abs(full_resolution_disparity(samples, *gt.shape)[40, 70] - gt[40, 70]) > 0.5
+    np.testing.assert_allclose(guided[36:45, 66:75], gt[36:45, 66:75], atol=0.5)
+
+
 def test_without_a_reference_the_pixel_between_two_surfaces_takes_the_farther(box):
     ir, gt, _, _ = box
     up = full_resolution_disparity(gt[0::2, 0::2], *gt.shape)
