@@ -65,11 +65,13 @@ def infer(checkpoint: str | Path, inputs: list[str | Path], out_dir: str | Path,
     (progress_bar=False: without)."""
     model, _, rig = load_model(checkpoint, device)
     irs = [read_ir(p, rig) for p in inputs]  # all inputs checked before anything is written
-    reference = stored_reference(checkpoint, rig) if model.cfg.stride == 2 else None
-    if progress and model.cfg.stride == 2 and reference is None:
-        print(f"{checkpoint}: stores no pattern (saved before checkpoints did, or trained on data without "
-              "one here), so depth edges take the farther sample, not the surface the pattern matches",
-              file=sys.stderr)
+    reference = None
+    if model.cfg.stride == 2:  # only a half-resolution output has pixels between samples to choose
+        reference = stored_reference(checkpoint, rig)
+        if reference is None and progress:
+            print(f"{checkpoint}: stores no pattern (saved before checkpoints did, or trained on data "
+                  "without one here), so depth edges take the farther sample, not the surface the pattern "
+                  "matches", file=sys.stderr)
     names = [output_name(Path(p)) for p in inputs]
     if len(set(names)) != len(names):
         raise DataError(f"inputs {list(map(str, inputs))} give clashing output names {names}")

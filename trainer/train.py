@@ -209,10 +209,10 @@ def train(cfg: Config, data: FrameSource, out_dir: str | Path, resume: bool = Fa
     if ranks.world > 1:  # BatchNorm statistics are global already (GlobalBatchNorm2d): no buffers to send
         loss_of = DistributedDataParallel(loss_of, forward_sync_buffers=False)
     ds = FrameDataset(data.frames, rig, cfg.data, cfg.seed, augment=True, stride=cfg.model.stride)
-    pattern = stored_pattern(data, progress and ranks.main)
+    progress = progress and ranks.main
+    pattern = stored_pattern(data, progress)
     losses, rates, start = [], {}, time.perf_counter()
     state.model.train()
-    progress = progress and ranks.main
     bar = tqdm(total=total_steps, initial=step, desc="train", unit="step",
                disable=not (progress and progress_bar))
     with tensorboard_log(out_dir, step, ranks.main) as writer:
